@@ -1,0 +1,284 @@
+"""Symbolic dynamics models and the compiled functions every method derives from them.
+
+A :class:`Model` holds one symbolic CasADi expression ``f(x, u, t; p)``.  Everything numerical that
+the methods need (Jacobians, derivative tensors of the augmented dynamics, SDC factors, the optimal
+control of the Hamiltonian) is generated from that one expression and compiled once, on first use.
+
+Conventions
+-----------
+* States and controls are non-dimensional (see :class:`ocreach.units.Units`).
+* Controls are *normalised*: the admissible set is the unit ball ``||u||_2 <= 1`` or the unit box
+  ``[-1, 1]^m`` (``control_set``); thrust magnitude lives in a model parameter (e.g. ``a_max``).
+* Tensors use NumPy's C order: ``F2[i, a, b] = d^2 F_i / dz_a dz_b``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from ocreach.errors import ProblemError
+from ocreach.units import Units
+
+CONTROL_SETS = ("ball", "box")
+
+
+def _names(prefix: str, n: int, given: Sequence[str] | None, what: str) -> tuple[str, ...]:
+    if given is None:
+        return tuple(f"{prefix}{i}" for i in range(n))
+    if len(given) != n:
+        raise ProblemError(f"{what} must have {n} entries; got {len(given)}: {list(given)!r}")
+    return tuple(given)
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """Continuous-time dynamics ``dx/dt = f(x, u, t; p)`` as one symbolic CasADi expression.
+
+    Parameters
+    ----------
+    name : short identifier, e.g. ``"cr3bp-planar"``.
+    x, u, t, p : CasADi ``SX`` symbols (column vectors; ``t`` scalar; ``p`` may be empty).
+    f : ``SX`` expression of the state derivative, same length as ``x``.
+    p_default : default numeric parameter values (length of ``p``).
+    control_set : ``"ball"`` (``||u||_2 <= 1``) or ``"box"`` (``|u_i| <= 1``).
+    """
+
+    name: str
+    x: ca.SX
+    u: ca.SX
+    t: ca.SX
+    p: ca.SX
+    f: ca.SX
+    p_default: np.ndarray
+    state_names: tuple[str, ...]
+    control_names: tuple[str, ...]
+    param_names: tuple[str, ...]
+    control_set: str = "ball"
+    units: Units | None = None
+    description: str = ""
+    cache: dict = field(default_factory=dict, repr=False)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def build(
+        cls,
+        name: str,
+        x: ca.SX,
+        u: ca.SX,
+        f: ca.SX,
+        *,
+        t: ca.SX | None = None,
+        p: ca.SX | None = None,
+        p_default: Sequence[float] | None = None,
+        state_names: Sequence[str] | None = None,
+        control_names: Sequence[str] | None = None,
+        param_names: Sequence[str] | None = None,
+        control_set: str = "ball",
+        units: Units | None = None,
+        description: str = "",
+    ) -> "Model":
+        """Validate shapes and build a model (the usual constructor)."""
+        t = ca.SX.sym("t") if t is None else t
+        p = ca.SX.sym("p", 0) if p is None else p
+        f = ca.SX(f)
+        if f.shape != (x.numel(), 1):
+            raise ProblemError(f"f must be a column of length n_x = {x.numel()}; got shape {f.shape}")
+        if control_set not in CONTROL_SETS:
+            raise ProblemError(f"control_set must be one of {CONTROL_SETS}; got {control_set!r}")
+        pd = np.zeros(p.numel()) if p_default is None else np.asarray(p_default, dtype=float).ravel()
+        if pd.size != p.numel():
+            raise ProblemError(f"p_default must have {p.numel()} entries; got {pd.size}")
+        return cls(
+            name=name, x=x, u=u, t=t, p=p, f=f, p_default=pd,
+            state_names=_names("x", x.numel(), state_names, "state_names"),
+            control_names=_names("u", u.numel(), control_names, "control_names"),
+            param_names=_names("p", p.numel(), param_names, "param_names"),
+            control_set=control_set, units=units, description=description,
+        )
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_x(self) -> int:
+        return self.x.numel()
+
+    @property
+    def n_u(self) -> int:
+        return self.u.numel()
+
+    @property
+    def n_p(self) -> int:
+        return self.p.numel()
+
+    @property
+    def n_z(self) -> int:
+        """Size of the augmented state ``z = [x; u]`` (Foss et al. Eq. 12)."""
+        return self.n_x + self.n_u
+
+    def params(self, overrides: dict | None = None) -> np.ndarray:
+        """Parameter vector with ``overrides`` ({name: value}) applied to the defaults."""
+        p = self.p_default.copy()
+        for key, value in (overrides or {}).items():
+            if key not in self.param_names:
+                raise ProblemError(f"unknown parameter {key!r} of model {self.name}; "
+                                   f"allowed: {list(self.param_names)}")
+            p[self.param_names.index(key)] = float(value)
+        return p
+
+    def param(self, name: str, p: np.ndarray | None = None) -> float:
+        """Value of one named parameter in ``p`` (defaults if ``p`` is None)."""
+        if name not in self.param_names:
+            raise ProblemError(f"model {self.name} has no parameter {name!r}; "
+                               f"allowed: {list(self.param_names)}")
+        return float((self.p_default if p is None else p)[self.param_names.index(name)])
+
+    # ------------------------------------------------------------------ compiled functions
+    def _cached(self, key, builder):
+        if key not in self.cache:
+            self.cache[key] = builder()
+        return self.cache[key]
+
+    @property
+    def f_fun(self) -> ca.Function:
+        """``f(x, u, t, p) -> xdot``."""
+        return self._cached("f", lambda: ca.Function(
+            "f", [self.x, self.u, self.t, self.p], [self.f], ["x", "u", "t", "p"], ["xdot"]))
+
+    @property
+    def jac_fun(self) -> ca.Function:
+        """``(x, u, t, p) -> (f, df/dx, df/du)``."""
+        return self._cached("jac", lambda: ca.Function(
+            "f_jac", [self.x, self.u, self.t, self.p],
+            [self.f, ca.jacobian(self.f, self.x), ca.jacobian(self.f, self.u)],
+            ["x", "u", "t", "p"], ["f", "A", "B"]))
+
+    @cached_property
+    def z(self) -> ca.SX:
+        """Augmented state symbol ``z = [x; u]`` (Foss et al. Eq. 12)."""
+        return ca.vertcat(self.x, self.u)
+
+    def derivative_expressions(self, order: int) -> list[ca.SX]:
+        """Symbolic derivatives of ``f`` w.r.t. ``z`` of orders 1..``order``.
+
+        Entry ``j-1`` is an ``SX`` of shape ``(n_x * n_z**(j-1), n_z)``; reshaped in C order it is
+        the tensor ``d^j f_i / dz_a dz_b ...`` (the ``f*_{i,alpha...}`` of Foss et al. Eq. 11).
+        The augmented dynamics ``F = [f; 0]`` (Eq. 12) only add zero rows, which callers append.
+        """
+        if order not in (1, 2, 3):
+            raise ProblemError(f"order must be 1, 2 or 3; got {order!r}")
+
+        def build():
+            out = [ca.jacobian(self.f, self.z)]
+            for _ in range(1, 3):
+                prev = out[-1]
+                # row-major flatten of the previous tensor, then differentiate again
+                flat = ca.reshape(prev.T, prev.numel(), 1)
+                out.append(ca.jacobian(flat, self.z))
+            return out
+
+        return self._cached("dexpr", build)[:order]
+
+    def tensor_fun(self, order: int) -> ca.Function:
+        """``(x, u, t, p) -> (f, D1, ..., D_order)`` with ``D_j`` flat as in :meth:`derivative_expressions`."""
+        if order not in (1, 2, 3):
+            raise ProblemError(f"order must be 1, 2 or 3; got {order!r}")
+        return self._cached(("tensor", order), lambda: ca.Function(
+            f"f_tensors{order}", [self.x, self.u, self.t, self.p],
+            [self.f, *self.derivative_expressions(order)]))
+
+    def tensors(self, x, u, t: float = 0.0, p=None, order: int = 3) -> list[np.ndarray]:
+        """Numeric derivative tensors of the *augmented* dynamics ``F(z) = [f; 0]`` (Foss Eq. 12).
+
+        Returns ``[F (n_z,), F1 (n_z, n_z), F2 (n_z, n_z, n_z), F3 (n_z,)*4]`` up to ``order``.
+        """
+        out = self.tensor_fun(order)(x, u, t, self.p_default if p is None else p)
+        out = out if isinstance(out, (list, tuple)) else [out]
+        nx, nz = self.n_x, self.n_z
+        res = [np.concatenate([np.asarray(out[0]).ravel(), np.zeros(self.n_u)])]
+        for j in range(1, order + 1):
+            d = np.asarray(out[j]).reshape((nx,) + (nz,) * j)
+            full = np.zeros((nz,) + (nz,) * j)
+            full[:nx] = d
+            res.append(full)
+        return res
+
+    # ------------------------------------------------------------------ SDC factor
+    def sdc_expression(self, n_quad: int = 8) -> tuple[ca.SX, ca.SX]:
+        """SDC factor ``A(x; x0) = int_0^1 df/dx(x0 + lam (x - x0)) dlam`` (Patel & Subbarao Eq. 18).
+
+        With base point ``x0 = 0`` this is Eq. 18 exactly; a non-zero base point gives the exact
+        identity ``f(x) = f(x0) + A(x; x0) (x - x0)`` (the mean-value form), which is what a model
+        with ``f(0) != 0`` (CR3BP) needs.  The integral is evaluated by ``n_quad``-point
+        Gauss-Legendre quadrature; it is exact for polynomial ``f`` of degree <= 2 n_quad.
+        Returns ``(x0_symbol, A_expression)``; ``u`` is held at its symbol.
+        """
+        def build():
+            x0 = ca.SX.sym("x0", self.n_x)
+            nodes, weights = np.polynomial.legendre.leggauss(n_quad)
+            lam = 0.5 * (nodes + 1.0)
+            w = 0.5 * weights
+            jac = ca.Function("jx", [self.x, self.u, self.t, self.p], [ca.jacobian(self.f, self.x)])
+            A = ca.SX.zeros(self.n_x, self.n_x)
+            for lk, wk in zip(lam, w):
+                A += wk * jac(x0 + lk * (self.x - x0), self.u, self.t, self.p)
+            return x0, A
+
+        return self._cached(("sdc_expr", n_quad), build)
+
+    def sdc_fun(self, n_quad: int = 8) -> ca.Function:
+        """``(x, x0, u, t, p) -> (A, dA/dx)``; ``dA/dx`` has shape ``(n_x*n_x, n_x)``.
+
+        Reshape ``dA/dx`` in Fortran order to ``(n_x, n_x, n_x)`` to get ``dA[i, j] / dx_k``
+        (CasADi flattens ``A`` column-major).  Patel & Subbarao Eq. 18-19.
+        """
+        def build():
+            x0, A = self.sdc_expression(n_quad)
+            dA = ca.jacobian(ca.reshape(A, -1, 1), self.x)
+            return ca.Function("sdc", [self.x, x0, self.u, self.t, self.p], [A, dA],
+                               ["x", "x0", "u", "t", "p"], ["A", "dA"])
+
+        return self._cached(("sdc", n_quad), build)
+
+    # ------------------------------------------------------------------ control structure
+    @cached_property
+    def control_affine(self) -> bool:
+        """True if ``f = f0(x, t) + G(x, t) u`` (``df/du`` does not depend on ``u``)."""
+        return not ca.depends_on(ca.jacobian(self.f, self.u), self.u)
+
+    def optimal_control_expression(self, lam: ca.SX, smooth: float = 0.0) -> ca.SX:
+        """``u* = argmin_{u in U} lam^T f(x, u, t)`` for control-affine models (Foss et al. Eq. 4).
+
+        Ball: ``u* = -G^T lam / ||G^T lam||``; box: ``u* = -sign(G^T lam)``.  ``smooth > 0``
+        regularises the switching (``sqrt(s^2 + smooth^2)`` / ``tanh(s/smooth)``) for Newton-type
+        solvers; ``smooth = 0`` is the exact law.
+        """
+        if not self.control_affine:
+            raise ProblemError(f"model {self.name} is not control-affine; the closed-form optimal "
+                               "control needs f = f0(x, t) + G(x, t) u")
+        G = ca.jacobian(self.f, self.u)
+        s = ca.mtimes(G.T, lam)
+        if self.control_set == "ball":
+            norm = ca.sqrt(ca.sumsqr(s) + smooth**2)
+            return -s / ca.fmax(norm, 1e-300)
+        if smooth > 0:
+            return -ca.tanh(s / smooth)
+        return -ca.sign(s)
+
+    # ------------------------------------------------------------------ numeric helpers
+    def __call__(self, x, u=None, t: float = 0.0, p=None) -> np.ndarray:
+        """Evaluate ``f`` numerically at one point (defaults: ``u = 0``, default parameters)."""
+        u = np.zeros(self.n_u) if u is None else u
+        return np.asarray(self.f_fun(x, u, t, self.p_default if p is None else p)).ravel()
+
+    def validate_state(self, x, name: str = "x0") -> np.ndarray:
+        """Return ``x`` as a float array of length ``n_x`` or raise a clear :class:`ProblemError`."""
+        arr = np.asarray(x, dtype=float)
+        if arr.shape[-1:] != (self.n_x,):
+            raise ProblemError(f"{name} must have length n_x = {self.n_x} for model {self.name} "
+                               f"(states {list(self.state_names)}); got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ProblemError(f"{name} must be finite; got {arr!r}")
+        return arr
