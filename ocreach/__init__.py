@@ -1,5 +1,31 @@
-"""ocreach: reachability analysis and optimal control of low-thrust vehicles on CasADi."""
+"""ocreach: reachability analysis and optimal control of low-thrust vehicles on CasADi.
+
+Public API::
+
+    import ocreach
+    p = ocreach.get_problem("dro")
+    r = ocreach.reach(p, "mc", samples=500)
+    r.support([1, 0, 0, 0])
+    ocreach.compare(p, ["mc", "ode"])
+"""
 from ocreach.errors import OcreachError, ProblemError, SetError, SolverError, UnknownNameError
+from ocreach.model import Model
+from ocreach.problem import ControlSet, Problem, Reference, get_problem, list_problems, load_problem_file
+from ocreach.reach import ReachResult, available_methods, load, reach
+from ocreach.units import Units
 
 __version__ = "0.1.0"
-__all__ = ["OcreachError", "ProblemError", "SetError", "SolverError", "UnknownNameError"]
+
+
+def compare(problem, methods, **kwargs):
+    """Run several methods on one problem and tabulate them (see :mod:`ocreach.compare`)."""
+    from ocreach.compare import compare as _compare
+
+    return _compare(problem, methods, **kwargs)
+
+
+__all__ = [
+    "ControlSet", "Model", "OcreachError", "Problem", "ProblemError", "ReachResult", "Reference",
+    "SetError", "SolverError", "UnknownNameError", "Units", "available_methods", "compare",
+    "get_problem", "list_problems", "load", "load_problem_file", "reach",
+]

@@ -1,0 +1,253 @@
+"""Reachability / control problems: model + initial state or set + control set + time grid.
+
+A scenario is a function returning a :class:`Problem`; scenario modules live in ``problems/``
+(installed as ``ocreach.problems``) and expose a dict ``PROBLEMS = {id: factory}``.  Users load
+their own file with :func:`load_problem_file` or ``get_problem("path/to/file.py")``.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import inspect
+import pkgutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ocreach.errors import ProblemError, UnknownNameError
+from ocreach.model import CONTROL_SETS, Model
+from ocreach.units import Units
+
+
+@dataclass(frozen=True)
+class ControlSet:
+    """Admissible normalised controls: the unit ``"ball"`` (``||u||_2 <= 1``) or ``"box"`` ``[-1, 1]^m``."""
+
+    kind: str
+    dim: int
+
+    def __post_init__(self) -> None:
+        if self.kind not in CONTROL_SETS:
+            raise ProblemError(f"control set kind must be one of {CONTROL_SETS}; got {self.kind!r}")
+        if self.dim < 1:
+            raise ProblemError(f"control dimension must be >= 1; got {self.dim}")
+
+    def contains(self, u: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        """Boolean mask over the leading axes of ``u`` (..., dim)."""
+        u = np.asarray(u, dtype=float)
+        if self.kind == "ball":
+            return np.linalg.norm(u, axis=-1) <= 1 + tol
+        return np.all(np.abs(u) <= 1 + tol, axis=-1)
+
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Uniform samples of shape ``shape + (dim,)``."""
+        if self.kind == "box":
+            return rng.uniform(-1.0, 1.0, size=shape + (self.dim,))
+        g = rng.standard_normal(shape + (self.dim,))
+        g /= np.linalg.norm(g, axis=-1, keepdims=True)
+        r = rng.uniform(size=shape + (1,)) ** (1.0 / self.dim)
+        return g * r
+
+    def sample_boundary(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Samples on the boundary (unit sphere, or the box's vertices for ``"box"``)."""
+        if self.kind == "box":
+            return rng.choice([-1.0, 1.0], size=shape + (self.dim,))
+        g = rng.standard_normal(shape + (self.dim,))
+        return g / np.linalg.norm(g, axis=-1, keepdims=True)
+
+    def argmin(self, s: np.ndarray) -> np.ndarray:
+        """``argmin_{u in U} s^T u`` row-wise (the Hamiltonian-minimising control, Foss Eq. 4)."""
+        s = np.asarray(s, dtype=float)
+        if self.kind == "box":
+            return -np.sign(s)
+        n = np.linalg.norm(s, axis=-1, keepdims=True)
+        return -s / np.where(n > 0, n, 1.0)
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A corrected periodic orbit used as reference (``x0``, ``period``, monodromy, stability)."""
+
+    x0: np.ndarray
+    period: float
+    monodromy: np.ndarray | None = None
+    stability: tuple[float, ...] | None = None
+    name: str = ""
+
+
+@dataclass
+class Problem:
+    """A reachability or control problem.
+
+    Attributes
+    ----------
+    id : stable identifier (e.g. ``"dro"``).
+    model : the dynamics.
+    x0 : nominal initial state (model units).
+    grid : time grid ``t_0 < t_1 < ... < t_K`` (or strictly decreasing for backward problems);
+        controls are piecewise constant on its segments.
+    params : parameter vector of the model (defaults to ``model.p_default``).
+    control_set : admissible normalised controls.
+    initial_set : optional set of initial states (an ``ocreach.sets`` object) for uncertain cases.
+    reference : optional corrected periodic orbit.
+    units : conversion to SI.
+    method_options : per-method default options, e.g. ``{"stt": {"order": 2, "h_max": 400}}``.
+    position_dims, velocity_dims : state indices used for plots and position-space directions.
+    """
+
+    id: str
+    model: Model
+    x0: np.ndarray
+    grid: np.ndarray
+    params: np.ndarray | None = None
+    control_set: ControlSet | None = None
+    initial_set: Any = None
+    reference: Reference | None = None
+    units: Units | None = None
+    description: str = ""
+    citation: str = ""
+    method_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    position_dims: tuple[int, ...] | None = None
+    velocity_dims: tuple[int, ...] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.params is None:
+            self.params = self.model.p_default.copy()
+        if self.control_set is None:
+            self.control_set = ControlSet(self.model.control_set, self.model.n_u)
+        if self.units is None:
+            self.units = self.model.units
+        self.x0 = np.asarray(self.x0, dtype=float)
+        self.grid = np.asarray(self.grid, dtype=float)
+        self.params = np.asarray(self.params, dtype=float)
+        if self.position_dims is None:
+            half = self.model.n_x // 2
+            self.position_dims = tuple(range(min(half, 3)))
+        if self.velocity_dims is None:
+            half = self.model.n_x // 2
+            self.velocity_dims = tuple(range(half, half + min(half, 3)))
+        self.validate()
+
+    # ---------------------------------------------------------------- validation
+    def validate(self) -> "Problem":
+        """Check every field; raise :class:`ProblemError` naming the field, value and what is allowed."""
+        self.model.validate_state(self.x0, "x0")
+        if self.x0.ndim != 1:
+            raise ProblemError(f"x0 must be one state vector of length {self.model.n_x}; "
+                               f"got shape {self.x0.shape}")
+        g = self.grid
+        if g.ndim != 1 or g.size < 2:
+            raise ProblemError(f"grid must be a 1-D array of at least 2 times; got shape {g.shape}")
+        if not np.all(np.isfinite(g)):
+            raise ProblemError(f"grid must be finite; got {g!r}")
+        dg = np.diff(g)
+        if not (np.all(dg > 0) or np.all(dg < 0)):
+            raise ProblemError("grid must be strictly increasing (or strictly decreasing for "
+                               f"backward time); got {g!r}")
+        if self.params.shape != (self.model.n_p,):
+            raise ProblemError(f"params must have {self.model.n_p} entries "
+                               f"{list(self.model.param_names)}; got shape {self.params.shape}")
+        if not np.all(np.isfinite(self.params)):
+            raise ProblemError(f"params must be finite; got {self.params!r}")
+        for thrust_name in ("a_max", "T_max"):
+            if thrust_name in self.model.param_names:
+                val = self.model.param(thrust_name, self.params)
+                if val <= 0:
+                    raise ProblemError(f"{thrust_name} (thrust) must be > 0; got {val!r}")
+        if self.control_set.dim != self.model.n_u:
+            raise ProblemError(f"control_set.dim must equal n_u = {self.model.n_u}; "
+                               f"got {self.control_set.dim}")
+        for d in (*self.position_dims, *self.velocity_dims):
+            if not 0 <= d < self.model.n_x:
+                raise ProblemError(f"position/velocity dims must be in [0, {self.model.n_x}); got {d}")
+        return self
+
+    # ---------------------------------------------------------------- convenience
+    @property
+    def n_segments(self) -> int:
+        return self.grid.size - 1
+
+    @property
+    def backward(self) -> bool:
+        return bool(self.grid[-1] < self.grid[0])
+
+    def param(self, name: str) -> float:
+        return self.model.param(name, self.params)
+
+    def options_for(self, method: str) -> dict[str, Any]:
+        return dict(self.method_options.get(method, {}))
+
+    def summary(self) -> str:
+        g = self.grid
+        return (f"{self.id}: {self.description}\n  model {self.model.name} (n_x={self.model.n_x}, "
+                f"n_u={self.model.n_u}), control set {self.control_set.kind}, "
+                f"t = {g[0]:g} .. {g[-1]:g} in {g.size - 1} segments\n  x0 = {np.array2string(self.x0, precision=6)}"
+                + (f"\n  source: {self.citation}" if self.citation else ""))
+
+
+# ==================================================================== registry
+def _registry() -> dict[str, Callable[..., Problem]]:
+    import ocreach.problems as pkg
+
+    found: dict[str, Callable[..., Problem]] = {}
+    for info in pkgutil.iter_modules(pkg.__path__):
+        mod = importlib.import_module(f"ocreach.problems.{info.name}")
+        found.update(getattr(mod, "PROBLEMS", {}))
+    return found
+
+
+def list_problems() -> dict[str, str]:
+    """``{id: one-line description}`` of every bundled problem."""
+    out = {}
+    for pid, fac in sorted(_registry().items()):
+        doc = (inspect.getdoc(fac) or "").strip().splitlines()
+        out[pid] = doc[0] if doc else ""
+    return out
+
+
+def _call_factory(pid: str, factory: Callable[..., Problem], overrides: dict[str, Any]) -> Problem:
+    sig = inspect.signature(factory)
+    accepts_any = any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values())
+    allowed = [n for n, p in sig.parameters.items() if p.kind is not p.VAR_KEYWORD]
+    unknown = [k for k in overrides if k not in allowed]
+    if unknown and not accepts_any:
+        raise ProblemError(f"problem {pid!r} has no option(s) {unknown}; allowed: {allowed}")
+    prob = factory(**overrides)
+    if not isinstance(prob, Problem):
+        raise ProblemError(f"factory for {pid!r} must return a Problem; got {type(prob).__name__}")
+    return prob
+
+
+def load_problem_file(path: str | Path, pid: str | None = None, **overrides: Any) -> Problem:
+    """Load a user problem from a Python file defining ``PROBLEMS`` or a ``problem()`` function."""
+    path = Path(path)
+    if not path.is_file():
+        raise ProblemError(f"problem file {str(path)!r} does not exist")
+    spec = importlib.util.spec_from_file_location(f"ocreach_user_{path.stem}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)  # type: ignore[union-attr]
+    table: dict[str, Callable[..., Problem]] = dict(getattr(mod, "PROBLEMS", {}))
+    if not table and hasattr(mod, "problem"):
+        table = {path.stem: mod.problem}
+    if not table:
+        raise ProblemError(f"{path} defines neither PROBLEMS = {{id: factory}} nor problem()")
+    if pid is None:
+        if len(table) != 1:
+            raise ProblemError(f"{path} defines several problems {sorted(table)}; name one")
+        pid = next(iter(table))
+    if pid not in table:
+        raise UnknownNameError(f"unknown problem {pid!r} in {path}; available: {sorted(table)}")
+    return _call_factory(pid, table[pid], overrides)
+
+
+def get_problem(pid: str, **overrides: Any) -> Problem:
+    """Return the bundled problem ``pid`` (or load a ``.py`` file path) with keyword overrides."""
+    if str(pid).endswith(".py"):
+        return load_problem_file(pid, **overrides)
+    reg = _registry()
+    if pid not in reg:
+        raise UnknownNameError(f"unknown problem {pid!r}; available: {sorted(reg)}")
+    return _call_factory(pid, reg[pid], overrides)

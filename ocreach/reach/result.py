@@ -1,0 +1,180 @@
+"""The result every reachability method returns, and its file format.
+
+A :class:`ReachResult` holds, per time of the grid, either a set object (``sets[k]``) or boundary
+samples (``points[k]``, shape ``(m, n_x)``).  Sample-based methods also keep ``controls``
+(normalised, ``(samples, segments, n_u)``) so every sample can be re-simulated, and
+``trajectories`` (``(samples, len(times), n_x)``).
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import pickle
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ocreach.errors import ProblemError
+
+FORMAT_VERSION = 1
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    return repr(obj)
+
+
+@dataclass
+class ReachResult:
+    """Reachable-set estimate on a time grid (DESIGN.md contract)."""
+
+    times: np.ndarray
+    sets: list[Any] | None = None
+    points: list[np.ndarray] | None = None
+    controls: np.ndarray | None = None
+    trajectories: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.times = np.asarray(self.times, dtype=float)
+        if self.sets is None and self.points is None:
+            raise ProblemError("ReachResult needs sets or points")
+        for name, seq in (("sets", self.sets), ("points", self.points)):
+            if seq is not None and len(seq) != self.times.size:
+                raise ProblemError(f"ReachResult.{name} must have one entry per time "
+                                   f"({self.times.size}); got {len(seq)}")
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def method(self) -> str:
+        return str(self.meta.get("method", "?"))
+
+    @property
+    def n_x(self) -> int:
+        if self.points is not None:
+            return int(np.asarray(self.points[-1]).shape[-1])
+        return int(self.sets[-1].dim)
+
+    def _index(self, k: int) -> int:
+        n = self.times.size
+        if not -n <= k < n:
+            raise ProblemError(f"time index k must be in [{-n}, {n}); got {k}")
+        return k % n
+
+    def points_at(self, k: int = -1, dims: Sequence[int] | None = None) -> np.ndarray:
+        """Samples at time index ``k`` (boundary points, or samples of the set)."""
+        k = self._index(k)
+        if self.points is not None:
+            pts = np.asarray(self.points[k])
+        else:
+            pts = self.sets[k].sample(2000, np.random.default_rng(0), mode="extreme")
+        return pts if dims is None else pts[:, list(dims)]
+
+    def support(self, d, k: int = -1, dims: Sequence[int] | None = None) -> float | np.ndarray:
+        """Support function ``max_{x in R_k} d^T x`` (restricted to ``dims`` if given).
+
+        For set results this is the set's support function (an upper bound where the set
+        over-approximates); for sample results the max over the samples.  ``d`` may be one
+        direction ``(n,)`` or many ``(m, n)``.
+        """
+        k = self._index(k)
+        d = np.asarray(d, dtype=float)
+        if self.points is not None:
+            pts = self.points_at(k, dims)
+            if d.shape[-1] != pts.shape[-1]:
+                raise ProblemError(f"direction d must have length {pts.shape[-1]}; got {d.shape}")
+            return np.max(pts @ d.T, axis=0) if d.ndim == 2 else float(np.max(pts @ d))
+        s = self.sets[k] if dims is None else self.sets[k].project(list(dims))
+        if d.ndim == 2:
+            return np.array([s.support(di) for di in d])
+        return float(s.support(d))
+
+    def project(self, dims: Sequence[int]) -> "ReachResult":
+        """The result restricted to the state components ``dims``."""
+        dims = list(dims)
+        return ReachResult(
+            times=self.times,
+            sets=None if self.sets is None else [s.project(dims) for s in self.sets],
+            points=None if self.points is None else [np.asarray(p)[:, dims] for p in self.points],
+            controls=self.controls,
+            trajectories=None if self.trajectories is None else self.trajectories[..., dims],
+            meta={**self.meta, "projected_dims": dims},
+        )
+
+    # ------------------------------------------------------------------ plotting
+    def plot(self, ax=None, dims: Sequence[int] = (0, 1), k: int | Sequence[int] = -1, **kw):
+        """Plot the 2-D projection at time index/indices ``k`` (convex hull of samples or set outline)."""
+        from ocreach.plot import plot_result
+
+        return plot_result(self, ax=ax, dims=dims, k=k, **kw)
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str | Path) -> Path:
+        """Write the result to ``path`` (``.npz``) atomically; read it back with :func:`load`."""
+        arrays: dict[str, np.ndarray] = {"times": self.times,
+                                          "format_version": np.array(FORMAT_VERSION)}
+        if self.points is not None:
+            arrays["n_points"] = np.array([len(p) for p in self.points])
+            arrays["points"] = np.concatenate([np.asarray(p, dtype=float) for p in self.points])
+        if self.sets is not None:
+            arrays["sets_pickle"] = np.frombuffer(pickle.dumps(self.sets, protocol=5), dtype=np.uint8)
+        if self.controls is not None:
+            arrays["controls"] = self.controls
+        if self.trajectories is not None:
+            arrays["trajectories"] = self.trajectories
+        arrays["meta_json"] = np.array(json.dumps(_jsonable(self.meta)))
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        return atomic_write_bytes(path, buf.getvalue())
+
+
+def load(path: str | Path) -> ReachResult:
+    """Read a result written by :meth:`ReachResult.save`."""
+    path = Path(path)
+    if not path.is_file():
+        raise ProblemError(f"result file {str(path)!r} does not exist")
+    with np.load(path, allow_pickle=False) as z:
+        points = None
+        if "points" in z:
+            split = np.cumsum(z["n_points"])[:-1]
+            points = np.split(z["points"], split)
+        sets = pickle.loads(z["sets_pickle"].tobytes()) if "sets_pickle" in z else None
+        return ReachResult(
+            times=z["times"], sets=sets, points=points,
+            controls=z["controls"] if "controls" in z else None,
+            trajectories=z["trajectories"] if "trajectories" in z else None,
+            meta=json.loads(str(z["meta_json"])),
+        )

@@ -1,0 +1,49 @@
+"""Scenarios of Foss, Rosengren & Biria, "Reachability analysis of low-thrust, cislunar spacecraft
+using state-transition tensors" (AMOS 2024): Van der Pol (Sec. 3.1) and the DRO (Sec. 4.1)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ocreach.models import cr3bp, vanderpol
+from ocreach.problem import Problem
+from ocreach.units import EARTH_MOON_FOSS
+
+CITATION = "Foss, Rosengren & Biria, AMOS 2024"
+MU_FOSS = 0.0122
+T_MAX_N = 1.1e-3
+MASS_KG = 14.0
+
+
+def _grid(t_final: float, dt: float) -> np.ndarray:
+    n = int(round(t_final / dt))
+    return np.linspace(0.0, n * dt, n + 1)
+
+
+def vdp(t_final: float = 3.0, dt: float = 0.1, gain: float = 0.05) -> Problem:
+    """Van der Pol oscillator with input 0.05 u, |u| <= 1, x1 = [0.5, 0], grid 0:0.1:3 (Foss Sec. 3.1)."""
+    return Problem(
+        id="vdp", model=vanderpol(gain=gain), x0=np.array([0.5, 0.0]), grid=_grid(t_final, dt),
+        description="Van der Pol oscillator with bounded input (Foss et al. Sec. 3.1)",
+        citation=f"{CITATION}, Sec. 3.1, Eq. 20", position_dims=(0, 1), velocity_dims=(0, 1),
+        method_options={"stt": {"order": 3, "h_max": 200, "input_set": "box"}},
+    )
+
+
+def dro(t_final: float = 3.0, dt: float = 0.1, thrust: float = T_MAX_N, mass: float = MASS_KG,
+        input_set: str = "box") -> Problem:
+    """Low-thrust spacecraft on a planar CR3BP DRO, 1.1 mN on 14 kg, 3 TU (Foss Sec. 4.1)."""
+    units = EARTH_MOON_FOSS
+    a_max = units.thrust_acceleration(thrust, mass)
+    model = cr3bp(MU_FOSS, planar=True, a_max=a_max, units=units)
+    return Problem(
+        id="dro", model=model, x0=np.array([0.2765, 0.0, 0.0, 2.1379]), grid=_grid(t_final, dt),
+        units=units,
+        description=f"planar CR3BP DRO, T_max = {thrust * 1e3:g} mN, m = {mass:g} kg, "
+                    f"a_max = {a_max:.4g} DU/TU^2, {t_final:g} TU",
+        citation=f"{CITATION}, Sec. 4.1",
+        method_options={"stt": {"order": 2, "h_max": 400, "input_set": input_set}},
+        extra={"thrust_N": thrust, "mass_kg": mass},
+    )
+
+
+PROBLEMS = {"vdp": vdp, "dro": dro}
