@@ -23,7 +23,7 @@ import numpy as np
 from ocreach.errors import ProblemError
 from ocreach.units import Units
 
-CONTROL_SETS = ("ball", "box")
+CONTROL_SETS = ("ball", "box", "free")
 
 
 def _names(prefix: str, n: int, given: Sequence[str] | None, what: str) -> tuple[str, ...]:
@@ -44,7 +44,8 @@ class Model:
     x, u, t, p : CasADi ``SX`` symbols (column vectors; ``t`` scalar; ``p`` may be empty).
     f : ``SX`` expression of the state derivative, same length as ``x``.
     p_default : default numeric parameter values (length of ``p``).
-    control_set : ``"ball"`` (``||u||_2 <= 1``) or ``"box"`` (``|u_i| <= 1``).
+    control_set : ``"ball"`` (``||u||_2 <= 1``), ``"box"`` (``|u_i| <= 1``) or ``"free"``
+        (unbounded physical controls, e.g. re-entry angles with a prescribed distribution).
     """
 
     name: str

@@ -34,15 +34,23 @@ class ControlSet:
         if self.dim < 1:
             raise ProblemError(f"control dimension must be >= 1; got {self.dim}")
 
+    def _bounded(self, what: str) -> None:
+        if self.kind == "free":
+            raise ProblemError(f"ControlSet.{what} needs a bounded control set ('ball' or 'box'); "
+                               "this problem's controls are 'free' (prescribed distribution)")
+
     def contains(self, u: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         """Boolean mask over the leading axes of ``u`` (..., dim)."""
         u = np.asarray(u, dtype=float)
+        if self.kind == "free":
+            return np.all(np.isfinite(u), axis=-1)
         if self.kind == "ball":
             return np.linalg.norm(u, axis=-1) <= 1 + tol
         return np.all(np.abs(u) <= 1 + tol, axis=-1)
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         """Uniform samples of shape ``shape + (dim,)``."""
+        self._bounded("sample")
         if self.kind == "box":
             return rng.uniform(-1.0, 1.0, size=shape + (self.dim,))
         g = rng.standard_normal(shape + (self.dim,))
@@ -52,6 +60,7 @@ class ControlSet:
 
     def sample_boundary(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         """Samples on the boundary (unit sphere, or the box's vertices for ``"box"``)."""
+        self._bounded("sample_boundary")
         if self.kind == "box":
             return rng.choice([-1.0, 1.0], size=shape + (self.dim,))
         g = rng.standard_normal(shape + (self.dim,))
@@ -59,6 +68,7 @@ class ControlSet:
 
     def argmin(self, s: np.ndarray) -> np.ndarray:
         """``argmin_{u in U} s^T u`` row-wise (the Hamiltonian-minimising control, Foss Eq. 4)."""
+        self._bounded("argmin")
         s = np.asarray(s, dtype=float)
         if self.kind == "box":
             return -np.sign(s)
@@ -77,6 +87,20 @@ class Reference:
     name: str = ""
 
 
+@dataclass(frozen=True)
+class StochasticSpec:
+    """Gaussian initial state and Gaussian controls about a nominal profile (Jain et al. Eq. 24-27).
+
+    ``u_nominal`` has shape ``(K, n_u)`` (one control per grid segment); ``u_cov`` is the control
+    covariance (``(n_u, n_u)``), sampled afresh at every step.
+    """
+
+    x0_mean: np.ndarray
+    x0_cov: np.ndarray
+    u_nominal: np.ndarray
+    u_cov: np.ndarray
+
+
 @dataclass
 class Problem:
     """A reachability or control problem.
@@ -91,6 +115,7 @@ class Problem:
     params : parameter vector of the model (defaults to ``model.p_default``).
     control_set : admissible normalised controls.
     initial_set : optional set of initial states (an ``ocreach.sets`` object) for uncertain cases.
+    stochastic : optional Gaussian initial state and control distribution (stochastic problems).
     reference : optional corrected periodic orbit.
     units : conversion to SI.
     method_options : per-method default options, e.g. ``{"stt": {"order": 2, "h_max": 400}}``.
@@ -104,6 +129,7 @@ class Problem:
     params: np.ndarray | None = None
     control_set: ControlSet | None = None
     initial_set: Any = None
+    stochastic: StochasticSpec | None = None
     reference: Reference | None = None
     units: Units | None = None
     description: str = ""
