@@ -2,9 +2,12 @@
 using state-transition tensors" (AMOS 2024): Van der Pol (Sec. 3.1) and the DRO (Sec. 4.1)."""
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ocreach.models import cr3bp, vanderpol
+from ocreach.orbits import PeriodicOrbit, correct_symmetric
 from ocreach.problem import Problem
 from ocreach.units import EARTH_MOON_FOSS
 
@@ -29,6 +32,13 @@ def vdp(t_final: float = 3.0, dt: float = 0.1, gain: float = 0.05) -> Problem:
     )
 
 
+@lru_cache(maxsize=None)
+def dro_orbit() -> PeriodicOrbit:
+    """Foss Sec. 4.1 state [0.2765, 0, 0, 2.1379] corrected with x0 fixed (vy0 = 2.137623, T = 6.2374 TU)."""
+    return correct_symmetric(cr3bp(MU_FOSS, planar=True), [0.2765, 0.0, 0.0, 2.1379], fix="x",
+                             family="planar DRO")
+
+
 def dro(t_final: float = 3.0, dt: float = 0.1, thrust: float = T_MAX_N, mass: float = MASS_KG,
         input_set: str = "box") -> Problem:
     """Low-thrust spacecraft on a planar CR3BP DRO, 1.1 mN on 14 kg, 3 TU (Foss Sec. 4.1)."""
@@ -37,7 +47,7 @@ def dro(t_final: float = 3.0, dt: float = 0.1, thrust: float = T_MAX_N, mass: fl
     model = cr3bp(MU_FOSS, planar=True, a_max=a_max, units=units)
     return Problem(
         id="dro", model=model, x0=np.array([0.2765, 0.0, 0.0, 2.1379]), grid=_grid(t_final, dt),
-        units=units,
+        units=units, reference=dro_orbit().to_reference(),
         description=f"planar CR3BP DRO, T_max = {thrust * 1e3:g} mN, m = {mass:g} kg, "
                     f"a_max = {a_max:.4g} DU/TU^2, {t_final:g} TU",
         citation=f"{CITATION}, Sec. 4.1",
