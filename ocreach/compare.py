@@ -1,0 +1,179 @@
+"""Side-by-side comparison of reachability methods on one problem.
+
+Metrics, per method, at the final time of the grid and on 2-D projections (position and velocity
+planes):
+
+* ``runtime_s``: wall time of ``solve``;
+* ``support_err``: mean over 64 directions of ``(h_method(d) - h_true(d)) / w_true(d)``, where
+  ``h_true`` is the best known *lower bound* of the true support function (the max over every real
+  trajectory endpoint of every sample-based method, Monte Carlo truth included) and ``w_true`` the
+  width ``h_true(d) + h_true(-d)``.  Positive values are over-approximation (or points the other
+  methods missed), negative values under-approximation;
+* ``area``: area of the projection (convex hull of samples, or the set's outline);
+* ``mc_covered``: fraction of the Monte Carlo endpoints inside the method's estimate (the set, or
+  the convex hull of the method's samples in the projection).
+"""
+from __future__ import annotations
+
+import io
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ocreach.geometry import circle_directions, convex_hull_polygon, in_convex_hull, polygon_area
+from ocreach.problem import Problem, get_problem
+from ocreach.reach.base import reach
+from ocreach.reach.result import ReachResult, _jsonable, atomic_write_bytes, atomic_write_text
+
+
+@dataclass
+class Comparison:
+    """Results of :func:`compare`: per-method results and metrics, plus the truth samples."""
+
+    problem: Problem
+    results: dict[str, ReachResult]
+    metrics: dict[str, dict[str, Any]]
+    truth: np.ndarray
+    errors: dict[str, str] = field(default_factory=dict)
+
+    def table(self) -> str:
+        """Markdown table of the metrics."""
+        planes = [("pos", self.problem.position_dims[:2]), ("vel", self.problem.velocity_dims[:2])]
+        head = ["method", "runtime [s]", "samples/sets"]
+        for tag, _ in planes:
+            head += [f"support err ({tag})", f"area ({tag})", f"MC covered ({tag})"]
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for name, m in self.metrics.items():
+            row = [name, f"{m['runtime_s']:.3f}", str(m["size"])]
+            for tag, _ in planes:
+                pm = m["planes"].get(tag, {})
+                row += [f"{pm.get('support_err', float('nan')):+.3%}",
+                        f"{pm.get('area', float('nan')):.4g}",
+                        f"{pm.get('mc_covered', float('nan')):.1%}"]
+            lines.append("| " + " | ".join(row) + " |")
+        for name, err in self.errors.items():
+            lines.append(f"| {name} | failed: {err} |" + " |" * (len(head) - 2))
+        return "\n".join(lines)
+
+
+def _projected_estimate(result: ReachResult, dims: Sequence[int]):
+    """(support function callable, area, containment callable) of the final-time projection."""
+    dims = list(dims)
+    if result.sets is not None:
+        s = result.sets[-1].project(dims)
+        outline = s.outline() if hasattr(s, "outline") else convex_hull_polygon(
+            s.sample(4000, np.random.default_rng(0), mode="extreme"))
+        return (lambda d: np.array([s.support(di) for di in d]), polygon_area(outline),
+                lambda pts: np.asarray(s.contains(pts), dtype=bool))
+    pts = np.asarray(result.points[-1])[:, dims]
+    poly = convex_hull_polygon(pts)
+    return (lambda d: np.max(pts @ d.T, axis=0), polygon_area(poly),
+            lambda q: in_convex_hull(q, pts))
+
+
+def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str, dict] | None = None,
+            truth_samples: int = 2000, seed: int = 0, progress: bool = True) -> Comparison:
+    """Run ``methods`` on ``problem`` and compute the metrics of the module docstring.
+
+    ``options`` maps a method name to its options.  Monte Carlo truth (``mc`` with
+    ``truth_samples``) is run as well unless ``mc`` is among the methods.  A method that fails is
+    reported in ``Comparison.errors`` with its message, not swallowed silently.
+    """
+    from tqdm import tqdm
+
+    problem = problem if isinstance(problem, Problem) else get_problem(problem)
+    options = options or {}
+    results: dict[str, ReachResult] = {}
+    runtimes: dict[str, float] = {}
+    errors: dict[str, str] = {}
+    for name in tqdm(list(methods), desc=f"compare {problem.id}", disable=not progress):
+        t0 = time.perf_counter()
+        try:
+            results[name] = reach(problem, name, **options.get(name, {}))
+        except KeyboardInterrupt:
+            break
+        except Exception as exc:  # reported in the table and the return value, never silent
+            errors[name] = f"{type(exc).__name__}: {exc}"
+            continue
+        runtimes[name] = time.perf_counter() - t0
+    if "mc" in results:
+        truth_result = results["mc"]
+    else:
+        truth_result = reach(problem, "mc", samples=truth_samples, seed=seed + 1)
+    mc_end = np.asarray(truth_result.points[-1])
+    real = [mc_end] + [np.asarray(r.points[-1]) for r in results.values() if r.points is not None]
+    truth = np.vstack(real)
+
+    metrics: dict[str, dict[str, Any]] = {}
+    planes = {"pos": problem.position_dims[:2], "vel": problem.velocity_dims[:2]}
+    dirs = circle_directions(64)
+    for name, res in results.items():
+        entry: dict[str, Any] = {"runtime_s": runtimes[name],
+                                 "size": len(res.sets) if res.sets is not None else
+                                 int(np.asarray(res.points[-1]).shape[0]),
+                                 "planes": {}}
+        for tag, dims in planes.items():
+            if len(dims) < 2:
+                continue
+            support, area, contains = _projected_estimate(res, dims)
+            tp = truth[:, list(dims)]
+            h_true = np.max(tp @ dirs.T, axis=0)
+            width = h_true + np.max(tp @ (-dirs).T, axis=0)
+            err = (support(dirs) - h_true) / np.where(width > 0, width, 1.0)
+            covered = contains(mc_end[:, list(dims)])
+            entry["planes"][tag] = {"support_err": float(np.mean(err)),
+                                    "support_err_max": float(np.max(np.abs(err))),
+                                    "area": float(area), "mc_covered": float(np.mean(covered)),
+                                    "dims": list(dims)}
+        metrics[name] = entry
+    return Comparison(problem=problem, results=results, metrics=metrics, truth=truth, errors=errors)
+
+
+def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
+    """Write ``comparison.md``, ``metrics.json``, ``overlay.png`` and one result file per method."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from ocreach.plot import axis_label, plot_result
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name, res in cmp.results.items():
+        paths[f"result_{name}"] = res.save(out / f"{cmp.problem.id}_{name}.npz")
+    p = cmp.problem
+    planes = [d for d in (p.position_dims[:2], p.velocity_dims[:2]) if len(d) == 2]
+    fig, axes = plt.subplots(1, len(planes), figsize=(6 * len(planes), 5), squeeze=False)
+    colors = plt.get_cmap("tab10")
+    mc_end = cmp.results["mc"].points[-1] if "mc" in cmp.results else None
+    for ax, dims in zip(axes[0], planes):
+        if mc_end is None:
+            ax.plot(cmp.truth[:, dims[0]], cmp.truth[:, dims[1]], ".", ms=1.5, color="0.7",
+                    label="truth samples")
+        for i, (name, res) in enumerate(cmp.results.items()):
+            plot_result(res, ax=ax, dims=dims, k=-1, color=colors(i), label=name,
+                        show_points=res.points is not None)
+        ax.set_xlabel(axis_label(p, dims[0]))
+        ax.set_ylabel(axis_label(p, dims[1]))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{p.id}: final reachable-set estimates at t = {p.grid[-1]:g}")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    plt.close(fig)
+    paths["figure"] = atomic_write_bytes(out / "overlay.png", buf.getvalue())
+    text = (f"# Method comparison: {p.id}\n\n{p.summary()}\n\n{cmp.table()}\n\n"
+            "support err: mean signed support-function error against the best known lower bound "
+            "(all real trajectory endpoints), as a fraction of the width; MC covered: fraction of "
+            "Monte Carlo endpoints inside the estimate.\n")
+    paths["table"] = atomic_write_text(out / "comparison.md", text)
+    paths["metrics"] = atomic_write_text(out / "metrics.json",
+                                         json.dumps(_jsonable(cmp.metrics), indent=2))
+    return paths

@@ -1,0 +1,48 @@
+"""Small geometric helpers shared by plots and metrics (convex hulls, polygon areas, directions)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def convex_hull_polygon(points: np.ndarray) -> np.ndarray | None:
+    """Counter-clockwise vertices of the convex hull of 2-D ``points`` (None if degenerate)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.asarray(points, dtype=float)
+    if pts.shape[0] < 3:
+        return None
+    try:
+        hull = ConvexHull(pts)
+    except QhullError:
+        return None
+    return pts[hull.vertices]
+
+
+def polygon_area(vertices: np.ndarray | None) -> float:
+    """Area of a simple polygon by the shoelace formula (0 for None)."""
+    if vertices is None or len(vertices) < 3:
+        return 0.0
+    x, y = np.asarray(vertices, dtype=float).T
+    return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def hull_area(points: np.ndarray) -> float:
+    """Area of the convex hull of 2-D points."""
+    return polygon_area(convex_hull_polygon(points))
+
+
+def circle_directions(m: int) -> np.ndarray:
+    """``m`` unit vectors evenly spaced on the circle, shape ``(m, 2)``."""
+    th = np.linspace(0.0, 2 * np.pi, m, endpoint=False)
+    return np.column_stack([np.cos(th), np.sin(th)])
+
+
+def in_convex_hull(points: np.ndarray, hull_points: np.ndarray, tol: float = 1e-12) -> np.ndarray:
+    """Boolean mask: which ``points`` lie in the convex hull of ``hull_points`` (2-D or n-D)."""
+    from scipy.spatial import Delaunay, QhullError
+
+    try:
+        tri = Delaunay(np.asarray(hull_points, dtype=float))
+    except QhullError:
+        return np.zeros(len(points), dtype=bool)
+    return tri.find_simplex(np.asarray(points, dtype=float), tol=tol) >= 0

@@ -1,0 +1,126 @@
+"""Extremal trajectories from the state-costate ODE (Foss et al. Eq. 4, after Lew, Bonalli & Pavone).
+
+For a control-affine model ``f = f0(x, t) + G(x, t) u`` every solution of ::
+
+    dx/dt   =  f(x, u*, t),
+    dlam/dt = -(df/dx)^T lam,          u* = argmin_{u in U} lam^T f(x, u, t)
+
+with an arbitrary initial costate ``lam_0`` satisfies Pontryagin's maximum principle for the
+problem "maximise ``-lam(t_f)^T x(t_f)``", so its endpoint lies on the boundary of the convex hull
+of the reachable set with outward normal ``-lam(t_f)``.  Sampling ``lam_0`` uniformly on the unit
+sphere and integrating the ODE gives boundary points without solving any boundary-value problem.
+
+The control is the closed-form minimiser (``-G^T lam / ||G^T lam||`` on the unit ball,
+``-sign(G^T lam)`` on the box), generated symbolically from the model.  The control is therefore
+continuous in time, not piecewise constant: ``controls`` stores its value at the start of each
+segment (for inspection) and ``meta["costate0"]`` the initial costates, from which every
+trajectory is reproduced exactly with :func:`extremal_rhs`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ocreach.errors import ProblemError
+from ocreach.model import Model
+from ocreach.problem import Problem
+from ocreach.reach.base import Method, Timer
+from ocreach.reach.result import ReachResult
+
+
+def extremal_rhs(model: Model) -> ca.Function:
+    """``(y = [x; lam], t, p) -> dy/dt`` of Foss et al. Eq. 4, cached on the model."""
+
+    def build():
+        lam = ca.SX.sym("lam", model.n_x)
+        u_star = model.optimal_control_expression(lam)
+        f_fun = model.f_fun
+        fx = f_fun(model.x, u_star, model.t, model.p)
+        jac = ca.Function("fx", [model.x, model.u, model.t, model.p],
+                          [ca.jacobian(model.f, model.x)])
+        lam_dot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
+        y = ca.vertcat(model.x, lam)
+        return ca.Function("extremal_rhs", [y, model.t, model.p], [ca.vertcat(fx, lam_dot)],
+                           ["y", "t", "a"], ["ydot"])
+
+    return model._cached("extremal_rhs", build)
+
+
+def optimal_control_fun(model: Model) -> ca.Function:
+    """``(x, lam, t, p) -> u*`` (the Hamiltonian minimiser), cached on the model."""
+
+    def build():
+        lam = ca.SX.sym("lam", model.n_x)
+        return ca.Function("u_star", [model.x, lam, model.t, model.p],
+                           [model.optimal_control_expression(lam)])
+
+    return model._cached("u_star_fun", build)
+
+
+def unit_sphere(rng: np.random.Generator, samples: int, dim: int) -> np.ndarray:
+    """Uniform samples on the unit sphere in ``R^dim``."""
+    g = rng.standard_normal((samples, dim))
+    return g / np.linalg.norm(g, axis=1, keepdims=True)
+
+
+class ExtremalODE(Method):
+    """Extremal trajectories from random initial costates (Foss Eq. 4, Lew et al.)."""
+
+    name = "ode"
+    description = "extremal state-costate ODE with random initial costates (Foss Eq. 4, Lew et al.)"
+
+    @dataclass
+    class Options:
+        """``samples``: number of extremals; ``seed``: RNG seed; ``rtol``, ``atol``: tolerances."""
+
+        samples: int = 100
+        seed: int = 0
+        rtol: float = 1e-10
+        atol: float = 1e-12
+
+        def __post_init__(self) -> None:
+            if int(self.samples) < 1:
+                raise ProblemError(f"samples must be >= 1; got {self.samples!r}")
+            self.samples = int(self.samples)
+            if not 0 < self.rtol < 1e-3:
+                raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
+
+    def solve(self, problem: Problem) -> ReachResult:
+        from ocreach.flow import integrate_batch
+        from ocreach.reach.mc import initial_states
+
+        model = problem.model
+        if problem.control_set.kind != model.control_set:
+            raise ProblemError(f"method 'ode' uses the model's control set {model.control_set!r}; "
+                               f"the problem asks for {problem.control_set.kind!r}")
+        opt = self.options
+        rng = np.random.default_rng(opt.seed)
+        timer = Timer()
+        with timer("setup"):
+            rhs = extremal_rhs(model)
+            ufun = optimal_control_fun(model).map(opt.samples)
+            lam0 = unit_sphere(rng, opt.samples, model.n_x)
+            x0 = initial_states(problem, opt.samples, rng)
+        grid = problem.grid
+        K = grid.size - 1
+        traj = np.empty((opt.samples, K + 1, model.n_x))
+        costates = np.empty_like(traj)
+        controls = np.empty((opt.samples, K, model.n_u))
+        y = np.hstack([x0, lam0])
+        traj[:, 0], costates[:, 0] = x0, lam0
+        with timer("propagation"):
+            for k in range(K):
+                controls[:, k] = np.asarray(
+                    ufun(y[:, :model.n_x].T, y[:, model.n_x:].T, grid[k], problem.params)).T
+                y = integrate_batch(rhs, y, grid[k], grid[k + 1], problem.params,
+                                    rtol=opt.rtol, atol=opt.atol)
+                traj[:, k + 1], costates[:, k + 1] = y[:, :model.n_x], y[:, model.n_x:]
+        meta = self.base_meta(problem, timer.times)
+        meta["costate0"] = lam0
+        meta["costate_final"] = costates[:, -1]
+        meta["controls_note"] = ("continuous optimal control u*(lambda(t)); controls holds its "
+                                 "value at each segment start; re-simulate with extremal_rhs")
+        return ReachResult(times=grid, points=[traj[:, k] for k in range(K + 1)],
+                           controls=controls, trajectories=traj, meta=meta)

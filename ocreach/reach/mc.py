@@ -1,0 +1,113 @@
+"""Monte Carlo reachability: random admissible piecewise-constant controls, one vectorised batch.
+
+The samples are true trajectories, so their endpoints are inner points of the reachable set; their
+convex hull under-approximates the convex hull of the set.  Control laws are mixed so that both the
+interior and the boundary are visited:
+
+* ``random``   – an independent uniform sample of the control set on every segment;
+* ``constant`` – one boundary control (full thrust, fixed direction) held on every segment;
+* ``bang``     – an independent boundary control (full thrust, random direction) on every segment.
+
+For problems with a :class:`~ocreach.problem.StochasticSpec` (Gaussian initial state and Gaussian
+controls) the method samples those distributions instead, as Jain et al. do.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ocreach.errors import ProblemError
+from ocreach.problem import Problem
+from ocreach.reach.base import Method, Timer
+from ocreach.reach.result import ReachResult
+
+LAWS = ("random", "constant", "bang")
+
+
+def sample_controls(problem: Problem, samples: int, rng: np.random.Generator,
+                    mix: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Admissible normalised controls ``(samples, K, n_u)`` and the law index of each sample."""
+    K = problem.n_segments
+    cs = problem.control_set
+    counts = np.floor(np.asarray(mix) / np.sum(mix) * samples).astype(int)
+    counts[0] += samples - counts.sum()
+    law = np.repeat(np.arange(3), counts)
+    u = np.empty((samples, K, cs.dim))
+    n_r, n_c, n_b = counts
+    u[:n_r] = cs.sample(rng, (n_r, K))
+    u[n_r:n_r + n_c] = cs.sample_boundary(rng, (n_c, 1))
+    u[n_r + n_c:] = cs.sample_boundary(rng, (n_b, K))
+    return u, law
+
+
+def initial_states(problem: Problem, samples: int, rng: np.random.Generator) -> np.ndarray:
+    """Initial states: the nominal ``x0``, or samples of ``problem.initial_set`` when given."""
+    if problem.initial_set is None:
+        return np.tile(problem.x0, (samples, 1))
+    x0 = np.asarray(problem.initial_set.sample(samples, rng), dtype=float)
+    if x0.shape != (samples, problem.model.n_x):
+        raise ProblemError(f"initial_set.sample returned shape {x0.shape}; "
+                           f"expected ({samples}, {problem.model.n_x})")
+    return x0
+
+
+class MonteCarlo(Method):
+    """Monte Carlo truth: random admissible controls (random, constant and bang-bang laws)."""
+
+    name = "mc"
+    description = "Monte Carlo: random admissible piecewise-constant controls (inner samples)"
+
+    @dataclass
+    class Options:
+        """``samples``: number of trajectories; ``seed``: RNG seed; ``mix``: fractions of the
+        random / constant / bang-bang control laws; ``rtol``, ``atol``: integrator tolerances."""
+
+        samples: int = 1000
+        seed: int = 0
+        mix: tuple = (0.4, 0.2, 0.4)
+        rtol: float = 1e-10
+        atol: float = 1e-12
+
+        def __post_init__(self) -> None:
+            if int(self.samples) < 1:
+                raise ProblemError(f"samples must be >= 1; got {self.samples!r}")
+            self.samples = int(self.samples)
+            mix = np.asarray(self.mix, dtype=float)
+            if mix.shape != (3,) or np.any(mix < 0) or mix.sum() <= 0:
+                raise ProblemError(f"mix must be three non-negative fractions {LAWS}; got {self.mix!r}")
+            self.mix = tuple(float(v) for v in mix)
+            if not 0 < self.rtol < 1e-3:
+                raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
+
+    def solve(self, problem: Problem) -> ReachResult:
+        if problem.stochastic is not None:
+            return self._solve_stochastic(problem)
+        from ocreach.flow import propagate
+
+        opt = self.options
+        rng = np.random.default_rng(opt.seed)
+        timer = Timer()
+        with timer("sampling"):
+            u, law = sample_controls(problem, opt.samples, rng, opt.mix)
+            x0 = initial_states(problem, opt.samples, rng)
+        with timer("propagation"):
+            traj = propagate(problem.model, x0, u, problem.grid, p=problem.params,
+                             rtol=opt.rtol, atol=opt.atol)
+        meta = self.base_meta(problem, timer.times)
+        meta["control_law"] = law
+        meta["control_laws"] = list(LAWS)
+        return ReachResult(times=problem.grid, points=[traj[:, k] for k in range(traj.shape[1])],
+                           controls=u, trajectories=traj, meta=meta)
+
+    def _solve_stochastic(self, problem: Problem) -> ReachResult:
+        from ocreach.stochastic_mc import stochastic_monte_carlo
+
+        timer = Timer()
+        with timer("propagation"):
+            out = stochastic_monte_carlo(problem, samples=self.options.samples, seed=self.options.seed)
+        traj = np.asarray(out["trajectories"])
+        meta = self.base_meta(problem, timer.times)
+        meta["stochastic"] = True
+        return ReachResult(times=problem.grid, points=[traj[:, k] for k in range(traj.shape[1])],
+                           controls=out.get("controls"), trajectories=traj, meta=meta)
