@@ -68,6 +68,9 @@ _SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
 
 
 # --------------------------------------------------------------------------- C compilation
+_DRIVER_SRC = Path(__file__).with_name("_dop853_driver.c")
+
+
 def _jit_enabled() -> bool:
     return os.environ.get("OCREACH_JIT", "1") not in ("0", "false", "no")
 
@@ -77,35 +80,53 @@ def _cache_dir() -> Path:
     return Path(root) if root else Path.home() / ".cache" / "ocreach" / "jit"
 
 
+def _compile_source(name: str, sources: dict[str, bytes], main: str, flags: tuple[str, ...]) -> Path:
+    """Compile ``sources`` (file name -> text; ``main`` is the translation unit) into a shared
+    library cached on disk under a hash of the sources and flags; return its path."""
+    digest = hashlib.sha256()
+    for key in sorted(sources):
+        digest.update(key.encode() + b"\0" + sources[key] + b"\0")
+    digest.update(" ".join(flags).encode())
+    cache = _cache_dir()
+    cache.mkdir(parents=True, exist_ok=True)
+    lib = cache / f"{name}_{digest.hexdigest()[:20]}.so"
+    if lib.exists():
+        return lib
+    cc = shutil.which(os.environ.get("CC", "cc")) or shutil.which("gcc")
+    if cc is None:
+        raise RuntimeError("no C compiler found (set CC)")
+    with tempfile.TemporaryDirectory() as tmp:
+        for key, text in sources.items():
+            Path(tmp, key).write_bytes(text)
+        out = Path(tmp, "lib.so")
+        proc = subprocess.run([cc, *flags, "-shared", "-fPIC", "-o", str(out), str(Path(tmp, main)),
+                               "-lm"], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{cc} failed: {proc.stderr[-2000:]}")
+        part = lib.with_name(f"{lib.name}.{os.getpid()}.part")
+        shutil.copyfile(out, part)
+        os.replace(part, lib)
+    return lib
+
+
+def _codegen(funs: list[ca.Function]) -> bytes:
+    with tempfile.TemporaryDirectory() as tmp:
+        cg = ca.CodeGenerator("gen.c", {"with_header": False})
+        for fun in funs:
+            cg.add(fun)
+        cg.generate(tmp + os.sep)
+        return Path(tmp, "gen.c").read_bytes()
+
+
 def compile_function(fun: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.Function:
-    """Compile ``fun`` to a shared library (cached on disk by source hash) and load it.
+    """Compile ``fun`` to C (cached on disk by source hash) and load it as a CasADi external.
 
     Returns ``fun`` unchanged (with a warning) if compilation is disabled or fails.
     """
     if not _jit_enabled():
         return fun
     try:
-        with tempfile.TemporaryDirectory() as tmp:
-            cname = f"{fun.name()}.c"
-            cg = ca.CodeGenerator(cname, {"with_header": False})
-            cg.add(fun)
-            cg.generate(tmp + os.sep)
-            src = Path(tmp, cname).read_bytes()
-            key = hashlib.sha256(src + " ".join(flags).encode()).hexdigest()[:20]
-            cache = _cache_dir()
-            cache.mkdir(parents=True, exist_ok=True)
-            lib = cache / f"{fun.name()}_{key}.so"
-            if not lib.exists():
-                cc = shutil.which(os.environ.get("CC", "cc")) or shutil.which("gcc")
-                if cc is None:
-                    raise RuntimeError("no C compiler found")
-                tmp_lib = Path(tmp, "lib.so")
-                subprocess.run([cc, *flags, "-shared", "-fPIC", "-o", str(tmp_lib),
-                                str(Path(tmp, cname)), "-lm"],
-                               check=True, capture_output=True)
-                part = lib.with_suffix(f".{os.getpid()}.part")
-                shutil.copyfile(tmp_lib, part)
-                os.replace(part, lib)
+        lib = _compile_source(fun.name(), {"gen.c": _codegen([fun])}, "gen.c", flags)
         return ca.external(fun.name(), str(lib))
     except Exception as exc:  # compiler missing or failing: the VM gives the same numbers
         warnings.warn(f"ocreach.flow: compiling {fun.name()} failed ({exc}); "
@@ -114,9 +135,6 @@ def compile_function(fun: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.
 
 
 # --------------------------------------------------------------------------- step functions
-_STEP_CACHE: dict[int, tuple[ca.Function, dict]] = {}
-
-
 def _build_step(rhs: ca.Function) -> ca.Function:
     """One DOP853 step ``(y, f0, t, h, a, rtol, atol) -> (y_new, f_new, err)``.
 
@@ -146,25 +164,64 @@ def _build_step(rhs: ca.Function) -> ca.Function:
     n3 = ca.sumsqr(e3)
     denom = ca.fmax(n5 + 0.01 * n3, 1e-300)
     err = ca.fabs(h) * n5 / ca.sqrt(denom * n_y)
-    fun = ca.Function(f"dop853_{rhs.name()}", [y, f0, t, h, a, rtol, atol], [y_new, f_new, err],
-                      ["y", "f0", "t", "h", "a", "rtol", "atol"], ["y_new", "f_new", "err"])
-    compiled = compile_function(fun)
-    return compiled if compiled is not fun else fun.expand()
+    return ca.Function(f"dop853_{rhs.name()}", [y, f0, t, h, a, rtol, atol], [y_new, f_new, err],
+                       ["y", "f0", "t", "h", "a", "rtol", "atol"], ["y_new", "f_new", "err"])
 
 
-def _step_functions(rhs: ca.Function) -> tuple[ca.Function, dict]:
-    key = id(rhs)
-    entry = _STEP_CACHE.get(key)
-    if entry is None or entry[2] is not rhs:
-        entry = (_build_step(rhs), {}, rhs)  # keep rhs alive so its id stays unique
-        _STEP_CACHE[key] = entry
-    return entry[0], entry[1]
+class _Stepper:
+    """Everything integrate_batch needs for one rhs: the native C driver (or None) and the
+    CasADi step Function with its mapped versions for the NumPy fallback loop."""
+
+    def __init__(self, rhs: ca.Function):
+        self.rhs = rhs
+        self.step = _build_step(rhs)
+        self.native = None
+        self.maps: dict = {}
+        if _jit_enabled():
+            try:
+                self.native = self._build_native()
+            except Exception as exc:
+                warnings.warn(f"ocreach.flow: compiling the DOP853 driver for {rhs.name()} failed "
+                              f"({exc}); falling back to CasADi's VM (same results, slower)",
+                              RuntimeWarning, stacklevel=4)
+        if self.native is None:
+            self.step = self.step.expand()
+
+    def _build_native(self):
+        import ctypes
+
+        gen = _codegen([self.step, self.rhs])
+        main = (f"#define STEP {self.step.name()}\n#define RHS {self.rhs.name()}\n"
+                "#include \"gen.c\"\n#include \"driver.c\"\n").encode()
+        big = len(gen) > 2_000_000  # huge STT right-hand sides: -O1 compiles much faster
+        flags = ("-O1",) if big else ("-O2",)
+        lib = _compile_source(f"ocr_{self.rhs.name()}",
+                              {"gen.c": gen, "driver.c": _DRIVER_SRC.read_bytes(), "main.c": main},
+                              "main.c", flags)
+        dll = ctypes.CDLL(str(lib))
+        fn = dll.ocreach_integrate
+        dp = ctypes.POINTER(ctypes.c_double)
+        fn.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_long, dp, dp, dp, dp, dp, dp,
+                       ctypes.c_long, ctypes.POINTER(ctypes.c_int), dp, ctypes.POINTER(ctypes.c_long)]
+        fn.restype = ctypes.c_int
+        self._dll = dll  # keep the library loaded
+        return fn
+
+    def mapped(self, fun: ca.Function, n: int) -> ca.Function:
+        key = (fun.name(), n)
+        if key not in self.maps:
+            self.maps[key] = fun.map(n, "serial") if n > 1 else fun
+        return self.maps[key]
 
 
-def _mapped(fun: ca.Function, cache: dict, n: int) -> ca.Function:
-    if n not in cache:
-        cache[n] = fun.map(n, "serial") if n > 1 else fun
-    return cache[n]
+_STEPPERS: dict[int, _Stepper] = {}
+
+
+def _stepper(rhs: ca.Function) -> _Stepper:
+    st = _STEPPERS.get(id(rhs))
+    if st is None or st.rhs is not rhs:  # the stepper keeps rhs alive, so ids stay unique
+        st = _STEPPERS[id(rhs)] = _Stepper(rhs)
+    return st
 
 
 # --------------------------------------------------------------------------- integrate_batch
@@ -234,9 +291,60 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
     rtol_v = _tol_vector(rtol, n_y, "rtol")
     atol_v = _tol_vector(atol, n_y, "atol")
 
-    step_fun, map_cache = _step_functions(rhs)
-    step = _mapped(step_fun, map_cache, n)
-    rhs_n = _mapped(rhs, map_cache.setdefault("rhs", {}), n)
+    st = _stepper(rhs)
+    if st.native is not None:
+        return _integrate_native(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
+    return _integrate_numpy(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
+
+
+def _fail_message(kind: str, bad: np.ndarray, n: int, t: np.ndarray, t1: np.ndarray) -> str:
+    more = " ..." if bad.size > 10 else ""
+    return (f"integrate_batch: {kind} for samples {bad[:10].tolist()}{more} (of {n}); "
+            f"they stopped at t = {t[bad[:5]].tolist()} of t1 = {t1[bad[:5]].tolist()}")
+
+
+_STATUS = {1: "max_steps exceeded", 2: "step size underflow (stiff or singular dynamics?)",
+           3: "non-finite value of the state or rhs"}
+
+
+def _integrate_native(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
+    import ctypes
+
+    n, n_y = y0.shape
+    Y = np.array(y0, dtype=float, order="C", copy=True)
+    A = np.ascontiguousarray(args, dtype=float)
+    t0c, t1c = np.ascontiguousarray(t0), np.ascontiguousarray(t1)
+    status = np.zeros(n, dtype=np.intc)
+    t_reached = np.zeros(n)
+    n_steps = np.zeros(n, dtype=np.int_)
+    dp = ctypes.POINTER(ctypes.c_double)
+
+    def ptr(a):
+        return a.ctypes.data_as(dp)
+
+    rc = st.native(n, n_y, A.shape[1], ptr(Y), ptr(t0c), ptr(t1c), ptr(A), ptr(rtol_v), ptr(atol_v),
+                   max_steps, status.ctypes.data_as(ctypes.POINTER(ctypes.c_int)), ptr(t_reached),
+                   n_steps.ctypes.data_as(ctypes.POINTER(ctypes.c_long)))
+    if rc < 0:
+        raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
+    if rc > 0:
+        msgs = []
+        for code, kind in _STATUS.items():
+            bad = np.flatnonzero(status == code)
+            if bad.size:
+                if code == 1:
+                    kind = f"max_steps = {max_steps} exceeded"
+                msgs.append(_fail_message(kind, bad, n, t_reached, t1))
+        raise SolverError("; ".join(msgs))
+    return Y
+
+
+def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
+    """The same algorithm as the C driver, vectorised over samples in NumPy (fallback)."""
+    n, n_y = y0.shape
+    rhs = st.rhs
+    step = st.mapped(st.step, n)
+    rhs_n = st.mapped(rhs, n)
 
     Y = np.array(y0.T, order="C", copy=True)  # (n_y, N): one column per sample (never alias y0)
     A = np.ascontiguousarray(args.T)
@@ -295,7 +403,6 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
         fac_ok = np.where(rejected, np.minimum(1.0, fac_ok), fac_ok)
         fac_bad = np.where(finite, np.maximum(_MIN_FACTOR, fac), _MIN_FACTOR)
         h_abs = np.where(ok, np.abs(h) * fac_ok, np.where(active, h_abs * fac_bad, h_abs))
-        # keep h_abs of the last (shortened) step from collapsing the next integration
         rejected = np.where(active, ~ok, rejected)
         Y[:, ok] = Yn[:, ok]
         F[:, ok] = Fn[:, ok]
