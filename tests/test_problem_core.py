@@ -1,0 +1,105 @@
+"""Problem validation, registry, user problem files and the CLI."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import ocreach
+from ocreach import Problem, ProblemError, UnknownNameError
+from ocreach.cli import main
+from ocreach.models import vanderpol
+
+
+def _vdp(**kw):
+    base = dict(id="t", model=vanderpol(), x0=[0.5, 0.0], grid=np.linspace(0, 1, 11))
+    base.update(kw)
+    return Problem(**base)
+
+
+def test_problem_validation_errors():
+    with pytest.raises(ProblemError, match="x0 must have length n_x = 2"):
+        _vdp(x0=[0.5, 0.0, 1.0])
+    with pytest.raises(ProblemError, match="x0 must be finite"):
+        _vdp(x0=[np.nan, 0.0])
+    with pytest.raises(ProblemError, match="strictly increasing"):
+        _vdp(grid=[0.0, 0.2, 0.1])
+    with pytest.raises(ProblemError, match="at least 2"):
+        _vdp(grid=[0.0])
+    with pytest.raises(ProblemError, match="params must have 2"):
+        _vdp(params=[1.0])
+
+
+def test_thrust_must_be_positive():
+    with pytest.raises(ProblemError, match="thrust"):
+        ocreach.get_problem("dro", thrust=0.0)
+    p = ocreach.get_problem("dro")
+    with pytest.raises(ProblemError, match="a_max"):
+        Problem(id="x", model=p.model, x0=p.x0, grid=p.grid, params=[0.0122, -1.0])
+
+
+def test_backward_grid_allowed():
+    p = _vdp(grid=np.linspace(1, 0, 11))
+    assert p.backward and p.n_segments == 10
+
+
+def test_registry_and_overrides():
+    listing = ocreach.list_problems()
+    for pid in ("vdp", "dro", "l2-halo", "nrho-9-2", "earth-mars"):
+        assert pid in listing and listing[pid]
+    p = ocreach.get_problem("dro", t_final=1.0)
+    assert p.grid[-1] == pytest.approx(1.0)
+    with pytest.raises(UnknownNameError, match="unknown problem 'nope'"):
+        ocreach.get_problem("nope")
+    with pytest.raises(ProblemError, match="no option"):
+        ocreach.get_problem("dro", colour="red")
+
+
+def test_user_problem_file(tmp_path):
+    f = tmp_path / "myprob.py"
+    f.write_text(
+        "import numpy as np\n"
+        "from ocreach import Problem\n"
+        "from ocreach.models import vanderpol\n"
+        "def problem(t_final=1.0):\n"
+        "    '''My VdP.'''\n"
+        "    return Problem(id='mine', model=vanderpol(gain=0.1), x0=[0.1, 0.2],\n"
+        "                   grid=np.linspace(0, t_final, 6))\n")
+    p = ocreach.get_problem(str(f), t_final=2.0)
+    assert p.id == "mine" and p.grid[-1] == 2.0
+    r = ocreach.reach(p, "mc", samples=20)
+    assert r.points[-1].shape == (20, 2)
+
+
+def test_cli_list_and_errors(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "dro" in out and "mc" in out and "ode" in out
+    assert main(["run", "nope", "--method", "mc"]) == 2
+    assert "unknown problem" in capsys.readouterr().err
+    assert main(["run", "vdp", "--method", "magic"]) == 2
+
+
+def test_cli_run_and_compare_write_files(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "vdp", "--method", "mc", "--out", str(out), "--set", "samples=50"]) == 0
+    assert (out / "result.npz").is_file() and (out / "summary.json").is_file()
+    assert list(out.glob("projection_*.png"))
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["method"] == "mc" and summary["meta"]["options"]["samples"] == 50
+    cmp_out = tmp_path / "cmp"
+    rc = main(["compare", "dro", "--methods", "mc,ode", "--out", str(cmp_out),
+               "--set", "mc.samples=200", "--set", "ode.samples=20", "--set", "problem.t_final=1.0"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "| mc |" in text and "| ode |" in text
+    assert (cmp_out / "overlay.png").stat().st_size > 10_000
+    metrics = json.loads((cmp_out / "metrics.json").read_text())
+    assert metrics["mc"]["planes"]["pos"]["mc_covered"] == pytest.approx(1.0)
+
+
+def test_console_script_entry_point():
+    proc = subprocess.run([sys.executable, "-m", "ocreach.cli", "list"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0 and "vdp" in proc.stdout
