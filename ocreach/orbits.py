@@ -145,7 +145,7 @@ def propagate_stm(model: Model, x0, t_final: float, params=None, *, rtol: float 
 
 
 # ====================================================================== periodic orbits
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PeriodicOrbit:
     """A corrected periodic orbit of the CR3BP.
 
@@ -164,6 +164,13 @@ class PeriodicOrbit:
     family: str
     closure: float = float("nan")
     trivial_pair: tuple = field(default=())
+
+    def __post_init__(self) -> None:
+        # read-only copies: orbits are cached and shared between problems
+        for name in ("x0", "monodromy"):
+            arr = np.array(getattr(self, name), dtype=float)
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
 
     def to_reference(self, name: str | None = None) -> Reference:
         """This orbit as an :class:`ocreach.problem.Reference` (what a ``Problem`` stores)."""
@@ -338,8 +345,8 @@ def nrho_9_2(mu: float = MU_EARTH_MOON, units: Units = EARTH_MOON_PATEL,
     """The southern L2 9:2 NRHO: 9 revolutions per 2 synodic months (T = 6.562 d), x0 at apolune.
 
     The target period is ``2/9 * 29.530589 d`` converted with ``units.time`` (1.5112 TU for
-    t* = 375200 s).  The seed (apolune state of the 9:2 NRHO, Zimovan, Howell & Davis 2017, as
-    used by Patel & Subbarao) is first corrected with ``z0`` fixed, i.e. onto the L2 halo family
+    t* = 375200 s).  The seed (approximate apolune state of the 9:2 NRHO, cf. Zimovan, Howell &
+    Davis 2017) is first corrected with ``z0`` fixed, i.e. onto the L2 halo family
     member through that apolune height; the family is then followed in ``z0`` by secant steps on
     the period until it matches the target, and a final correction with the period as a
     constraint pins the member down.

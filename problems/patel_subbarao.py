@@ -84,7 +84,13 @@ def _cislunar(pid: str, orbit: PeriodicOrbit, t_final: float, dt: float, thrust:
 
 def l2_halo(t_final: float | None = None, dt: float = HOUR_TU, thrust: float = CISLUNAR_THRUST_N,
             mass: float = MASS_KG, isp: float = ISP_S) -> Problem:
-    """Earth-Moon L2 halo, 0.1 N on 1000 kg, one period (349.3 h) in 1 h steps (Patel & Subbarao Tables 2-3)."""
+    """Earth-Moon L2 halo, 0.1 N on 1000 kg, one period (349.3 h) in 1 h steps (Patel & Subbarao Tables 2-3).
+
+    x0 and the reference are the paper's state corrected with z0 fixed (see :func:`halo_orbit`).
+    Options: ``t_final`` (TU, default one period), ``dt`` (TU, default 1 h = 3600/375200 TU; the
+    grid has ``round(t_final/dt)`` equal segments ending exactly at ``t_final``), ``thrust`` (N),
+    ``mass`` (kg), ``isp`` (s; recorded in ``extra``, the model keeps the mass constant).
+    """
     orbit = halo_orbit()
     t_final = orbit.period if t_final is None else t_final
     return _cislunar(
@@ -99,7 +105,13 @@ def l2_halo(t_final: float | None = None, dt: float = HOUR_TU, thrust: float = C
 def nrho_9_2_problem(t_final: float = 76.0 * HOUR_TU, dt: float = HOUR_TU,
                      thrust: float = CISLUNAR_THRUST_N, mass: float = MASS_KG,
                      isp: float = ISP_S) -> Problem:
-    """Earth-Moon L2 9:2 NRHO from apolune, 0.1 N on 1000 kg, 76 h in 1 h steps (Patel & Subbarao, Fig. 4-6)."""
+    """Earth-Moon L2 9:2 NRHO from apolune, 0.1 N on 1000 kg, 76 h in 1 h steps (Patel & Subbarao, Fig. 4-6).
+
+    The paper's method comparison runs 76 h (apolune to just before perilune, which is at half the
+    157.5 h period).  Note: the paper's text quotes the halo state [1.1720, 0, -0.0862, ...] for this
+    case too; here the actual 9:2 NRHO (period = 2/9 synodic month) is used, as its title and the
+    157 h station-keeping period indicate.  Options as for ``l2-halo`` (``t_final`` default 76 h).
+    """
     orbit = nrho_orbit()
     return _cislunar(
         "nrho-9-2", orbit, t_final, dt, thrust, mass, isp,
@@ -110,7 +122,12 @@ def nrho_9_2_problem(t_final: float = 76.0 * HOUR_TU, dt: float = HOUR_TU,
 
 def earth_mars(t_days: float = 200.0, dt_days: float = 1.0, thrust: float = EM_THRUST_N,
                mass: float = MASS_KG, isp: float = ISP_S) -> Problem:
-    """Heliocentric Earth-Mars transfer, 0.3 N on 1000 kg, departure 2007-04-10, 200 d daily grid (Patel & Subbarao Eq. 29)."""
+    """Heliocentric Earth-Mars transfer, 0.3 N on 1000 kg, departure 2007-04-10, 200 d daily grid (Patel & Subbarao Eq. 29).
+
+    Two-body model with mu_sun = 1 in AU and TU = sqrt(AU^3 / GM_sun) (``units.SUN_AU``); the
+    Eq. 29 state (km, km/s) is converted to those units.  Options: ``t_days`` (200; the paper also
+    uses 300), ``dt_days`` (1), ``thrust`` (N), ``mass`` (kg), ``isp`` (s, recorded in ``extra``).
+    """
     check_positive("thrust", thrust)
     check_positive("mass", mass)
     check_positive("isp", isp)
