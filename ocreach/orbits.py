@@ -356,23 +356,26 @@ def nrho_9_2(mu: float = MU_EARTH_MOON, units: Units = EARTH_MOON_PATEL,
     model = cr3bp(mu, planar=False)
     target = 2.0 / 9.0 * SYNODIC_MONTH_DAYS * 86400.0 / units.time
     orb = correct_symmetric(model, seed, fix="z", family="L2 southern halo (NRHO)")
-    # secant continuation in z0 along the halo family towards the target period
+    # secant continuation in z0 along the halo family until the period is within 0.5 % of the
+    # target (the seed usually already is), then the period-constrained correction finishes
     z_prev, T_prev = orb.x0[2], orb.period
     z_cur = z_prev - 1e-3
     cur = orb
-    for _ in range(20):
-        if abs(cur.period - target) < 1e-10:
+    for _ in range(30):
+        if abs(cur.period - target) < 5e-3 * target:
             break
         guess = cur.x0.copy()
         guess[2] = z_cur
         cur = correct_symmetric(model, guess, fix="z", family=orb.family)
-        if abs(cur.period - target) < 1e-10:
-            break
         dT = cur.period - T_prev
         if dT == 0:
             raise SolverError("NRHO continuation stalled: equal periods on two family members")
         z_next = z_cur + (target - cur.period) * (z_cur - z_prev) / dT
-        z_prev, T_prev, z_cur = z_cur, cur.period, z_next
+        z_prev, T_prev = z_cur, cur.period
+        z_cur = z_cur + float(np.clip(z_next - z_cur, -0.01, 0.01))
+    else:
+        raise SolverError(f"NRHO continuation did not reach the target period {target:.6f} TU "
+                          f"(last member {cur.period:.6f} TU)")
     final = correct_symmetric(model, cur.x0, period=target,
                               family="L2 southern 9:2 NRHO (apolune)")
     return final

@@ -229,3 +229,11 @@ def test_to_reference(halo):
     ref = halo.to_reference()
     np.testing.assert_array_equal(ref.x0, halo.x0)
     assert ref.period == halo.period and ref.stability == halo.stability_indices
+
+
+def test_nrho_continuation_from_a_poor_seed():
+    # seed ~1.5 % off in period: exercises the z0 secant continuation before the final correction
+    orb = nrho_9_2(0.01215, EARTH_MOON_PATEL, seed=(1.03, 0, -0.17, 0, -0.12, 0))
+    assert orb.period * EARTH_MOON_PATEL.time / 86400 == pytest.approx(29.530589 / 4.5, rel=1e-9)
+    assert np.linalg.norm(flow(orb.x0, orb.period, 0.01215) - orb.x0) < 1e-9
+    assert orb.x0[2] == pytest.approx(-0.1821, abs=1e-3)
