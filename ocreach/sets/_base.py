@@ -126,6 +126,7 @@ class SetBase:
     """Common behaviour of every set: immutability, plotting, radd."""
 
     __slots__ = ()
+    __array_ufunc__ = None  # make ``ndarray @ set`` / ``ndarray + set`` defer to the set's operators
 
     def __setattr__(self, key, value):  # immutable after construction
         if getattr(self, "_frozen", False):

@@ -1,0 +1,52 @@
+"""Matplotlib plotting of 2-D projections of sets (from their exact or outer outlines)."""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ocreach.errors import SetError
+
+
+def _ccw(P: np.ndarray) -> np.ndarray:
+    x, y = P[:, 0], P[:, 1]
+    area2 = np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))
+    return P if area2 >= 0 else P[::-1]
+
+
+def plot_set(S, ax, dims: Any = (0, 1), pieces: int = 64, **kw):
+    """Draw the projection of ``S`` on ``dims`` into ``ax`` and return the artist.
+
+    Convex sets are drawn as one polygon.  A polynomial zonotope is drawn as the union of the
+    exact polygons of the zonotope enclosures of ``pieces`` split parts (one compound path with
+    all parts counter-clockwise, filled with the non-zero rule, so overlaps are filled once); this
+    is an outer approximation that tightens with ``pieces``.  Keyword arguments go to
+    :class:`matplotlib.patches.PathPatch` (``facecolor``, ``edgecolor``, ``alpha``, ``label``...).
+    """
+    from matplotlib.path import Path
+    from matplotlib.patches import PathPatch
+
+    from ocreach.sets.polyzonotope import PolyZonotope
+
+    dims = tuple(int(d) for d in dims)
+    if len(dims) != 2:
+        raise SetError(f"plot: dims must name two dimensions; got {dims!r}")
+    polys = S.outline(dims, pieces=pieces) if isinstance(S, PolyZonotope) else [S.outline(dims)]
+    verts, codes = [], []
+    for P in polys:
+        P = np.asarray(P, float)
+        if P.shape[0] < 3:  # degenerate: point or segment, draw as a thin polygon
+            P = np.vstack([P, P[::-1]]) if P.shape[0] == 2 else np.repeat(P, 3, axis=0)
+        P = _ccw(P)
+        verts.append(np.vstack([P, P[:1]]))
+        codes.append([Path.MOVETO] + [Path.LINETO] * (P.shape[0] - 1) + [Path.CLOSEPOLY])
+    path = Path(np.vstack(verts), np.concatenate(codes))
+    kw.setdefault("facecolor", "tab:blue")
+    kw.setdefault("alpha", 0.5)
+    if isinstance(S, PolyZonotope):
+        kw.setdefault("linewidth", 0.0)
+    patch = PathPatch(path, **kw)
+    ax.add_patch(patch)
+    ax.update_datalim(path.vertices)
+    ax.autoscale_view()
+    return patch

@@ -1,0 +1,113 @@
+"""Order reduction of zonotopes and polynomial zonotopes.
+
+* ``girard``: Girard (HSCC 2005): keep the largest generators (metric ||g||_1 - ||g||_inf) and
+  replace the rest by their interval hull (a box, n generators).
+* ``pca``: Kopetzki, Schuermann & Althoff (2017), PCA method: the generators to be removed are
+  boxed in the frame of the principal axes of ``[G, -G]`` (left singular vectors of G).
+* Polynomial zonotopes (Kochdumper & Althoff 2021; Foss et al. Sec. 2.4 "Reduce(PZ, h_des)"):
+  the smallest dependent and independent generators are enclosed by a zonotope, which is reduced
+  to a box (``girard``) or PCA box (``pca``) and appended as independent generators.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ocreach.errors import SetError
+
+_METHODS = ("girard", "pca")
+
+
+def _check_method(method: str) -> str:
+    if method not in _METHODS:
+        raise SetError(f"reduce: method must be one of {_METHODS}; got {method!r}")
+    return method
+
+
+def box_generators(G: np.ndarray, method: str) -> np.ndarray:
+    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``."""
+    n = G.shape[0]
+    if G.shape[1] == 0:
+        return np.zeros((n, 0))
+    if method == "girard":
+        B = np.diag(np.abs(G).sum(axis=1))
+    else:
+        U, _, _ = np.linalg.svd(G @ G.T)
+        r = np.abs(U.T @ G).sum(axis=1)
+        B = U * r[None, :]
+    return B[:, np.any(B != 0, axis=0)]
+
+
+def _girard_metric(G: np.ndarray) -> np.ndarray:
+    return np.abs(G).sum(axis=0) - np.abs(G).max(axis=0, initial=0.0)
+
+
+def reduce_zonotope(Z, order: float = 1.0, method: str = "girard"):
+    """Reduce a zonotope to at most ``floor(order * n)`` generators (order >= 1), sound outer approximation."""
+    from ocreach.sets.zonotope import Zonotope
+
+    _check_method(method)
+    n, h = Z.dim, Z.n_generators
+    if not np.isfinite(order) or order < 1:
+        raise SetError(f"reduce: order must be >= 1; got {order!r}")
+    h_max = int(np.floor(order * n))
+    if h <= h_max:
+        return Z
+    n_keep = h_max - n
+    metric = _girard_metric(Z.G) if method == "girard" else np.linalg.norm(Z.G, axis=0)
+    order_idx = np.argsort(-metric, kind="stable")
+    keep, drop = order_idx[:n_keep], order_idx[n_keep:]
+    return Zonotope(Z.c, np.hstack([Z.G[:, keep], box_generators(Z.G[:, drop], method)]))
+
+
+def reduce_pz(pz, h_max: int, method: str = "pca"):
+    """Reduce a polynomial zonotope to at most ``h_max`` generators in total (dependent + independent).
+
+    The ``h_max - n`` largest generators (2-norm) are kept; every other dependent generator is
+    replaced by its zonotope enclosure (all-even monomials: centre shift + half generator) and,
+    with the remaining independent generators, boxed into <= n new independent generators.
+    """
+    from ocreach.sets.polyzonotope import PolyZonotope
+
+    _check_method(method)
+    n = pz.dim
+    h_max = int(h_max)
+    if h_max < n:
+        raise SetError(f"reduce: h_max must be >= the dimension n={n}; got {h_max}")
+    h, q = pz.n_dependent, pz.n_independent
+    if h + q <= h_max:
+        return pz
+    Gall = np.hstack([pz.G, pz.GI])
+    norms = np.linalg.norm(Gall, axis=0)
+    n_keep = h_max - n
+    if n_keep > 0:
+        keep_idx = np.argpartition(-norms, n_keep - 1)[:n_keep]
+    else:
+        keep_idx = np.zeros(0, dtype=np.int64)
+    keep = np.zeros(h + q, dtype=bool)
+    keep[keep_idx] = True
+    kd, ki = keep[:h], keep[h:]
+    # enclose the removed dependent part
+    Ed = pz.E[:, ~kd]
+    Gd = pz.G[:, ~kd]
+    const = ~np.any(Ed, axis=0)
+    even = np.all(Ed % 2 == 0, axis=0) & ~const
+    c = pz.c + Gd[:, const].sum(axis=1) + 0.5 * Gd[:, even].sum(axis=1)
+    Grem = np.hstack([0.5 * Gd[:, even], Gd[:, ~(even | const)], pz.GI[:, ~ki]])
+    GI = np.hstack([pz.GI[:, ki], box_generators(Grem, method)])
+    E = pz.E[:, kd]
+    used = np.any(E > 0, axis=1) if E.shape[1] else np.zeros(E.shape[0], dtype=bool)
+    return PolyZonotope(c, pz.G[:, kd], GI, E[used], pz.id[used])
+
+
+def reduce(S, size, method: str | None = None):
+    """Dispatch: ``reduce(pz, h_max, method='pca')`` or ``reduce(z, order, method='girard')``."""
+    from ocreach.sets.polyzonotope import PolyZonotope
+    from ocreach.sets.zonotope import Zonotope
+
+    if isinstance(S, PolyZonotope):
+        return reduce_pz(S, size, method or "pca")
+    if isinstance(S, Zonotope):
+        return reduce_zonotope(S, size, method or "girard")
+    if hasattr(S, "reduce"):
+        return S.reduce()
+    raise SetError(f"reduce: unsupported set type {type(S).__name__}")
