@@ -106,7 +106,8 @@ def unit_ball_pz(n: int, ids: Any = None):
       (+-1, 0), (0, +-1) (slight over-approximation, at most ~0.5 % near the diagonals).
     * n = 3: the cube-to-ball map ``u1 = a1 sqrt(1 - a2^2/2 - a3^2/2 + a2^2 a3^2 / 3)`` (cyclic),
       with the square root replaced by its order-3 Taylor polynomial in
-      ``t = a2^2/2 + a3^2/2 - a2^2 a3^2/3`` in [0, 2/3] (same outward argument as n = 2).
+      ``t = a2^2/2 + a3^2/2 - a2^2 a3^2/3`` in [0, 2/3] (same outward argument as n = 2; points
+      reach radius ~1.025 near the cube corners).
     * n > 3: the outer zonotope :func:`unit_ball_zonotope` (2n generators) as a PZ.
     """
     from ocreach.sets.polyzonotope import PolyZonotope

@@ -284,9 +284,14 @@ class PolyZonotope(SetBase):
         """Interval enclosure (interval hull of the zonotope enclosure)."""
         return self.to_zonotope().interval_hull()
 
-    def _split_pieces(self, n_splits: int, score) -> list["PolyZonotope"]:
-        """Best-first splitting: ``n_splits`` times split the piece with the largest ``score``."""
-        heap = [(-score(self), 0, self)]
+    def _split_pieces(self, n_splits: int, score, monotone: bool = False) -> list[tuple[float, "PolyZonotope"]]:
+        """Best-first splitting: ``n_splits`` times split the piece with the largest ``score``.
+
+        Returns ``(score, piece)`` pairs.  With ``monotone=True`` a child's score is capped by its
+        parent's (valid for upper bounds: a child is a subset of its parent, but the zonotope
+        enclosure of a child is not always inside the parent's enclosure)."""
+        s0 = score(self)
+        heap = [(-s0, 0, self)]
         count = itertools.count(1)
         for _ in range(int(n_splits)):
             neg, _, piece = heapq.heappop(heap)
@@ -294,26 +299,29 @@ class PolyZonotope(SetBase):
                 heapq.heappush(heap, (neg, next(count), piece))
                 break
             for child in piece.split():
-                heapq.heappush(heap, (-score(child), next(count), child))
-        return [item[2] for item in heap]
+                sc = score(child)
+                if monotone:
+                    sc = min(sc, -neg)
+                heapq.heappush(heap, (-sc, next(count), child))
+        return [(-item[0], item[2]) for item in heap]
 
     def support(self, d: Any, splits: int = 0) -> np.ndarray | float:
         """Guaranteed upper bound of the support function (exact for the zonotope enclosure);
-        ``splits=k`` splits the worst piece k times (per direction) and takes the max over pieces."""
+        ``splits=k`` splits the worst piece k times (per direction) and takes the max over pieces
+        (never larger than the bound without splitting)."""
         D, single = as_directions(d, self.dim)
         if splits <= 0:
             val = self.to_zonotope().support(D)
         else:
-            val = np.array([max(p.to_zonotope().support(di)
-                                for p in self._split_pieces(splits, lambda s, di=di: s.to_zonotope().support(di)))
-                            for di in D])
+            val = np.array([max(sc for sc, _ in self._split_pieces(
+                splits, lambda s, di=di: s.to_zonotope().support(di), monotone=True)) for di in D])
         return float(val[0]) if single else val
 
     def contains(self, points: Any, splits: int = 0, tol: float = 1e-7) -> np.ndarray:
         """Over-approximate membership: True if a point lies in the zonotope enclosure of one of the
         pieces after ``splits`` splits.  ``False`` means the point is certainly outside; ``True`` is
         exact only up to the enclosure error (exact membership in a PZ is a non-convex problem)."""
-        pieces = self._split_pieces(splits, _size_score) if splits > 0 else [self]
+        pieces = [pc for _, pc in self._split_pieces(splits, _size_score)] if splits > 0 else [self]
         from ocreach.sets._base import as_points
 
         P, single = as_points("points", points, self.dim)
@@ -337,7 +345,7 @@ class PolyZonotope(SetBase):
         P = self.project(dims).compact()
         if P.dim != 2:
             raise SetError(f"outline needs two dims; got {dims!r}")
-        return [p.to_zonotope().outline((0, 1)) for p in P._split_pieces(max(int(pieces) - 1, 0), _size_score)]
+        return [p.to_zonotope().outline((0, 1)) for _, p in P._split_pieces(max(int(pieces) - 1, 0), _size_score)]
 
 
 def _size_score(pz: PolyZonotope) -> float:

@@ -1,0 +1,25 @@
+"""Independent truths for the set tests (scipy LPs written here, not the library's code)."""
+import numpy as np
+from scipy.optimize import linprog
+
+
+def lp_in_zonotope(c, G, x, tol=1e-7):
+    """Is x in {c + G xi : |xi| <= 1}?  min ||e||_1 s.t. G xi + e+ - e- = x - c (scipy HiGHS)."""
+    n, h = G.shape
+    if h == 0:
+        return bool(np.all(np.abs(x - c) <= tol))
+    A = np.hstack([G, np.eye(n), -np.eye(n)])
+    cost = np.r_[np.zeros(h), np.ones(2 * n)]
+    bounds = [(-1, 1)] * h + [(0, None)] * (2 * n)
+    res = linprog(cost, A_eq=A, b_eq=x - c, bounds=bounds, method="highs")
+    assert res.status == 0
+    return res.fun <= tol * max(1.0, np.abs(G).sum())
+
+
+def lp_support(c, G, d):
+    """max d.x over the zonotope by an LP over the factors."""
+    h = G.shape[1]
+    if h == 0:
+        return float(d @ c)
+    res = linprog(-(G.T @ d), bounds=[(-1, 1)] * h, method="highs")
+    return float(d @ c - res.fun)

@@ -1,0 +1,101 @@
+"""Containment answers against independent LPs written in the test (scipy.optimize.linprog)."""
+import casadi as ca
+import cvxpy as cp
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from ocreach.sets import (Ellipsoid, Interval, PolyZonotope, Zonotope, points_in_zonotope, zonotope_in_interval,
+                          zonotope_in_zonotope)
+
+from _sets_truth import lp_in_zonotope
+
+SET = settings(max_examples=30, deadline=None)
+
+
+def boundary_points(Z, rng, k, eps):
+    """Points at distance ~eps outside (eps > 0) / inside (eps < 0) of vertices of Z."""
+    d = rng.normal(size=(k, Z.dim))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    V = Z.c + np.sign(d @ Z.G) @ Z.G.T
+    return np.where(eps > 0, V + eps * d, Z.c + (1 + eps) * (V - Z.c))
+
+
+@SET
+@given(st.integers(0, 10**6), st.sampled_from(["auto", "lp"]))
+def test_points_in_zonotope_match_linprog(seed, method):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 5))
+    h = int(rng.integers(n, 9)) if seed % 3 else int(rng.integers(0, n + 1))  # also rank-deficient cases
+    Z = Zonotope(rng.normal(size=n), rng.normal(size=(n, h)))
+    pts = np.vstack([Z.sample(10, rng), Z.sample(5, rng) + rng.normal(size=(5, n)),
+                     boundary_points(Z, rng, 8, 1e-3), boundary_points(Z, rng, 8, -1e-3)])
+    got = points_in_zonotope(Z, pts, method=method)
+    want = np.array([lp_in_zonotope(Z.c, Z.G, x) for x in pts])
+    assert np.array_equal(got, want)
+
+
+def test_points_in_zonotope_many_generators_uses_certificates_and_lp():
+    rng = np.random.default_rng(2)
+    Z = Zonotope(rng.normal(size=5), rng.normal(size=(5, 30)))  # C(30, 4) > facet limit
+    pts = np.vstack([boundary_points(Z, rng, 40, 1e-3), boundary_points(Z, rng, 40, -1e-3), Z.sample(40, rng)])
+    got = Z.contains(pts)
+    want = np.array([lp_in_zonotope(Z.c, Z.G, x) for x in pts])
+    assert np.array_equal(got, want)
+    assert got[:40].sum() == 0 and got[40:].all()
+
+
+@SET
+@given(st.integers(0, 10**6))
+def test_zonotope_in_zonotope(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 4))
+    Z2 = Zonotope(rng.normal(size=n), rng.normal(size=(n, int(rng.integers(n, n + 4)))))
+    # inside by construction: a scaled linear image of Z2's factors
+    S = rng.uniform(-1, 1, size=(Z2.n_generators, 3))
+    S /= max(1.0, np.abs(S).sum(axis=1).max()) * 1.05
+    Zin = Zonotope(Z2.c + 0.01 * Z2.G @ rng.uniform(-1, 1, Z2.n_generators), Z2.G @ S * 0.9)
+    assert zonotope_in_zonotope(Zin, Z2, method="lp")
+    assert zonotope_in_zonotope(Zin, Z2, method="vertex")
+    # random candidate: exact answer = all vertices inside (checked by linprog)
+    Zr = Zonotope(Z2.c + 0.3 * rng.normal(size=n), 0.4 * rng.normal(size=(n, 3)))
+    want = all(lp_in_zonotope(Z2.c, Z2.G, v) for v in Zr.vertices())
+    assert zonotope_in_zonotope(Zr, Z2, method="vertex") == want
+    assert zonotope_in_zonotope(Zr, Z2, method="auto") == want
+    if zonotope_in_zonotope(Zr, Z2, method="lp"):  # sufficient condition must never be wrong
+        assert want
+    I = Z2.interval_hull()
+    assert zonotope_in_interval(Z2, I)
+    assert not zonotope_in_interval(Z2 + np.full(n, 1e-3), I)
+
+
+def test_containment_constraints_cvxpy():
+    rng = np.random.default_rng(0)
+    Z = Zonotope(rng.normal(size=3), rng.normal(size=(3, 5)))
+    d = rng.normal(size=3)
+    for S, want in [(Z, Z.support(d)), (Z.interval_hull(), Z.interval_hull().support(d)),
+                    (Ellipsoid([0, 1, 0], np.diag([1.0, 2.0, 3.0])), None),
+                    (PolyZonotope([0, 0, 0], np.eye(3), None, [[2, 0, 0], [0, 1, 0], [0, 0, 1]], None), None)]:
+        x = cp.Variable(3)
+        cons, _ = S.containment_constraints(x)
+        prob = cp.Problem(cp.Maximize(d @ x), cons)
+        prob.solve(solver=cp.CLARABEL)
+        ref = S.support(d) if want is None else want
+        assert np.isclose(prob.value, ref, rtol=1e-6, atol=1e-6)
+
+
+def test_casadi_containment_zonotope_qp():
+    rng = np.random.default_rng(1)
+    Z = Zonotope(rng.normal(size=2), rng.normal(size=(2, 4)))
+    x = ca.MX.sym("x", 2)
+    cc = Z.casadi_containment(x)
+    d = np.array([0.3, -1.0])
+    nlp = {"x": ca.vertcat(x, cc.xi), "f": -ca.dot(ca.DM(d), x), "g": cc.g}
+    solver = ca.nlpsol("s", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False})
+    lbx = np.r_[-np.inf, -np.inf, cc.lbxi]
+    ubx = np.r_[np.inf, np.inf, cc.ubxi]
+    sol = solver(lbx=lbx, ubx=ubx, lbg=cc.lbg, ubg=cc.ubg)
+    assert solver.stats()["success"]
+    assert np.isclose(-float(sol["f"]), Z.support(d), rtol=1e-6)
+    I = Interval([0, 0], [1, 2])
+    ci = I.casadi_containment(ca.SX.sym("y", 2))
+    assert np.allclose(ci.ubg, [1, 2]) and ci.xi is None

@@ -1,0 +1,228 @@
+"""Polynomial zonotopes: exact operations agree pointwise, over-approximations contain samples."""
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from ocreach.errors import SetError
+from ocreach.sets import (Interval, PolyZonotope, Zonotope, cartesian_product, new_ids, reduce, tensor_map,
+                          unit_ball_pz)
+
+from _sets_truth import lp_in_zonotope
+
+SET = settings(max_examples=30, deadline=None)
+
+
+def rand_pz(rng, n=None, h=None, p=None, q=0, emax=3):
+    n = n or int(rng.integers(1, 5))
+    h = int(rng.integers(0, 7)) if h is None else h
+    p = p or int(rng.integers(1, 4))
+    return PolyZonotope(rng.normal(size=n), rng.normal(size=(n, h)), rng.normal(size=(n, q)),
+                        rng.integers(0, emax + 1, size=(p, h)), new_ids(p))
+
+
+def alpha_for(pz, ids, values):
+    """Factor values of ``pz`` (in its id order) taken from a dict id -> value column."""
+    return np.column_stack([values[int(i)] for i in pz.id]) if pz.n_factors else np.zeros((len(next(iter(values.values()))), 0))
+
+
+def factor_dict(rng, ids, N):
+    return {int(i): rng.uniform(-1, 1, N) for i in ids}
+
+
+def pointwise(pz, vals):
+    """Evaluate the polynomial directly from c, G, E (independent of evaluate())."""
+    N = len(next(iter(vals.values())))
+    out = np.tile(pz.c, (N, 1))
+    for i in range(pz.n_dependent):
+        m = np.ones(N)
+        for k, ident in enumerate(pz.id):
+            m = m * vals[int(ident)] ** pz.E[k, i]
+        out += m[:, None] * pz.G[:, i]
+    return out
+
+
+@SET
+@given(st.integers(0, 10**6))
+def test_linear_map_translation_exact(seed):
+    rng = np.random.default_rng(seed)
+    pz = rand_pz(rng)
+    M = rng.normal(size=(int(rng.integers(1, 4)), pz.dim))
+    v = rng.normal(size=M.shape[0])
+    out = M @ pz + v
+    vals = factor_dict(rng, pz.id, 20)
+    assert np.allclose(pointwise(out, vals), pointwise(pz, vals) @ M.T + v)
+
+
+@SET
+@given(st.integers(0, 10**6))
+def test_exact_sum_keeps_shared_ids(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 4))
+    shared = new_ids(2)
+    a = PolyZonotope(rng.normal(size=n), rng.normal(size=(n, 4)), None, rng.integers(0, 3, size=(3, 4)),
+                     np.r_[shared, new_ids(1)])
+    b = PolyZonotope(rng.normal(size=n), rng.normal(size=(n, 5)), None, rng.integers(0, 3, size=(3, 5)),
+                     np.r_[new_ids(1), shared[::-1]])
+    s = a + b
+    vals = factor_dict(rng, np.union1d(a.id, b.id), 25)
+    assert np.allclose(s.evaluate(alpha_for(s, None, vals)), pointwise(a, vals) + pointwise(b, vals))
+    # equal monomials are merged: no two equal exponent columns remain
+    assert np.unique(s.E, axis=1).shape[1] == s.n_dependent
+
+
+@SET
+@given(st.integers(0, 10**6))
+def test_cartesian_product_exact(seed):
+    rng = np.random.default_rng(seed)
+    a = rand_pz(rng)
+    b = PolyZonotope(rng.normal(size=2), rng.normal(size=(2, 3)), None, rng.integers(0, 3, size=(2, 3)),
+                     np.r_[a.id[:1], new_ids(1)])  # shares one factor with a
+    cp_ = cartesian_product(a, b)
+    vals = factor_dict(rng, np.union1d(a.id, b.id), 15)
+    assert np.allclose(cp_.evaluate(alpha_for(cp_, None, vals)),
+                       np.hstack([pointwise(a, vals), pointwise(b, vals)]))
+
+
+@SET
+@given(st.integers(0, 10**6), st.sampled_from([2, 3]))
+def test_tensor_map_exact_including_centre(seed, order):
+    rng = np.random.default_rng(seed)
+    pz = rand_pz(rng, emax=2, h=int(rng.integers(0, 6)))
+    m, n = int(rng.integers(1, 4)), pz.dim
+    T = rng.normal(size=(m,) + (n,) * order)
+    out = tensor_map(T, pz)
+    vals = factor_dict(rng, pz.id, 20)
+    s = pointwise(pz, vals)
+    want = (np.einsum("iab,na,nb->ni", T, s, s) if order == 2 else np.einsum("iabc,na,nb,nc->ni", T, s, s, s))
+    got = out.evaluate(alpha_for(out, None, vals)) if out.n_factors else np.tile(out.c, (20, 1))
+    assert np.allclose(np.atleast_2d(got), want, atol=1e-9 * (1 + np.abs(want).max()))
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 10**6))
+def test_tensor_map_with_independent_generators_is_sound(seed):
+    rng = np.random.default_rng(seed)
+    pz = rand_pz(rng, n=2, h=3, p=2, q=2, emax=2)
+    T = rng.normal(size=(2, 2, 2))
+    out = tensor_map(T, pz)
+    al = rng.uniform(-1, 1, size=(15, pz.n_factors))
+    be = rng.choice([-1.0, 1.0, 0.3], size=(15, 2))
+    s = pz.evaluate(al, be)
+    want = np.einsum("iab,na,nb->ni", T, s, s)
+    vals = {int(i): al[:, k] for k, i in enumerate(pz.id)}
+    dep = out.evaluate(alpha_for(out, None, vals), np.zeros((15, out.n_independent))) if out.n_factors else \
+        np.tile(out.c, (15, 1))
+    for k in range(15):  # the rest must be reachable by the independent generators
+        assert lp_in_zonotope(np.zeros(2), out.GI, want[k] - dep[k], tol=1e-6)
+
+
+@SET
+@given(st.integers(0, 10**6))
+def test_split_is_exact_union(seed):
+    rng = np.random.default_rng(seed)
+    pz = rand_pz(rng, h=int(rng.integers(1, 6)))
+    fid = int(pz.id[0])
+    lo, hi = pz.split(fid)
+    vals = factor_dict(rng, pz.id, 30)
+    want = pointwise(pz, vals)
+    a = vals[fid]
+    for piece, sign in ((lo, -1.0), (hi, 1.0)):
+        sel = (a <= 0) if sign < 0 else (a >= 0)
+        v2 = {k: v[sel] for k, v in vals.items()}
+        v2[fid] = 2 * a[sel] - sign  # a = (a' + sign) / 2
+        if piece.n_factors:
+            got = piece.evaluate(alpha_for(piece, None, v2))
+        else:
+            got = np.tile(piece.c, (sel.sum(), 1))
+        assert np.allclose(np.atleast_2d(got).reshape(-1, pz.dim), want[sel])
+
+
+@SET
+@given(st.integers(0, 10**6))
+def test_enclosure_hull_reduce_contain_samples(seed):
+    rng = np.random.default_rng(seed)
+    pz = rand_pz(rng, n=int(rng.integers(1, 4)), h=int(rng.integers(3, 12)), q=int(rng.integers(0, 3)))
+    pts = np.vstack([pz.sample(20, rng), pz.sample(20, rng, mode="extreme")])
+    Z = pz.to_zonotope()
+    I = pz.interval_hull()
+    h_max = max(pz.dim, int(rng.integers(pz.dim, pz.n_generators + 1)))
+    method = ["pca", "girard"][seed % 2]
+    R = reduce(pz, h_max, method)
+    assert R.n_generators <= h_max
+    RZ = R.to_zonotope()
+    assert np.all(I.contains(pts, tol=1e-9))
+    for x in pts:
+        assert lp_in_zonotope(Z.c, Z.G, x)
+        assert lp_in_zonotope(RZ.c, RZ.G, x, tol=1e-6)
+    # support upper bound (with and without splitting) dominates every sample
+    d = rng.normal(size=pz.dim)
+    smax = (pts @ d).max()
+    assert pz.support(d) >= smax - 1e-9
+    assert pz.support(d, splits=4) >= smax - 1e-9
+    assert pz.support(d, splits=4) <= pz.support(d) + 1e-9
+    assert np.all(pz.contains(pts, splits=3))
+
+
+def test_reduced_pz_still_dependent_on_kept_factors():
+    rng = np.random.default_rng(3)
+    pz = rand_pz(rng, n=3, h=30, p=4)
+    R = reduce(pz, 10, "pca")
+    assert R.n_generators <= 10 and R.n_dependent >= 1
+
+
+def test_foss_eq15():
+    pz = PolyZonotope([2, 0], [[3, 0, 1], [2, 4, 2]], None, [[1, 0, 2], [0, 2, 1]], [1, 2])
+    a = np.array([[0.3, -0.7]])
+    want = np.array([2, 0]) + np.array([3, 2]) * 0.3 + np.array([0, 4]) * 0.49 + np.array([1, 2]) * 0.09 * -0.7
+    assert np.allclose(pz.evaluate(a), want)
+    # exact x-range: 2 + 3a1 + a1^2 a2 spans [-2, 6]
+    assert np.isclose(pz.support([1, 0], splits=8), 6.0, atol=1e-9)
+    assert np.isclose(-pz.support([-1, 0], splits=8), -2.0, atol=1e-9)
+
+
+def test_unit_ball_pz_encloses_disk_boundary_and_is_tight():
+    for n in (2, 3):
+        B = unit_ball_pz(n)
+        d = np.random.default_rng(0).normal(size=(50, n))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        sup = B.support(d, splits=0)
+        assert np.all(sup >= 1 - 1e-12)
+        pts = B.sample(4000, 0)
+        r = np.linalg.norm(pts, axis=1)
+        assert r.max() < (1.01 if n == 2 else 1.03) and r.max() > 0.95
+        # image of the cube's boundary lies outside the open unit ball (enclosure argument)
+        F = np.random.default_rng(1).uniform(-1, 1, size=(2000, n))
+        F[np.arange(2000), np.arange(2000) % n] = np.sign(F[np.arange(2000), np.arange(2000) % n])
+        assert np.all(np.linalg.norm(B.evaluate(F), axis=1) >= 1 - 1e-12)
+
+
+def test_degenerate_inputs():
+    with pytest.raises(SetError, match="unique"):
+        PolyZonotope([0, 0], np.eye(2), None, np.eye(2), [5, 5])
+    with pytest.raises(SetError):
+        PolyZonotope([0, 0], np.eye(2), None, [[1, -1], [0, 1]], None)
+    with pytest.raises(SetError):
+        PolyZonotope([0, 0], np.ones((3, 2)))
+    empty = PolyZonotope([1.0, 2.0])
+    assert empty.n_generators == 0 and np.allclose(empty.sample(3, 0), [1, 2])
+    assert np.allclose(tensor_map(np.ones((1, 2, 2)), empty).c, [9.0])
+    one = PolyZonotope([0.5], [[2.0]], None, [[2]], None)
+    assert np.isclose(one.support([1.0]), 2.5) and np.isclose(one.support([-1.0]), -0.5)
+    z = PolyZonotope([0.0, 0.0], np.zeros((2, 3)))
+    assert z.compact().n_generators == 0
+    with pytest.raises(SetError):
+        reduce(rand_pz(np.random.default_rng(0), n=3, h=5), 2)
+    assert PolyZonotope.from_interval(Interval([0, 0], [1, 0])).n_dependent == 1
+    assert PolyZonotope.from_zonotope(Zonotope([0, 0])).n_generators == 0
+
+
+def test_outline_pieces_cover_samples():
+    pz = PolyZonotope([2, 0], [[3, 0, 1], [2, 4, 2]], None, [[1, 0, 2], [0, 2, 1]], [1, 2])
+    polys = pz.outline((0, 1), pieces=16)
+    assert len(polys) == 16
+    pts = pz.sample(300, 0)
+    from matplotlib.path import Path
+    inside = np.zeros(300, bool)
+    for P in polys:
+        inside |= Path(P).contains_points(pts, radius=1e-9) | Path(P[::-1]).contains_points(pts, radius=1e-9)
+    assert inside.all()
