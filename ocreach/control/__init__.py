@@ -1,0 +1,34 @@
+"""Station keeping on a reference: time-varying LQR and nonlinear MPC (Patel & Subbarao Eq. 26-28).
+
+::
+
+    from ocreach.control import LQR, MPC, SimOptions, compare_controllers
+    res = compare_controllers(problem, {"lqr": LQR(Q, R), "mpc": MPC(Q, R, n_p=10, n_c=5)},
+                              SimOptions(dt=..., offset_box=..., disturbance=1e-7))
+    res["mpc"].metrics
+
+The report ``lqr_vs_mpc_report(problem, out_dir, **options)`` lives in
+:mod:`ocreach.control.report` (imported lazily; it needs matplotlib).
+"""
+from ocreach.control.discretize import Discretization, rk4_expression
+from ocreach.control.lqr import LQR, dare, periodic_riccati, riccati_backward
+from ocreach.control.mpc import MPC
+from ocreach.control.reference import (TrackingReference, natural_reference, periodic_reference,
+                                       reference_from_problem)
+from ocreach.control.simulate import (Plant, SimOptions, SimResult, closed_loop_metrics,
+                                      compare_controllers, simulate)
+
+
+def lqr_vs_mpc_report(problem, out_dir, **options) -> dict:
+    """See :func:`ocreach.control.report.lqr_vs_mpc_report`."""
+    from ocreach.control.report import lqr_vs_mpc_report as _report
+
+    return _report(problem, out_dir, **options)
+
+
+__all__ = [
+    "Discretization", "LQR", "MPC", "Plant", "SimOptions", "SimResult", "TrackingReference",
+    "closed_loop_metrics", "compare_controllers", "dare", "lqr_vs_mpc_report", "natural_reference",
+    "periodic_reference", "periodic_riccati", "reference_from_problem", "riccati_backward",
+    "rk4_expression", "simulate",
+]

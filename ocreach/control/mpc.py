@@ -1,0 +1,335 @@
+"""Nonlinear model predictive control with CasADi and IPOPT (Patel & Subbarao Eq. 26-28).
+
+At step ``k`` the controller solves, with ``N = n_p``,
+
+    min  sum_{i=0}^{N-1} dx_i^T Q dx_i + du_i^T R du_i + dx_N^T P dx_N,   dx_i = x_{k+i|k} - x_ref_{k+i}
+    s.t. x_{k+i+1|k} = f_d(x_{k+i|k}, u_{k+i|k})        (Eq. 26, RK4 substeps, multiple shooting)
+         u_{k+i|k} in U                                   (Eq. 28 box, or the Euclidean ball Eq. 5)
+         u_{k+i|k} = u_{k+n_c-1|k} for i >= n_c           (control horizon: inputs held)
+         x_{k+i|k} in R_{k+i}                             (Eq. 27 tube, optional)
+
+and applies ``u_{k|k}``.  The terminal weight ``P`` defaults to the LQR Riccati solution
+``P_{k+N}`` (so without active constraints the MPC reproduces the LQR on the linearised dynamics).
+``du_i = u_i - u_ref_i``.  The NLP is built once (``nlpsol`` with parameters: current state,
+reference window, model parameters, terminal weight and optional tube), expanded to SX, and
+warm-started from the shifted previous solution.
+
+Decision variables are the controls of the control horizon and the *deviations*
+``d_i = x_{k+i|k} - x_ref_{k+i}``, ``i = 1..N`` (well scaled near the reference); the objective is
+divided by the largest eigenvalue of the control weight so IPOPT's tolerances are meaningful.
+
+Tube constraints (Eq. 27, last line): with ``tube=q`` the NLP gets ``x_{k+i|k} = c_i + G_i xi_i``,
+``|xi_i|_inf <= 1`` with ``c_i`` (``n_x``) and ``G_i`` (``n_x x q``) passed per solve
+(:meth:`MPC.set_tube`), e.g. a zonotope tube from an SDC reachability run.  ``extra_constraints``
+is a callable ``(X, U, params) -> [(g, lbg, ubg), ...]`` with ``X`` the ``n_x x (N+1)`` predicted
+states and ``U`` the ``n_u x N`` controls (CasADi SX), for any other constraint.
+
+Failure handling: if IPOPT does not report success (including ``max_cpu_time`` / ``max_iter``
+exhaustion, non-finite values or an exception), the event is logged, counted in ``fallbacks`` and
+recorded in ``events``; the controller applies the shifted previous plan while it is within the
+control horizon of a successful solve, otherwise the LQR law.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any, Callable
+
+import casadi as ca
+import numpy as np
+
+from ocreach.control.common import as_weight, check_thrust, control_scale, saturate, thrust_ratio
+from ocreach.control.lqr import LQR
+from ocreach.control.reference import TrackingReference
+from ocreach.errors import ProblemError
+
+log = logging.getLogger("ocreach.control.mpc")
+
+THRUST_SETS = ("plant", "ball", "box")
+_OK = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+
+def _check_int(name: str, value, lo: int) -> int:
+    if isinstance(value, bool) or int(value) != value or value < lo:
+        raise ProblemError(f"{name} must be an integer >= {lo}; got {value!r}")
+    return int(value)
+
+
+class MPC:
+    """Nonlinear MPC tracking a :class:`TrackingReference` (Patel & Subbarao Eq. 27).
+
+    Parameters
+    ----------
+    Q, R : state and control weights (``R`` in the units of ``weights_in``, see
+        :mod:`ocreach.control.common`).  Table 3: ``diag(1000, 1000, 1000, 100, 100, 100)``, ``I``.
+    n_p, n_c : prediction and control horizon (``1 <= n_c <= n_p``); Table 3: 10 and 5.
+    P : terminal weight; ``None`` uses the LQR Riccati solution ``P_{k+n_p}``.
+    thrust_set : ``"plant"`` (the problem's control set), ``"ball"`` (``u^T u <= 1``) or ``"box"``
+        (Eq. 28; ``|u_i| <= 1``, or the inscribed box ``|u_i| <= 1/sqrt(n_u)`` when the plant's
+        set is a ball, so the plant limit still holds).
+    max_cpu_time, max_iter : IPOPT limits per solve (a hit is a failure, see module docstring).
+    ipopt_options : extra IPOPT options (without the ``"ipopt."`` prefix).
+    tube : number of generators ``q`` of per-step tube constraints, or ``None``.
+    extra_constraints : callable ``(X, U, params) -> [(g, lbg, ubg), ...]`` or ``None``.
+    fallback : an :class:`LQR` (default: one with the same weights).
+    """
+
+    name = "mpc"
+
+    def __init__(self, Q, R, *, n_p: int = 10, n_c: int = 5, P=None, thrust_set: str = "plant",
+                 weights_in: str = "auto", max_cpu_time: float = 1.0, max_iter: int = 100,
+                 ipopt_options: dict | None = None, warm_start: bool = True,
+                 tube: int | None = None,
+                 extra_constraints: Callable[..., list] | None = None,
+                 fallback: LQR | None = None) -> None:
+        self.n_p = _check_int("n_p (prediction horizon)", n_p, 1)
+        self.n_c = _check_int("n_c (control horizon)", n_c, 1)
+        if self.n_c > self.n_p:
+            raise ProblemError(f"n_c (control horizon) must be <= n_p = {self.n_p}; got {n_c!r}")
+        if thrust_set not in THRUST_SETS:
+            raise ProblemError(f"thrust_set must be one of {THRUST_SETS}; got {thrust_set!r}")
+        if not np.isfinite(max_cpu_time) or max_cpu_time <= 0:
+            raise ProblemError(f"max_cpu_time must be > 0 (s); got {max_cpu_time!r}")
+        self.max_iter = _check_int("max_iter", max_iter, 0)
+        self.tube_q = None if tube is None else _check_int("tube (generators)", tube, 1)
+        self.Q_in, self.R_in, self.P_in = Q, R, P
+        self.thrust_set = thrust_set
+        self.weights_in = weights_in
+        self.max_cpu_time = float(max_cpu_time)
+        self.ipopt_options = dict(ipopt_options or {})
+        self.warm_start = warm_start
+        self.extra_constraints = extra_constraints
+        self.lqr = fallback
+        self.reference: TrackingReference | None = None
+        self.solver: ca.Function | None = None
+        self._tube_values: tuple[np.ndarray, np.ndarray] | None = None
+        self.reset()
+
+    # ------------------------------------------------------------------ setup
+    def setup(self, reference: TrackingReference, control_set_kind: str) -> "MPC":
+        """Validate, build the fallback LQR and the NLP (once per reference)."""
+        model = reference.model
+        check_thrust(model, reference.params)
+        nx, nu = model.n_x, model.n_u
+        self.Q = as_weight("Q", self.Q_in, nx, definite=False)
+        R = as_weight("R", self.R_in, nu, definite=True)
+        self.u_scale = control_scale(model, reference.params, self.weights_in)
+        self.R = self.u_scale**2 * R
+        self.P_fixed = None if self.P_in is None else as_weight("P", self.P_in, nx, definite=False)
+        self.plant_kind = control_set_kind
+        self.kind = control_set_kind if self.thrust_set == "plant" else self.thrust_set
+        if self.kind == "box":
+            self.u_bound = 1.0 / np.sqrt(nu) if control_set_kind == "ball" else 1.0
+        else:
+            self.u_bound = 1.0
+        if self.lqr is None:
+            self.lqr = LQR(self.Q_in, self.R_in, weights_in=self.weights_in)
+        if self.lqr.reference is not reference:
+            self.lqr.setup(reference, control_set_kind)
+        self.reference = reference
+        self._build(reference)
+        self.reset()
+        return self
+
+    def _build(self, ref: TrackingReference) -> None:
+        model = ref.model
+        nx, nu, N, Nc = model.n_x, model.n_u, self.n_p, self.n_c
+        F = ref.discretization.F
+        U = ca.SX.sym("U", nu, Nc)
+        D = ca.SX.sym("D", nx, N)
+        x0 = ca.SX.sym("x0", nx)
+        Xr = ca.SX.sym("Xr", nx, N + 1)
+        Ur = ca.SX.sym("Ur", nu, N)
+        t0 = ca.SX.sym("t0")
+        pm = ca.SX.sym("p", model.n_p)
+        Pt = ca.SX.sym("P", nx, nx)
+        q = self.tube_q
+        Uall = ca.horzcat(*[U[:, min(i, Nc - 1)] for i in range(N)])
+        X = ca.horzcat(x0, Xr[:, 1:] + D)
+        obj_scale = 1.0 / float(np.linalg.eigvalsh(self.R).max())
+        Qs, Rs = self.Q * obj_scale, self.R * obj_scale
+        J = 0
+        g, lbg, ubg = [], [], []
+        for i in range(N):
+            dx = X[:, i] - Xr[:, i]
+            du = Uall[:, i] - Ur[:, i]
+            J += ca.bilin(Qs, dx, dx) + ca.bilin(Rs, du, du)
+            g.append(X[:, i + 1] - F(X[:, i], Uall[:, i], t0 + i * ref.dt, pm))
+            lbg += [0.0] * nx
+            ubg += [0.0] * nx
+        J += obj_scale * ca.bilin(Pt, D[:, -1], D[:, -1])
+        self._n_dyn = N * nx
+        if self.kind == "ball":
+            for j in range(Nc):
+                g.append(ca.sumsqr(U[:, j]))
+                lbg.append(-ca.inf)
+                ubg.append(1.0)
+        w = [ca.vec(U), ca.vec(D)]
+        params = [x0, ca.vec(Xr), ca.vec(Ur), t0, pm, ca.vec(Pt)]
+        sym = {"x0": x0, "Xr": Xr, "Ur": Ur, "t0": t0, "p": pm, "P": Pt}
+        if q is not None:
+            XI = ca.SX.sym("XI", q, N)
+            C = ca.SX.sym("C", nx, N)
+            G = ca.SX.sym("G", nx * q, N)
+            for i in range(N):
+                Gi = ca.reshape(G[:, i], nx, q)
+                g.append(X[:, i + 1] - C[:, i] - ca.mtimes(Gi, XI[:, i]))
+                lbg += [0.0] * nx
+                ubg += [0.0] * nx
+            w.append(ca.vec(XI))
+            params += [ca.vec(C), ca.vec(G)]
+            sym.update({"tube_c": C, "tube_G": G})
+        if self.extra_constraints is not None:
+            for item in self.extra_constraints(X, Uall, sym):
+                ge, lo, hi = item
+                ge = ca.vec(ca.SX(ge))
+                n = ge.numel()
+                g.append(ge)
+                lbg += list(np.broadcast_to(np.asarray(lo, float), (n,)))
+                ubg += list(np.broadcast_to(np.asarray(hi, float), (n,)))
+        wv = ca.vertcat(*w)
+        nlp = {"x": wv, "p": ca.vertcat(*params), "f": J, "g": ca.vertcat(*g)}
+        opts: dict[str, Any] = {
+            "expand": True, "print_time": False, "error_on_fail": False,
+            "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_cpu_time": self.max_cpu_time,
+            "ipopt.max_iter": self.max_iter, "ipopt.tol": 1e-10,
+            "ipopt.acceptable_tol": 1e-7,
+        }
+        if self.warm_start:
+            opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-4,
+                         "ipopt.warm_start_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9})
+        opts.update({f"ipopt.{k}": v for k, v in self.ipopt_options.items()})
+        self.solver = ca.nlpsol("mpc", "ipopt", nlp, opts)
+        n_w = wv.numel()
+        lbx = -np.inf * np.ones(n_w)
+        ubx = np.inf * np.ones(n_w)
+        if self.kind == "box":
+            lbx[: nu * Nc] = -self.u_bound
+            ubx[: nu * Nc] = self.u_bound
+        if q is not None:
+            lbx[nu * Nc + nx * N:] = -1.0
+            ubx[nu * Nc + nx * N:] = 1.0
+        self._lbx, self._ubx = lbx, ubx
+        self._lbg, self._ubg = np.array(lbg, float), np.array(ubg, float)
+        self._n_w = n_w
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget plans, warm starts and counters (a new closed-loop run)."""
+        self.fallbacks = 0
+        self.events: list[dict] = []
+        self.solve_times: list[float] = []
+        self.plan: np.ndarray | None = None
+        self.plan_k = -1
+        self._w = None
+        self._lam_g = None
+        self._lam_x = None
+        self.last_status = ""
+
+    def set_tube(self, centers: np.ndarray, generators: np.ndarray) -> None:
+        """Tube for the next solve: ``centers (n_p, n_x)``, ``generators (n_p, n_x, q)``."""
+        if self.tube_q is None:
+            raise ProblemError("set_tube needs an MPC built with tube=q (number of generators)")
+        nx = self.reference.model.n_x
+        c = np.asarray(centers, float)
+        G = np.asarray(generators, float)
+        if c.shape != (self.n_p, nx) or G.shape != (self.n_p, nx, self.tube_q):
+            raise ProblemError(f"tube centers must be ({self.n_p}, {nx}) and generators "
+                               f"({self.n_p}, {nx}, {self.tube_q}); got {c.shape}, {G.shape}")
+        self._tube_values = (c, G)
+
+    def terminal_weight(self, k: int) -> np.ndarray:
+        return self.P_fixed if self.P_fixed is not None else self.lqr.cost_to_go(k + self.n_p)
+
+    # ------------------------------------------------------------------ solve
+    def _parameters(self, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ref = self.reference
+        Xr, Ur = ref.window(k, self.n_p)
+        parts = [x, Xr.ravel(), Ur.ravel(), [ref.time(k)], ref.params,
+                 self.terminal_weight(k).ravel(order="F")]
+        if self.tube_q is not None:
+            if self._tube_values is None:
+                raise ProblemError("MPC built with tube=q needs set_tube(...) before each solve")
+            c, G = self._tube_values
+            parts += [c.ravel(), G.reshape(self.n_p, -1, order="F").ravel()]
+        return np.concatenate([np.ravel(v) for v in parts]), Xr
+
+    def _initial_guess(self, k: int, x: np.ndarray, Xr: np.ndarray) -> np.ndarray:
+        nx, nu = self.reference.model.n_x, self.reference.model.n_u
+        N, Nc = self.n_p, self.n_c
+        F = self.reference.discretization.F
+        p = self.reference.params
+        if self._w is not None and self.warm_start and self.plan_k == k - 1:
+            U = self._w[: nu * Nc].reshape(Nc, nu)
+            U = np.vstack([U[1:], U[-1:]]) if Nc > 1 else U
+            Xprev = self._X_abs
+            Xs = np.vstack([Xprev[1:], np.asarray(F(Xprev[-1], self.plan[-1], self.reference.time(k + N - 1), p)).ravel()])
+        else:
+            U = np.tile(self.lqr.control(k, x), (Nc, 1))
+            Xs = np.empty((N, nx))
+            xi = x
+            for i in range(N):
+                xi = np.asarray(F(xi, U[min(i, Nc - 1)], self.reference.time(k + i), p)).ravel()
+                Xs[i] = xi
+        D = Xs - Xr[1:]
+        w = np.concatenate([U.ravel(), D.ravel()])
+        if self.tube_q is not None:
+            w = np.concatenate([w, np.zeros(self.tube_q * N)])
+        return w
+
+    def control(self, k: int, x: np.ndarray) -> np.ndarray:
+        """First control of the optimal plan at step ``k`` from state ``x`` (normalised)."""
+        if self.solver is None:
+            raise ProblemError("MPC.setup(reference, control_set_kind) must be called first")
+        x = np.asarray(x, float)
+        nx, nu = self.reference.model.n_x, self.reference.model.n_u
+        N, Nc = self.n_p, self.n_c
+        pv, Xr = self._parameters(k, x)
+        w0 = self._initial_guess(k, x, Xr)
+        args = dict(x0=w0, p=pv, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
+        if self.warm_start and self._lam_g is not None and self.plan_k == k - 1:
+            lam_g = self._lam_g.copy()
+            dyn = lam_g[: self._n_dyn].reshape(N, nx)
+            lam_g[: self._n_dyn] = np.vstack([dyn[1:], dyn[-1:]]).ravel()
+            args["lam_g0"] = lam_g
+            args["lam_x0"] = self._lam_x
+        t_start = time.perf_counter()
+        status, err = "", ""
+        try:
+            sol = self.solver(**args)
+            status = self.solver.stats().get("return_status", "")
+        except RuntimeError as exc:  # evaluation errors inside IPOPT
+            sol, err = None, str(exc)
+        self.solve_times.append(time.perf_counter() - t_start)
+        self.last_status = status or err
+        ok = sol is not None and status in _OK
+        if ok:
+            w = np.asarray(sol["x"]).ravel()
+            ok = bool(np.all(np.isfinite(w)))
+        if ok:
+            Uc = w[: nu * Nc].reshape(Nc, nu)
+            if np.max(thrust_ratio(Uc, "ball" if self.kind == "ball" else "box")) > self.u_bound * (1 + 1e-6):
+                ok, status = False, f"{status} (thrust bound violated)"
+        if ok:
+            self._w = w
+            self._lam_g = np.asarray(sol["lam_g"]).ravel()
+            self._lam_x = np.asarray(sol["lam_x"]).ravel()
+            D = w[nu * Nc: nu * Nc + nx * N].reshape(N, nx)
+            self._X_abs = Xr[1:] + D
+            self.plan = np.array([Uc[min(i, Nc - 1)] for i in range(N)])
+            self.plan_k = k
+            return saturate(Uc[0], self.plant_kind)
+        return self._fallback(k, x, status or err or "non-finite solution")
+
+    def _fallback(self, k: int, x: np.ndarray, reason: str) -> np.ndarray:
+        self.fallbacks += 1
+        age = k - self.plan_k
+        if self.plan is not None and 0 < age < self.n_c:
+            u, used = self.plan[age], "shifted plan"
+        else:
+            u, used = self.lqr.control(k, x), "lqr"
+            self._w = None  # cold start next time
+            self._lam_g = self._lam_x = None
+        self.events.append({"step": int(k), "reason": reason, "fallback": used})
+        log.warning("MPC step %d: IPOPT failed (%s); using %s", k, reason, used)
+        return saturate(u, self.plant_kind)

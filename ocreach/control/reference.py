@@ -1,0 +1,164 @@
+"""Reference trajectories for tracking: states, controls and their discrete linearisation on a grid.
+
+A :class:`TrackingReference` is sampled on a uniform grid ``t_k = t_0 + k dt``.  A periodic
+reference (one orbit period split into ``M`` steps) is indexed modulo ``M``, so a controller can
+look any number of steps ahead (MPC windows, multi-revolution simulations) without integrating an
+unstable orbit for long.  The states are propagated with SciPy's DOP853 at tight tolerance, not
+with the prediction model, so the reference is the *true* nonlinear trajectory.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from ocreach.control.discretize import Discretization
+from ocreach.errors import ProblemError, SolverError, check_positive
+from ocreach.model import Model
+
+
+def propagate_natural(model: Model, x0: np.ndarray, times: np.ndarray, p: np.ndarray,
+                      rtol: float = 1e-12, atol: float = 1e-13) -> np.ndarray:
+    """States of the uncontrolled (``u = 0``) model at ``times`` (DOP853); shape ``(len, n_x)``."""
+    u0 = np.zeros(model.n_u)
+    f = model.f_fun
+
+    def rhs(t, x):
+        return np.asarray(f(x, u0, t, p)).ravel()
+
+    sol = solve_ivp(rhs, (times[0], times[-1]), np.asarray(x0, float), method="DOP853",
+                    t_eval=times, rtol=rtol, atol=atol)
+    if not sol.success or sol.y.shape[1] != times.size:
+        raise SolverError(f"reference propagation failed: {sol.message}")
+    return sol.y.T
+
+
+@dataclass(eq=False)
+class TrackingReference:
+    """Reference ``x_ref_k`` (and ``u_ref_k``, normalised) on ``t_k = t0 + k dt``.
+
+    ``X`` has ``M + 1`` rows and ``U`` ``M`` rows.  If ``periodic``, step ``k`` is step ``k mod M``
+    (``X[M]`` equals ``X[0]`` up to the orbit's correction accuracy); otherwise indices beyond ``M``
+    are an error.  ``A``, ``B`` (``(M, n_x, n_x)``, ``(M, n_x, n_u)``) are the discrete
+    linearisation of the prediction model about the reference, filled by :meth:`linearize`.
+    """
+
+    model: Model
+    params: np.ndarray
+    t0: float
+    dt: float
+    X: np.ndarray
+    U: np.ndarray
+    periodic: bool = False
+    name: str = ""
+    n_sub: int = 2
+    A: np.ndarray | None = None
+    B: np.ndarray | None = None
+    cache: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        self.X = np.asarray(self.X, dtype=float)
+        self.U = np.asarray(self.U, dtype=float)
+        self.params = np.asarray(self.params, dtype=float)
+        if self.X.ndim != 2 or self.X.shape[1] != self.model.n_x or self.X.shape[0] < 2:
+            raise ProblemError(f"reference X must have shape (M + 1, {self.model.n_x}) with M >= 1; "
+                               f"got {self.X.shape}")
+        if self.U.shape != (self.X.shape[0] - 1, self.model.n_u):
+            raise ProblemError(f"reference U must have shape ({self.X.shape[0] - 1}, "
+                               f"{self.model.n_u}); got {self.U.shape}")
+
+    @property
+    def n_steps(self) -> int:
+        """Number of grid steps ``M`` stored."""
+        return self.U.shape[0]
+
+    @property
+    def discretization(self) -> Discretization:
+        if "disc" not in self.cache:
+            self.cache["disc"] = Discretization(self.model, self.dt, self.n_sub)
+        return self.cache["disc"]
+
+    def time(self, k) -> np.ndarray | float:
+        return self.t0 + np.asarray(k) * self.dt
+
+    def _index(self, k: np.ndarray, last: int) -> np.ndarray:
+        k = np.asarray(k)
+        if self.periodic:
+            return k % self.n_steps
+        if np.any(k > last) or np.any(k < 0):
+            raise ProblemError(f"reference step index {int(np.max(k))} outside 0..{last} "
+                               f"(non-periodic reference '{self.name}' of {self.n_steps} steps)")
+        return k
+
+    def state(self, k) -> np.ndarray:
+        """``x_ref`` at step(s) ``k``."""
+        return self.X[self._index(k, self.n_steps)]
+
+    def control(self, k) -> np.ndarray:
+        """``u_ref`` at step(s) ``k``."""
+        return self.U[self._index(k, self.n_steps - 1)]
+
+    def window(self, k: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(X_ref[k..k+n] (n+1, n_x), U_ref[k..k+n-1] (n, n_u))`` for a prediction horizon."""
+        idx = np.arange(k, k + n + 1)
+        return self.state(idx), self.control(idx[:-1])
+
+    def linearize(self) -> "TrackingReference":
+        """Fill ``A_k = Phi(t_{k+1}, t_k)`` and ``B_k`` along the reference (one mapped call)."""
+        if self.A is None:
+            ks = np.arange(self.n_steps)
+            _, self.A, self.B = self.discretization.linearize(
+                self.X[:-1], self.U, self.time(ks), self.params)
+        return self
+
+    def gains_index(self, k) -> np.ndarray:
+        """Index into per-step arrays (``A``, ``B``, Riccati solutions) for step(s) ``k``."""
+        return self._index(k, self.n_steps - 1)
+
+
+def natural_reference(model: Model, x0, dt: float, n_steps: int, *, params=None, t0: float = 0.0,
+                      periodic: bool = False, n_sub: int = 2, name: str = "") -> TrackingReference:
+    """Reference along the uncontrolled trajectory from ``x0`` (``u_ref = 0``)."""
+    check_positive("dt", dt)
+    if int(n_steps) != n_steps or n_steps < 1:
+        raise ProblemError(f"n_steps must be an integer >= 1; got {n_steps!r}")
+    p = model.p_default if params is None else np.asarray(params, float)
+    times = t0 + dt * np.arange(n_steps + 1)
+    X = propagate_natural(model, model.validate_state(x0, "x0"), times, p)
+    return TrackingReference(model, p, t0, dt, X, np.zeros((n_steps, model.n_u)),
+                             periodic=periodic, n_sub=n_sub, name=name)
+
+
+def periodic_reference(model: Model, x0, period: float, steps_per_period: int, *, params=None,
+                       n_sub: int = 2, name: str = "") -> TrackingReference:
+    """One period of a periodic orbit on ``steps_per_period`` equal steps, indexed modulo the period."""
+    check_positive("period", period)
+    if int(steps_per_period) != steps_per_period or steps_per_period < 2:
+        raise ProblemError(f"steps_per_period must be an integer >= 2; got {steps_per_period!r}")
+    return natural_reference(model, x0, period / steps_per_period, steps_per_period, params=params,
+                             periodic=True, n_sub=n_sub, name=name)
+
+
+def reference_from_problem(problem, *, dt: float | None = None, n_steps: int | None = None,
+                           n_sub: int = 2) -> TrackingReference:
+    """Tracking reference of a :class:`ocreach.Problem`.
+
+    With ``problem.reference`` (a corrected periodic orbit) the reference is one period on steps of
+    about ``dt`` (rounded so the period is an integer number of steps; default: the problem's grid
+    step), periodic.  Otherwise it is the natural trajectory from ``problem.x0`` on ``n_steps``
+    steps of ``dt`` (defaults: the problem's grid).
+    """
+    grid = problem.grid
+    step = float(dt) if dt is not None else float(abs(grid[1] - grid[0]))
+    check_positive("dt", step)
+    ref = problem.reference
+    if ref is not None:
+        M = max(2, int(round(ref.period / step)))
+        return periodic_reference(problem.model, ref.x0, ref.period, M, params=problem.params,
+                                  n_sub=n_sub, name=getattr(ref, "name", "") or problem.id)
+    if problem.backward:
+        raise ProblemError(f"problem {problem.id!r} has a backward grid; tracking needs forward time")
+    K = int(n_steps) if n_steps is not None else int(round((grid[-1] - grid[0]) / step))
+    return natural_reference(problem.model, problem.x0, step, K, params=problem.params,
+                             t0=float(grid[0]), n_sub=n_sub, name=problem.id)

@@ -1,0 +1,271 @@
+"""LQR vs MPC station-keeping report (Patel & Subbarao Table 2, Fig. 3).
+
+:func:`lqr_vs_mpc_report` runs both controllers on a problem's reference with the same initial
+offset and disturbance draws and writes, atomically, into ``out_dir``: ``metrics.json``,
+``report.md``, ``report.html`` and three figures (``tracking_error.png``, ``control.png``,
+``trajectory.png``).
+"""
+from __future__ import annotations
+
+import html
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ocreach.control.lqr import LQR
+from ocreach.control.mpc import MPC
+from ocreach.control.reference import reference_from_problem
+from ocreach.control.simulate import SimOptions, SimResult, compare_controllers
+from ocreach.errors import ProblemError
+from ocreach.reach.result import atomic_write_bytes, atomic_write_text
+
+#: Patel & Subbarao Table 3 weights and horizons; Table 2 results (for the comparison line).
+PAPER_Q = (1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0)
+PAPER_R = (1.0, 1.0, 1.0)
+PAPER_TABLE2 = {"lqr": {"effort": 13.579, "tracking_error": 28.7529, "time_per_step": 0.0167},
+                "mpc": {"effort": 1.385, "tracking_error": 17.2308, "time_per_step": 0.0175}}
+#: Patel & Subbarao initial-set generators (position 1e-4, velocity 5e-4, non-dimensional).
+PAPER_OFFSET_BOX = (1e-4, 1e-4, 1e-4, 5e-4, 5e-4, 5e-4)
+
+METRIC_DOC = {
+    "effort": "sum_k ||a_max u_k|| (thrust acceleration, DU/TU^2; the paper's non-dimensional u)",
+    "effort_normalised": "sum_k ||u_k|| (fraction of T_max)",
+    "tracking_error": "sum_k ||x_k - x_ref_k|| over k = 0..K (non-dimensional state)",
+    "final_position_error": "||r_K - r_ref_K|| (DU)",
+    "delta_v": "sum_k ||a_max u_k|| dt (m/s)",
+    "time_per_step": "mean controller time per step (s)",
+    "total_time": "wall time of the closed loop incl. plant integration (s)",
+    "max_thrust_ratio": "max_k ||u_k|| / limit (commanded)",
+    "fallbacks": "MPC solves that failed or timed out (fallback applied)",
+    "n_steps": "control steps simulated",
+}
+
+
+def _fig_bytes(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _figures(problem, results: dict[str, SimResult], out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    units = problem.units
+    pos, vel = list(problem.position_dims), list(problem.velocity_dims)
+    L = units.length / 1e3 if units else 1.0
+    V = units.velocity if units else 1.0
+    tscale = units.time / 3600.0 if units else 1.0
+    tlabel = "time (h)" if units else "time (TU)"
+    thrust_N = problem.extra.get("thrust_N")
+    names = []
+
+    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for name, r in results.items():
+        t = (r.times - r.times[0]) * tscale
+        d = r.X - r.X_ref
+        ax[0].semilogy(t, np.linalg.norm(d[:, pos], axis=1) * L, label=name)
+        ax[1].semilogy(t, np.linalg.norm(d[:, vel], axis=1) * V, label=name)
+    ax[0].set_ylabel("position error (km)" if units else "position error (DU)")
+    ax[1].set_ylabel("velocity error (m/s)" if units else "velocity error (DU/TU)")
+    ax[1].set_xlabel(tlabel)
+    ax[0].legend()
+    ax[0].set_title(f"{problem.id}: tracking error")
+    for a in ax:
+        a.grid(True, which="both", alpha=0.3)
+    atomic_write_bytes(out / "tracking_error.png", _fig_bytes(fig))
+    names.append("tracking_error.png")
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for name, r in results.items():
+        t = (r.times[:-1] - r.times[0]) * tscale
+        mag = np.linalg.norm(r.U_applied, axis=1)
+        if thrust_N:
+            ax.step(t, mag * thrust_N * 1e3, where="post", label=name)
+        else:
+            ax.step(t, mag, where="post", label=name)
+    if thrust_N:
+        ax.axhline(thrust_N * 1e3, color="k", ls="--", lw=0.8, label="T_max")
+        ax.set_ylabel("thrust magnitude (mN)")
+    else:
+        ax.axhline(1.0, color="k", ls="--", lw=0.8, label="limit")
+        ax.set_ylabel("||u|| (fraction of limit)")
+    ax.set_yscale("symlog", linthresh=1e-3 * (thrust_N * 1e3 if thrust_N else 1.0))
+    ax.set_xlabel(tlabel)
+    ax.set_title(f"{problem.id}: control history")
+    ax.legend()
+    ax.grid(True, alpha=0.3)
+    atomic_write_bytes(out / "control.png", _fig_bytes(fig))
+    names.append("control.png")
+
+    if len(pos) == 3:
+        fig = plt.figure(figsize=(7, 6))
+        ax3 = fig.add_subplot(projection="3d")
+        first = next(iter(results.values()))
+        R = first.X_ref[:, pos] * L
+        ax3.plot(*R.T, "k--", lw=1.2, label="reference")
+        for name, r in results.items():
+            ax3.plot(*(r.X[:, pos] * L).T, lw=0.9, label=name)
+        lab = "km" if units else "DU"
+        ax3.set_xlabel(f"x ({lab})")
+        ax3.set_ylabel(f"y ({lab})")
+        ax3.set_zlabel(f"z ({lab})")
+        ax3.set_title(f"{problem.id}: closed-loop trajectories (rotating frame)")
+        ax3.legend()
+        atomic_write_bytes(out / "trajectory.png", _fig_bytes(fig))
+        names.append("trajectory.png")
+    return names
+
+
+def _ratio_text(m_lqr: dict, m_mpc: dict, key: str, what: str) -> str:
+    a, b = m_lqr[key], m_mpc[key]
+    if a == 0:
+        return f"{what}: LQR {a:.6g}, MPC {b:.6g}."
+    rel = (b - a) / a * 100
+    word = "less" if rel < 0 else "more"
+    return f"{what}: MPC/LQR = {b / a:.4f} (MPC {abs(rel):.2f} % {word} than LQR)."
+
+
+def lqr_vs_mpc_report(problem, out_dir: str | Path, *, dt: float | None = None,
+                      n_steps: int | None = None, n_p: int = 10, n_c: int = 5,
+                      Q: Any = PAPER_Q, R: Any = PAPER_R, thrust_set: str = "plant",
+                      offset_box: Any = "paper", x0_offset: Any = None,
+                      disturbance: Any = 1e-7, seed: int = 0, n_sub: int = 2,
+                      max_cpu_time: float = 1.0, progress: bool = True) -> dict:
+    """Compare the periodic LQR and the nonlinear MPC on ``problem`` and write the report.
+
+    Defaults are Patel & Subbarao's (Table 3 weights, ``N_p = 10``, ``N_c = 5``, initial offset
+    drawn uniformly from their initial set ``diag(1e-4 I, 5e-4 I)``, disturbance ``W = 1e-7 I``),
+    the problem's grid step (l2-halo: 1 h) and one reference period.  ``offset_box`` is
+    ``"paper"``, ``None`` or half-widths; ``R`` weighs the thrust acceleration (see
+    :mod:`ocreach.control.common`).  Returns ``{"lqr": metrics, "mpc": metrics, "settings": ...}``
+    (the content of ``metrics.json``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if problem.reference is None and problem.x0 is None:
+        raise ProblemError(f"problem {problem.id!r} has no reference to track")
+    box = None
+    if isinstance(offset_box, str):
+        if offset_box != "paper":
+            raise ProblemError(f"offset_box must be 'paper', None or half-widths; got {offset_box!r}")
+        if problem.model.n_x == 6:
+            box = np.array(PAPER_OFFSET_BOX)
+    elif offset_box is not None:
+        box = np.asarray(offset_box, float)
+    opt = SimOptions(dt=dt, n_steps=n_steps, offset_box=box, x0_offset=x0_offset,
+                     disturbance=disturbance, seed=seed, n_sub=n_sub, progress=progress)
+    ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
+    lqr = LQR(Q, R)
+    mpc = MPC(Q, R, n_p=n_p, n_c=n_c, thrust_set=thrust_set, max_cpu_time=max_cpu_time,
+              fallback=lqr)
+    results = compare_controllers(problem, {"lqr": lqr, "mpc": mpc}, opt, reference=ref)
+    units = problem.units
+    step_h = ref.dt * units.time / 3600.0 if units else None
+    settings = {
+        "problem": problem.id, "dt_TU": ref.dt, "dt_hours": step_h,
+        "n_steps": int(results["lqr"].U.shape[0]), "reference_steps": ref.n_steps,
+        "periodic_reference": ref.periodic, "n_p": n_p, "n_c": n_c,
+        "Q": _matrix_text(Q), "R": _matrix_text(R),
+        "R_units": "thrust acceleration (DU/TU^2)", "thrust_set_mpc": mpc.kind,
+        "plant_control_set": problem.control_set.kind, "lqr_riccati": lqr.mode,
+        "terminal_weight": "LQR Riccati P_{k+N_p}", "rk4_substeps": n_sub,
+        "offset": (results["lqr"].X[0] - results["lqr"].X_ref[0]).tolist(),
+        "disturbance_W": disturbance, "seed": seed, "max_cpu_time": max_cpu_time,
+        "a_max": float(problem.param("a_max")) if "a_max" in problem.model.param_names else None,
+        "metric_definitions": METRIC_DOC,
+    }
+    data = {name: r.metrics for name, r in results.items()}
+    data["settings"] = settings
+    data["mpc_events"] = results["mpc"].events
+    data["paper_table2"] = PAPER_TABLE2
+    atomic_write_text(out / "metrics.json", json.dumps(data, indent=2, default=float))
+    figs = _figures(problem, results, out)
+    md = _markdown(problem, data, figs)
+    atomic_write_text(out / "report.md", md)
+    atomic_write_text(out / "report.html", _html(problem, data, figs))
+    return data
+
+
+def _matrix_text(W) -> str:
+    M = np.asarray(W, float)
+    if M.ndim == 1:
+        M = np.diag(M)
+    if np.allclose(M, np.diag(np.diag(M))):
+        return "diag(" + ", ".join(f"{v:g}" for v in np.diag(M)) + ")"
+    return np.array2string(M, precision=6)
+
+
+def _rows(data: dict) -> list[tuple[str, str, str, str]]:
+    keys = ["effort", "effort_normalised", "tracking_error", "final_position_error", "delta_v",
+            "time_per_step", "total_time", "max_thrust_ratio", "fallbacks"]
+    rows = []
+    for k in keys:
+        a, b = data["lqr"][k], data["mpc"][k]
+        ratio = f"{b / a:.4f}" if isinstance(a, float) and a != 0 else "-"
+        rows.append((k, f"{a:.6g}", f"{b:.6g}", ratio))
+    return rows
+
+
+def _summary_lines(data: dict) -> list[str]:
+    ml, mm = data["lqr"], data["mpc"]
+    lines = [
+        _ratio_text(ml, mm, "effort", "Effort"),
+        _ratio_text(ml, mm, "tracking_error", "Tracking error"),
+        _ratio_text(ml, mm, "time_per_step", "Time per step"),
+        f"Thrust limit: max ||u||/limit = {ml['max_thrust_ratio']:.4f} (LQR), "
+        f"{mm['max_thrust_ratio']:.4f} (MPC); "
+        + ("neither exceeds it." if max(ml["max_thrust_ratio"], mm["max_thrust_ratio"]) <= 1 + 1e-9
+           else "the limit is EXCEEDED."),
+        f"MPC fallbacks: {mm['fallbacks']}.",
+    ]
+    p = data["paper_table2"]
+    lines.append(f"Paper (Table 2): effort LQR {p['lqr']['effort']} vs MPC {p['mpc']['effort']}, "
+                 f"tracking error {p['lqr']['tracking_error']} vs {p['mpc']['tracking_error']} "
+                 "(different step, offset and units; compare ratios, not values).")
+    return lines
+
+
+def _markdown(problem, data: dict, figs: list[str]) -> str:
+    s = data["settings"]
+    out = [f"# LQR vs MPC station keeping: {problem.id}", "",
+           f"{problem.description}", ""]
+    step = f"{s['dt_hours']:.4g} h" if s["dt_hours"] else f"{s['dt_TU']:.4g} TU"
+    out += [f"Step {step}, {s['n_steps']} steps; MPC N_p = {s['n_p']}, N_c = {s['n_c']}, "
+            f"thrust set {s['thrust_set_mpc']} (plant: {s['plant_control_set']}); "
+            f"LQR Riccati mode {s['lqr_riccati']}; Q = {s['Q']}, "
+            f"R = {s['R']} on {s['R_units']}; disturbance W = {s['disturbance_W']}, seed {s['seed']}.", "",
+            "| metric | LQR | MPC | MPC/LQR |", "| --- | ---: | ---: | ---: |"]
+    out += [f"| {k} | {a} | {b} | {r} |" for k, a, b, r in _rows(data)]
+    out += ["", "## Summary", ""] + [f"- {line}" for line in _summary_lines(data)]
+    out += ["", "## Metric definitions", ""]
+    out += [f"- `{k}`: {v}" for k, v in METRIC_DOC.items()]
+    if data["mpc_events"]:
+        out += ["", "## MPC fallback events", ""]
+        out += [f"- step {e['step']}: {e['reason']} -> {e['fallback']}" for e in data["mpc_events"]]
+    out += [""] + [f"![{f}]({f})" for f in figs] + [""]
+    return "\n".join(out)
+
+
+def _html(problem, data: dict, figs: list[str]) -> str:
+    esc = html.escape
+    rows = "".join(f"<tr><td>{esc(k)}</td><td>{a}</td><td>{b}</td><td>{r}</td></tr>"
+                   for k, a, b, r in _rows(data))
+    summ = "".join(f"<li>{esc(x)}</li>" for x in _summary_lines(data))
+    imgs = "".join(f'<p><img src="{esc(f)}" alt="{esc(f)}"></p>' for f in figs)
+    s = esc(json.dumps({k: v for k, v in data["settings"].items() if k != "metric_definitions"},
+                       default=float))
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>LQR vs MPC: "
+            f"{esc(problem.id)}</title></head><body><h1>LQR vs MPC station keeping: "
+            f"{esc(problem.id)}</h1><p>{esc(problem.description)}</p>"
+            f"<table border='1' cellpadding='4'><tr><th>metric</th><th>LQR</th><th>MPC</th>"
+            f"<th>MPC/LQR</th></tr>{rows}</table><h2>Summary</h2><ul>{summ}</ul>"
+            f"<h2>Settings</h2><pre>{s}</pre>{imgs}</body></html>")
