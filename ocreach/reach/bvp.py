@@ -1,0 +1,280 @@
+"""Continuous-time PMP boundary-value problem solved by shooting and continuation ("BVP").
+
+Holzinger & Scheeres' formulation as used by Foss et al. Sec. 2.1 and Tucker et al. Sec. 2.2:
+the extremal ``dx/dt = f(x, u*, t)``, ``dlam/dt = -(df/dx)^T lam`` with ``u* = argmin_u lam^T f``
+(Foss Eq. 4, the model's :meth:`~ocreach.model.Model.optimal_control_expression`) and the
+terminal condition of the support problem
+
+* ``cost="linear"``: ``lam(t_f) = -z-hat`` (maximise ``z-hat . x(t_f)``, Foss Sec. 2.1), or
+* ``cost="quadratic"``: ``lam(t_f) = -G (x(t_f) - x_ref(t_f))`` with ``G = z-hat z-hat^T`` on the
+  direction subspace (Tucker Eq. 4-5, ``G = R(theta) D R(theta)^T``, ``D = e1 e1^T``), measured
+  from the unpowered final state.
+
+The unknown is the initial costate ``lam_0``; the initial state is the nominal one or, with an
+ellipsoidal initial manifold (Tucker Eq. 6, Patel & Scheeres Eq. 21-23) or an initial Delta-V
+(Eq. 24-26), the transversality point ``x_0(lam_0)`` of :class:`InitialManifold`.  The root
+``F(lam_0, s) = lam(t_f; lam_0) - lam_f(s) = 0`` (Tucker Eq. 7-9) is found by Newton's method with
+the Jacobian from the state-costate STM (``dF/dlam_0 = Phi_lx dx_0/dlam_0 + Phi_ll`` plus the
+terms of ``lam_f``'s dependence on ``x(t_f)`` for the quadratic cost), first for one direction from
+the FFOE guess ``lam_0 = M^T lam_f`` (Patel & Scheeres Eq. 14 along the unpowered trajectory), then
+continued along the direction parameter ``s`` with the Euler predictor of the continuation ODE
+``dz/ds = -[dF/dz]^-1 dF/ds`` (Tucker Eq. 12) and a Newton corrector, halving the step when the
+corrector fails.  In a 2-D direction subspace ``s`` is the angle ``theta`` of
+``z-hat = (cos theta, sin theta)``; otherwise the directions are chained nearest-neighbour and
+``s`` is the great-circle angle between consecutive ones.
+
+The control is continuous in time (not piecewise constant).  ``controls`` holds ``u*`` at the start
+of each segment (for inspection), ``meta["costate0"]`` the initial costates and
+``trajectories[:, 0]`` the initial states: :func:`ocreach.reach.extremal.extremal_rhs`
+integrated from ``[x_0, lam_0]`` reproduces every trajectory.  Needs a control-affine model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ocreach.errors import ProblemError, SolverError
+from ocreach.model import Model
+from ocreach.problem import Problem
+from ocreach.reach.base import Timer
+from ocreach.reach.directions import continuation_order
+from ocreach.reach.indirect import FFOE, InitialManifold, backward_sensitivities
+from ocreach.reach.result import ReachResult
+
+COSTS = ("linear", "quadratic")
+
+
+def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
+    """``(y = [x; lam; vec Phi], t, p) -> dy/dt``: Foss Eq. 4 with its ``2n x 2n`` STM (row-major).
+
+    The STM includes the dependence of ``u*`` on ``lam`` (and ``x``).  Cached on the model.
+    """
+
+    def build():
+        n = model.n_x
+        lam = ca.SX.sym("lam", n)
+        u_star = model.optimal_control_expression(lam, smooth=smooth)
+        jac = ca.Function("fx", [model.x, model.u, model.t, model.p], [ca.jacobian(model.f, model.x)])
+        xdot = model.f_fun(model.x, u_star, model.t, model.p)
+        ldot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
+        w = ca.vertcat(model.x, lam)
+        g = ca.vertcat(xdot, ldot)
+        A = ca.jacobian(g, w)
+        phi = ca.SX.sym("phi", 4 * n * n)
+        Phi = ca.reshape(phi, 2 * n, 2 * n).T  # row-major
+        dPhi = ca.reshape(ca.mtimes(A, Phi).T, -1, 1)
+        y = ca.vertcat(w, phi)
+        return ca.Function(f"costate_stm_{abs(hash(smooth)) % 10**6}", [y, model.t, model.p],
+                           [ca.vertcat(g, dPhi)], ["y", "t", "a"], ["ydot"], {"cse": True})
+
+    return model._cached(("costate_stm_rhs", float(smooth)), build)
+
+
+def costate_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
+    """``(y = [x; lam], t, p) -> dy/dt`` (Foss Eq. 4), cached on the model."""
+
+    def build():
+        lam = ca.SX.sym("lam", model.n_x)
+        u_star = model.optimal_control_expression(lam, smooth=smooth)
+        jac = ca.Function("fx", [model.x, model.u, model.t, model.p], [ca.jacobian(model.f, model.x)])
+        xdot = model.f_fun(model.x, u_star, model.t, model.p)
+        ldot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
+        return ca.Function(f"costate_{abs(hash(smooth)) % 10**6}", [ca.vertcat(model.x, lam), model.t, model.p],
+                           [ca.vertcat(xdot, ldot)], ["y", "t", "a"], ["ydot"])
+
+    return model._cached(("costate_rhs", float(smooth)), build)
+
+
+def _slerp(a: np.ndarray, b: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Point and derivative of the great circle from ``a`` (s=0) to ``b`` (s=1), and its angle."""
+    cos = float(np.clip(a @ b, -1.0, 1.0))
+    ang = float(np.arccos(cos))
+    if ang < 1e-12:
+        return b.copy(), np.zeros_like(b), 0.0
+    perp = b - cos * a
+    perp /= np.linalg.norm(perp)
+    th = s * ang
+    return np.cos(th) * a + np.sin(th) * perp, ang * (-np.sin(th) * a + np.cos(th) * perp), ang
+
+
+class BVPContinuation(FFOE):
+    """PMP boundary-value problem by shooting on lam_0 and continuation in the direction
+    (Holzinger & Scheeres; Foss Sec. 2.1 "BVP"; Tucker Eq. 4-12)."""
+
+    name = "bvp"
+    description = "PMP boundary-value problem: Newton shooting on lam_0 from the FFOE guess, continued along the direction (Holzinger; Tucker Eq. 12)"
+
+    @dataclass
+    class Options(FFOE.Options):
+        """FFOE options plus ``cost`` ("linear": lam_f = -z-hat; "quadratic": Tucker Eq. 4),
+        ``smooth`` (regularisation ``sqrt(|G^T lam|^2 + smooth^2)`` of the ball law; position-space
+        directions give ``lam_v(t_f) = 0``, where the exact law's Jacobian blows up like
+        ``1/(t_f - t)``; 1e-8 changes the cost by far less than the integration tolerance), ``tol`` (Newton residual,
+        max-norm of ``lam(t_f) - lam_f``), ``max_newton`` (iterations per corrector) and
+        ``max_halvings`` (continuation step halvings before giving up)."""
+
+        cost: str = "linear"
+        smooth: float = 1e-8
+        tol: float = 1e-10
+        max_newton: int = 12
+        max_halvings: int = 12
+
+        def __post_init__(self) -> None:
+            super().__post_init__()
+            if self.cost not in COSTS:
+                raise ProblemError(f"cost must be one of {COSTS}; got {self.cost!r}")
+            if not self.smooth >= 0:
+                raise ProblemError(f"smooth must be >= 0; got {self.smooth!r}")
+            if not self.tol > 0:
+                raise ProblemError(f"tol must be > 0; got {self.tol!r}")
+
+    # -------------------------------------------------------------- shooting
+    def _shoot(self, problem: Problem, p, manifold: InitialManifold, lam0: np.ndarray):
+        """``x0, x(t_f), lam(t_f)`` and the STM blocks ``(Phi_xx, Phi_xl, Phi_lx, Phi_ll)``."""
+        from ocreach.flow import integrate_batch
+
+        n = problem.model.n_x
+        x0 = manifold.apply(problem.x0, lam0[None])[0] if manifold.active else problem.x0
+        y0 = np.concatenate([x0, lam0, np.eye(2 * n).ravel()])
+        g = problem.grid
+        y1 = integrate_batch(self._rhs, y0[None], g[0], g[-1], p, rtol=self.options.rtol,
+                             atol=self.options.atol)[0]
+        Phi = y1[2 * n:].reshape(2 * n, 2 * n)
+        self._n_shots += 1
+        return x0, y1[:n], y1[n:2 * n], (Phi[:n, :n], Phi[:n, n:], Phi[n:, :n], Phi[n:, n:])
+
+    def _residual(self, problem, p, manifold, lam0, zhat, dims, x_ref):
+        """``F``, ``dF/dlam0`` and ``dF/dz-hat`` (a matrix acting on d z-hat) at ``lam0``."""
+        n = problem.model.n_x
+        x0, xf, lf, (Pxx, Pxl, Plx, Pll) = self._shoot(problem, p, manifold, lam0)
+        dx0 = manifold.jacobian(lam0) if manifold.active else np.zeros((n, n))
+        dxf = Pxx @ dx0 + Pxl
+        dlf = Plx @ dx0 + Pll
+        if self.options.cost == "linear":
+            return lf + zhat, dlf, np.eye(n)
+        G = np.outer(zhat, zhat)
+        e = xf - x_ref
+        F = lf + G @ e
+        dF_dz = (zhat @ e) * np.eye(n) + np.outer(zhat, e)  # d(G e)/dz-hat with G = z z^T
+        return F, dlf + G @ dxf, dF_dz
+
+    def _newton(self, problem, p, manifold, lam0, zhat, dims, x_ref):
+        """Newton corrector; returns ``(lam0, converged, residual norm, dF/dlam0, dF/dz-hat)``."""
+        opt = self.options
+        F, J, Dz = self._residual(problem, p, manifold, lam0, zhat, dims, x_ref)
+        err = float(np.max(np.abs(F)))
+        for _ in range(opt.max_newton):
+            if err < opt.tol:
+                return lam0, True, err, J, Dz
+            try:
+                step = np.linalg.solve(J, F)
+            except np.linalg.LinAlgError:
+                return lam0, False, err, J, Dz
+            t = 1.0
+            for _ls in range(8):  # damped Newton: accept the first step that lowers the residual
+                cand = lam0 - t * step
+                Fc, Jc, Dc = self._residual(problem, p, manifold, cand, zhat, dims, x_ref)
+                ec = float(np.max(np.abs(Fc)))
+                if np.isfinite(ec) and ec < err:
+                    break
+                t *= 0.5
+            else:
+                return lam0, False, err, J, Dz
+            lam0, F, J, Dz, err = cand, Fc, Jc, Dc, ec
+        return lam0, err < opt.tol, err, J, Dz
+
+    def solve(self, problem: Problem) -> ReachResult:
+        from ocreach.flow import integrate_batch
+        from ocreach.reach.extremal import optimal_control_fun
+
+        opt = self.options
+        model = problem.model
+        if not model.control_affine:
+            raise ProblemError(f"method 'bvp' needs a control-affine model (closed-form u* of Foss Eq. 4); "
+                               f"{model.name} is not (use ffoe or ole)")
+        if problem.control_set.kind != model.control_set:
+            raise ProblemError(f"method 'bvp' uses the model's control set {model.control_set!r}; "
+                               f"the problem asks for {problem.control_set.kind!r}")
+        timer = Timer()
+        self._n_shots = 0
+        with timer("setup"):
+            p, dirs, manifold = self._setup(problem)
+            from ocreach.reach.directions import resolve_dims
+
+            dims = resolve_dims(opt.dims, problem)
+            self._rhs = costate_stm_rhs(model, opt.smooth)
+            N, n = dirs.shape[0], model.n_x
+            order = np.arange(N) if len(dims) == 2 and not opt.random else continuation_order(dirs)
+        with timer("ffoe_guess"):
+            ref, Fx, Fu = self.reference(problem, p)
+            _, M = backward_sensitivities(Fx, Fu)
+            x_ref = ref.states[-1]
+        lam_sol = np.zeros((N, n))
+        steps = np.zeros(N, dtype=int)
+        with timer("continuation"):
+            first = order[0]
+            guess = -dirs[first] @ M
+            lam, ok, err, J, Dz = self._newton(problem, p, manifold, guess, dirs[first], dims, x_ref)
+            if not ok:
+                raise SolverError(f"bvp: Newton shooting from the FFOE guess did not converge for the first "
+                                  f"direction {dirs[first].tolist()} (residual {err:.3g} > tol {opt.tol:g})")
+            lam_sol[first] = lam
+            for a, b in zip(order[:-1], order[1:]):
+                lam, J, Dz, nsteps = self._continue(problem, p, manifold, lam, J, Dz, dirs[a], dirs[b],
+                                                    dims, x_ref)
+                lam_sol[b], steps[b] = lam, nsteps
+        with timer("trajectories"):
+            x0 = manifold.apply(problem.x0, lam_sol) if manifold.active else np.tile(problem.x0, (N, 1))
+            g = problem.grid
+            K = g.size - 1
+            traj = np.empty((N, K + 1, n))
+            lams = np.empty((N, K + 1, n))
+            controls = np.empty((N, K, model.n_u))
+            ufun = optimal_control_fun(model).map(N)
+            rhs = costate_rhs(model, opt.smooth)
+            y = np.hstack([x0, lam_sol])
+            traj[:, 0], lams[:, 0] = x0, lam_sol
+            for k in range(K):
+                controls[:, k] = np.asarray(ufun(y[:, :n].T, y[:, n:].T, g[k], p)).T
+                y = integrate_batch(rhs, y, g[k], g[k + 1], p, rtol=opt.rtol, atol=opt.atol)
+                traj[:, k + 1], lams[:, k + 1] = y[:, :n], y[:, n:]
+        meta = self.base_meta(problem, timer.times)
+        meta.update(directions=dirs, costate0=lam_sol, costate_final=lams[:, -1],
+                    cost=np.einsum("ni,ni->n", dirs, traj[:, -1]), continuation_steps=steps,
+                    continuation_order=order, shots=self._n_shots, params=p,
+                    reference_final=x_ref,
+                    controls_note="continuous optimal control u*(lambda(t)); controls holds its value "
+                                  "at each segment start; re-simulate [x0, costate0] with "
+                                  "bvp.costate_rhs(model, smooth) (extremal_rhs when smooth = 0)")
+        return ReachResult(times=g, points=[traj[:, k] for k in range(K + 1)], controls=controls,
+                           trajectories=traj, meta=meta)
+
+    def _continue(self, problem, p, manifold, lam, J, Dz, za, zb, dims, x_ref):
+        """Continue the solution from direction ``za`` to ``zb``: Euler predictor of Tucker Eq. 12
+        ``d lam0/ds = -[dF/dlam0]^-1 dF/ds`` and a Newton corrector; the step halves on failure."""
+        opt = self.options
+        s, ds = 0.0, 1.0
+        halvings = nsteps = 0
+        while s < 1.0 - 1e-14:
+            ds = min(ds, 1.0 - s)
+            dz_s = _slerp(za, zb, s)[1]
+            try:
+                dlam = -np.linalg.solve(J, Dz @ dz_s)
+            except np.linalg.LinAlgError:
+                raise SolverError("bvp: singular shooting Jacobian dF/dlam0 during continuation "
+                                  f"from {za.tolist()} to {zb.tolist()} at s = {s:.4g}") from None
+            z_new = _slerp(za, zb, s + ds)[0]
+            cand, ok, err, Jn, Dn = self._newton(problem, p, manifold, lam + ds * dlam, z_new, dims, x_ref)
+            if ok:
+                lam, J, Dz, s = cand, Jn, Dn, s + ds
+                nsteps += 1
+                ds = min(2 * ds, 1.0)
+            else:
+                halvings += 1
+                ds *= 0.5
+                if halvings > opt.max_halvings:
+                    raise SolverError(f"bvp: continuation from {za.tolist()} to {zb.tolist()} failed at "
+                                      f"s = {s:.4g} after {halvings} step halvings (last residual {err:.3g})")
+        return lam, J, Dz, nsteps
