@@ -1,0 +1,369 @@
+"""Stochastic discrete-time systems ``x_{k+1} = f(x_k) + G(x_k) h(u_k)`` and their Monte Carlo.
+
+Jain et al. Eq. 1: the state ``x_k`` is a random vector (Gaussian at ``k = 0``, Eq. 24-27) and the
+control ``u_k`` is drawn afresh from a Gaussian about a nominal profile at every step, independent
+of ``x_k``.  This module holds
+
+* :class:`SplitStepMap` - the split ``f(x, u) = f0(x, t) + G(x, t) hu(u)`` of a continuous model as
+  CasADi Functions, and the forward-Euler step ``x + dt f0 + dt G hu`` that keeps it (the
+  discretisation of Jain et al. Eq. 21-23);
+* :func:`step_map_for` - the map of a problem (``problem.extra["step_map"]`` or, for a
+  control-affine model, ``hu(u) = u`` and ``G = df/du``);
+* :func:`psd_factor` - a checked square root of a covariance (raises :class:`ProblemError`);
+* :func:`stochastic_monte_carlo` - the paper's ground truth: ``samples`` initial states and fresh
+  control samples at every step, vectorised over samples (one batched map call per step).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import casadi as ca
+import numpy as np
+
+from ocreach.errors import ProblemError, SolverError
+
+STEPS = ("euler", "flow")
+
+
+# =============================================================================== covariances
+def psd_factor(name: str, P: Any, n: int) -> np.ndarray:
+    """``L`` with ``L L^T = P`` for a symmetric positive semi-definite ``(n, n)`` covariance ``P``.
+
+    Uses the eigen-decomposition, so singular covariances (Jain et al. Eq. 25 and 27 have zero
+    variances) are allowed.  Raises :class:`ProblemError` naming ``name`` if ``P`` has the wrong
+    shape, is not finite, not symmetric or has an eigenvalue below ``-1e-10 * max|eig|``.
+    """
+    arr = np.asarray(P, dtype=float)
+    if arr.shape != (n, n):
+        raise ProblemError(f"{name} must be a ({n}, {n}) covariance matrix; got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ProblemError(f"{name} must be finite; got {arr!r}")
+    scale = float(np.abs(arr).max(initial=0.0))
+    if not np.allclose(arr, arr.T, rtol=1e-10, atol=1e-12 * max(scale, 1e-300)):
+        raise ProblemError(f"{name} must be symmetric; max |P - P^T| = {np.abs(arr - arr.T).max():.3g}")
+    w, V = np.linalg.eigh(0.5 * (arr + arr.T))
+    if w.size and w.min() < -1e-10 * max(scale, 1e-300):
+        raise ProblemError(f"{name} must be positive semidefinite; its smallest eigenvalue is "
+                           f"{w.min():.6g} (largest {w.max():.6g})")
+    return V * np.sqrt(np.clip(w, 0.0, None))[None, :]
+
+
+# =============================================================================== step map
+@dataclass(eq=False)
+class SplitStepMap:
+    """``f(x, u, t) = f0(x, t) + G(x, t) hu(u)`` and its Euler step (Jain et al. Eq. 1, 21-23).
+
+    ``f0(x, t, p) -> (n,)``, ``G(x, t, p) -> (n, r)``, ``hu(u, p) -> (r,)`` are CasADi Functions;
+    ``p`` the numeric parameters.  Batched evaluation maps them over columns (cached per size).
+    """
+
+    f0: ca.Function
+    G: ca.Function
+    hu: ca.Function
+    p: np.ndarray
+    name: str = ""
+    _maps: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def n_x(self) -> int:
+        return self.f0.size1_in(0)
+
+    @property
+    def n_u(self) -> int:
+        return self.hu.size1_in(0)
+
+    @property
+    def n_h(self) -> int:
+        return self.hu.size1_out(0)
+
+    def _fx(self) -> "_BatchFunction":
+        if "fx" not in self._maps:
+            x = ca.SX.sym("x", self.n_x)
+            t = ca.SX.sym("t")
+            p = ca.SX.sym("p", self.f0.size1_in(2))
+            G = self.G(x, t, p)
+            fun = ca.Function(f"split_fx_{_cname(self.name)}", [x, t, p],
+                              [ca.densify(self.f0(x, t, p)), ca.densify(ca.reshape(G.T, -1, 1))])
+            self._maps["fx"] = _BatchFunction(fun, batched=(True, False, False))
+        return self._maps["fx"]
+
+    def _hu(self) -> "_BatchFunction":
+        if "hu" not in self._maps:
+            u = ca.SX.sym("u", self.n_u)
+            p = ca.SX.sym("p", self.hu.size1_in(1))
+            fun = ca.Function(f"split_hu_{_cname(self.name)}", [u, p], [ca.densify(self.hu(u, p))])
+            self._maps["hu"] = _BatchFunction(fun, batched=(True, False))
+        return self._maps["hu"]
+
+    def drift_gain(self, X: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """``f0(X)`` of shape ``(N, n)`` and ``G(X)`` of shape ``(N, n, r)`` for states ``X (N, n)``."""
+        X = np.asarray(X, dtype=float)
+        F, G = self._fx()(X, np.array([t], dtype=float), self.p)
+        return F, G.reshape(X.shape[0], self.n_x, self.n_h)
+
+    def control(self, U: np.ndarray) -> np.ndarray:
+        """``hu(U)`` of shape ``(M, r)`` for controls ``U (M, m)``."""
+        (H,) = self._hu()(np.asarray(U, dtype=float), self.p)
+        return H
+
+    def _step(self) -> "_BatchFunction":
+        if "step" not in self._maps:
+            x = ca.SX.sym("x", self.n_x)
+            u = ca.SX.sym("u", self.n_u)
+            t = ca.SX.sym("t")
+            dt = ca.SX.sym("dt")
+            p = ca.SX.sym("p", self.f0.size1_in(2))
+            pu = ca.SX.sym("pu", self.hu.size1_in(1))
+            xn = x + dt * (self.f0(x, t, p) + ca.mtimes(self.G(x, t, p), self.hu(u, pu)))
+            fun = ca.Function(f"split_step_{_cname(self.name)}", [x, u, t, dt, p, pu], [ca.densify(xn)])
+            self._maps["step"] = _BatchFunction(fun, batched=(True, True, False, False, False, False))
+        return self._maps["step"]
+
+    def step(self, X: np.ndarray, U: np.ndarray, dt: float, t: float = 0.0) -> np.ndarray:
+        """Euler step ``X + dt (f0(X) + G(X) hu(U))`` for paired rows of ``X (N, n)``, ``U (N, m)``
+        (Jain et al. Eq. 21-23, corrected; one compiled call for the whole batch)."""
+        (Xn,) = self._step()(np.asarray(X, dtype=float), np.asarray(U, dtype=float),
+                             np.array([t], dtype=float), np.array([dt], dtype=float), self.p, self.p)
+        return Xn
+
+
+def _cname(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name) or "anon"
+
+
+_BATCH_C = """
+#include <stdlib.h>
+CASADI_SYMBOL_EXPORT int ocr_batch(long N, long n_in, const double** in, const long* in_stride,
+                                   long n_out, double** out, const long* out_stride) {
+  casadi_int sa, sr, si, sw;
+  OCR_FUN_work(&sa, &sr, &si, &sw);
+  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + n_in + 1));
+  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + n_out + 1));
+  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
+  casadi_real* w = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
+  if (!arg || !res || !iw || !w) return -1;
+  int flag = 0;
+  for (long s = 0; s < N && !flag; ++s) {
+    for (long i = 0; i < n_in; ++i) arg[i] = in[i] + s * in_stride[i];
+    for (long j = 0; j < n_out; ++j) res[j] = out[j] + s * out_stride[j];
+    flag = OCR_FUN(arg, res, iw, w, 0);
+  }
+  free(arg); free(res); free(iw); free(w);
+  return flag;
+}
+"""
+
+
+class _BatchFunction:
+    """Evaluate a CasADi Function (dense column inputs/outputs) row-wise over a batch.
+
+    The Function is generated as C with a loop over samples (compiled once, cached on disk by
+    :mod:`ocreach.flow`), so a batch of 10^4 samples costs one C call; inputs flagged ``batched``
+    are ``(N, size)`` arrays, the others are shared.  Falls back to ``Function.map`` when no C
+    compiler is available (same numbers, slower).
+    """
+
+    def __init__(self, fun: ca.Function, batched: tuple[bool, ...]):
+        self.fun = fun
+        self.batched = batched
+        self.sizes_in = [fun.size1_in(i) for i in range(fun.n_in())]
+        self.sizes_out = [fun.size1_out(j) for j in range(fun.n_out())]
+        self.native = None
+        self.maps: dict[int, ca.Function] = {}
+        try:
+            self.native = self._build()
+        except Exception as exc:  # no compiler: CasADi's VM gives the same numbers
+            import warnings
+
+            warnings.warn(f"ocreach.stochastic_mc: compiling {fun.name()} failed ({exc}); using "
+                          "CasADi's VM (slower)", RuntimeWarning, stacklevel=3)
+
+    def _build(self):
+        import ctypes
+
+        from ocreach.flow import _codegen, _compile_source, _jit_enabled
+
+        if not _jit_enabled():
+            return None
+        main = (f"#define OCR_FUN {self.fun.name()}\n#define OCR_FUN_work {self.fun.name()}_work\n"
+                "#include \"gen.c\"\n#include \"batch.c\"\n").encode()
+        lib = _compile_source(f"ocr_batch_{self.fun.name()}",
+                              {"gen.c": _codegen([self.fun]), "batch.c": _BATCH_C.encode(),
+                               "main.c": main}, "main.c", ("-O2",))
+        dll = ctypes.CDLL(str(lib))
+        fn = dll.ocr_batch
+        pp = ctypes.POINTER(ctypes.c_void_p)
+        fn.argtypes = [ctypes.c_long, ctypes.c_long, pp, ctypes.POINTER(ctypes.c_long),
+                       ctypes.c_long, pp, ctypes.POINTER(ctypes.c_long)]
+        fn.restype = ctypes.c_int
+        self._dll = dll
+        return fn
+
+    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
+        arrs = []
+        n = None
+        for a, b, size in zip(args, self.batched, self.sizes_in):
+            a = np.ascontiguousarray(a, dtype=float)
+            if b:
+                a = a.reshape(-1, size)
+                n = a.shape[0]
+            else:
+                a = a.reshape(size)
+            arrs.append(a)
+        n = 1 if n is None else n
+        if self.native is None:
+            fun = self.maps.get(n)
+            if fun is None:
+                fun = self.maps[n] = self.fun.map(n, "serial") if n > 1 else self.fun
+            res = fun(*[a.T if b else a for a, b in zip(arrs, self.batched)])
+            res = res if isinstance(res, (list, tuple)) else [res]
+            return [np.asarray(r.full()).T.reshape(n, s) for r, s in zip(res, self.sizes_out)]
+        import ctypes
+
+        outs = [np.empty((n, s)) for s in self.sizes_out]
+        in_ptr = (ctypes.c_void_p * len(arrs))(*[a.ctypes.data for a in arrs])
+        in_str = (ctypes.c_long * len(arrs))(*[s if b else 0 for s, b in
+                                               zip(self.sizes_in, self.batched)])
+        out_ptr = (ctypes.c_void_p * len(outs))(*[o.ctypes.data for o in outs])
+        out_str = (ctypes.c_long * len(outs))(*self.sizes_out)
+        flag = self.native(n, len(arrs), in_ptr, in_str, len(outs), out_ptr, out_str)
+        if flag != 0:
+            raise SolverError(f"evaluating {self.fun.name()} over a batch of {n} failed (flag {flag})")
+        return outs
+
+
+def step_map_for(problem) -> SplitStepMap:
+    """The split map of ``problem``: ``problem.extra["step_map"]`` if present (e.g. re-entry,
+    whose controls enter through ``hu(u) = [c_D, c_L cos, c_L sin]``), else ``hu(u) = u``,
+    ``G = df/du``, ``f0 = f(x, 0, t)`` for a control-affine model."""
+    sm = problem.extra.get("step_map") if problem.extra else None
+    if sm is not None:
+        if not isinstance(sm, SplitStepMap):
+            raise ProblemError(f"problem.extra['step_map'] must be a SplitStepMap; got {type(sm).__name__}")
+        return sm
+    model = problem.model
+    if not model.control_affine:
+        raise ProblemError(f"model {model.name} is not control-affine and problem {problem.id!r} has "
+                           "no extra['step_map']; give a SplitStepMap f0, G, hu")
+    key = ("split_affine",)
+    if key not in model.cache:
+        u0 = ca.DM.zeros(model.n_u)
+        f0 = ca.substitute(model.f, model.u, u0)
+        G = ca.substitute(ca.jacobian(model.f, model.u), model.u, u0)
+        model.cache[key] = (
+            ca.Function("affine_f0", [model.x, model.t, model.p], [f0]),
+            ca.Function("affine_G", [model.x, model.t, model.p], [G]),
+            ca.Function("affine_hu", [model.u, model.p], [model.u + 0 * ca.sum1(model.p)]))
+    f0, G, hu = model.cache[key]
+    return SplitStepMap(f0, G, hu, np.asarray(problem.params, dtype=float), name=model.name)
+
+
+# =============================================================================== Monte Carlo
+def stochastic_spec(problem):
+    """``problem.stochastic`` validated: shapes, finiteness, PSD covariances (clear errors)."""
+    spec = problem.stochastic
+    if spec is None:
+        raise ProblemError(f"problem {problem.id!r} has no stochastic specification "
+                           "(problem.stochastic = StochasticSpec(...)) needed by this method")
+    n, m, K = problem.model.n_x, problem.model.n_u, problem.n_segments
+    mean = np.asarray(spec.x0_mean, dtype=float)
+    if mean.shape != (n,) or not np.all(np.isfinite(mean)):
+        raise ProblemError(f"stochastic.x0_mean must be a finite vector of length {n}; got {mean!r}")
+    u_nom = np.asarray(spec.u_nominal, dtype=float)
+    if u_nom.shape != (K, m) or not np.all(np.isfinite(u_nom)):
+        raise ProblemError(f"stochastic.u_nominal must be finite with shape (K, n_u) = ({K}, {m}); "
+                           f"got shape {u_nom.shape}")
+    Lx = psd_factor("stochastic.x0_cov", spec.x0_cov, n)
+    Lu = psd_factor("stochastic.u_cov", spec.u_cov, m)
+    return mean, Lx, u_nom, Lu
+
+
+def time_indices(grid: np.ndarray, times: Sequence[float] | None) -> np.ndarray:
+    """Grid indices of ``times`` (each must be a grid time to 1e-9 relative); all if ``None``."""
+    if times is None:
+        return np.arange(grid.size)
+    t = np.atleast_1d(np.asarray(times, dtype=float))
+    span = max(abs(grid[-1] - grid[0]), 1e-300)
+    idx = np.abs(grid[None, :] - t[:, None]).argmin(axis=1)
+    bad = np.abs(grid[idx] - t) > 1e-9 * span
+    if bad.any():
+        raise ProblemError(f"times must be times of the problem grid ({grid[0]:g} .. {grid[-1]:g}, "
+                           f"{grid.size} points); not on it: {t[bad].tolist()}")
+    return idx
+
+
+def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
+                           times: Sequence[float] | None = None, *, step: str = "euler",
+                           keep_controls: bool = False, rtol: float = 1e-8,
+                           atol: float = 1e-10) -> dict[str, Any]:
+    """Monte Carlo of Jain et al.'s stochastic system (their ground truth, 10,000 samples).
+
+    ``samples`` initial states from ``N(x0_mean, x0_cov)``; at every step ``k`` fresh controls
+    ``u_k ~ N(u_nominal[k], u_cov)`` per sample.  ``step="euler"`` uses the split Euler map of
+    :func:`step_map_for` (the system the ``cut`` method propagates); ``step="flow"`` integrates the
+    continuous model over each segment with :func:`ocreach.flow.integrate_batch` (DOP853, ``rtol``,
+    ``atol``) to measure the discretisation error.  Vectorised over samples.
+
+    Returns a dict: ``times`` (T,), ``index`` (grid indices), ``mean``, ``std`` (T, n) at the
+    requested ``times`` (default: every grid time; each must be a grid time), ``trajectories``
+    (samples, T, n), ``grid_mean``, ``grid_std`` (K+1, n) on the whole grid, ``samples``,
+    ``seed``, ``step``, and ``controls`` (samples, K, n_u) if ``keep_controls``.  Memory of
+    ``trajectories`` is ``samples * T * n * 8`` bytes: pass ``times`` for long grids.
+    Raises :class:`SolverError` if a sample becomes non-finite.
+    """
+    if int(samples) < 2:
+        raise ProblemError(f"samples must be an integer >= 2; got {samples!r}")
+    if step not in STEPS:
+        raise ProblemError(f"step must be one of {STEPS}; got {step!r}")
+    samples = int(samples)
+    grid = problem.grid
+    mean0, Lx, u_nom, Lu = stochastic_spec(problem)
+    idx = time_indices(grid, times)
+    rng = np.random.default_rng(seed)
+    n, m, K = problem.model.n_x, problem.model.n_u, problem.n_segments
+
+    X = mean0 + rng.standard_normal((samples, n)) @ Lx.T
+    out_traj = np.empty((samples, idx.size, n))
+    where = {int(k): j for j, k in enumerate(idx)}
+    grid_mean = np.empty((K + 1, n))
+    grid_std = np.empty((K + 1, n))
+    controls = np.empty((samples, K, m)) if keep_controls else None
+
+    if step == "euler":
+        sm = step_map_for(problem)
+    else:
+        from ocreach.flow import flow_rhs, integrate_batch
+
+        rhs = flow_rhs(problem.model)
+        P = np.broadcast_to(problem.params, (samples, problem.model.n_p))
+
+    def record(k: int, X: np.ndarray) -> None:
+        grid_mean[k] = X.mean(axis=0)
+        grid_std[k] = X.std(axis=0, ddof=1)
+        if k in where:
+            out_traj[:, where[k]] = X
+
+    record(0, X)
+    for k in range(K):
+        U = u_nom[k] + rng.standard_normal((samples, m)) @ Lu.T
+        if keep_controls:
+            controls[:, k] = U
+        dt = grid[k + 1] - grid[k]
+        if step == "euler":
+            X = sm.step(X, U, dt, grid[k])
+        else:
+            X = integrate_batch(rhs, X, grid[k], grid[k + 1], np.concatenate([U, P], axis=1),
+                                rtol=rtol, atol=atol)
+        if not np.all(np.isfinite(X)):
+            bad = np.flatnonzero(~np.all(np.isfinite(X), axis=1))
+            raise SolverError(f"stochastic_monte_carlo: {bad.size} of {samples} samples became "
+                              f"non-finite at t = {grid[k + 1]:g} (step {k + 1}); first {bad[:10].tolist()}")
+        record(k + 1, X)
+
+    out = {"times": grid[idx], "index": idx, "mean": grid_mean[idx], "std": grid_std[idx],
+           "trajectories": out_traj, "grid_mean": grid_mean, "grid_std": grid_std,
+           "samples": samples, "seed": seed, "step": step}
+    if keep_controls:
+        out["controls"] = controls
+    return out
