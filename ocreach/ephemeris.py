@@ -1,0 +1,543 @@
+"""Offline JPL DE421 ephemeris as smooth CasADi expressions of time.
+
+The dynamics models of Patel & Scheeres (Eq. 11, point-mass gravity of Sun, Earth, Moon, ...) and
+Foss et al. (Sec. 2.2.2, Eq. 6, the ephemeris-driven synodic frame) need body positions that are
+*symbolic* functions of time, so that CasADi can differentiate the dynamics (Jacobians, STTs up to
+order 3, costates) and, in the synodic frame, the frame matrix ``M(t)`` twice in time.
+
+:class:`EphemerisFit` refits the DE421 Chebyshev records (PyPI package ``de421``, read through
+``jplephem``; no network) over the problem's time span with one Chebyshev series per coordinate
+(piecewise over equal sub-intervals only for long spans).  Each piece is a polynomial in time, so the
+CasADi expression is infinitely differentiable inside a piece and its derivatives are exact
+derivatives of the fit.  The fit is validated on a dense grid against the DE421 records
+(default tolerance 1 cm); ``tests/test_ephemeris.py`` checks it independently against
+``jplephem``.
+
+Conventions
+-----------
+* Axes: ICRF / J2000 equatorial (DE421's frame).  ``frame="eclipj2000"`` rotates about x by the
+  J2000 obliquity 84381.448 arcsec (SPICE's ECLIPJ2000, used by Patel & Scheeres Sec. 6).
+* Time: TDB.  ``t`` in :meth:`EphemerisFit.position_expr` / :meth:`EphemerisFit.position` is in
+  seconds since the epoch (negative values allowed when the span reaches back).
+* Lengths in km, velocities in km/s; gravitational parameters in km^3/s^2 (:data:`GM_KM3S2`).
+* Planets other than Earth are their *system barycentres* (DE421 gives barycentres; the
+  gravitational parameters are the system GMs), which is the usual point-mass model.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import re
+from functools import lru_cache
+from math import comb
+from typing import Iterable, Sequence
+
+import casadi as ca
+import numpy as np
+import numpy.polynomial.chebyshev as cheb
+
+from ocreach.errors import ProblemError
+from ocreach.units import AU
+
+#: Astronomical unit (IAU 2012), km; the default distance unit of heliocentric models.
+AU_KM = AU / 1e3
+
+#: Julian date of J2000.0 (2000-01-01 12:00:00 TDB).
+J2000_JD = 2451545.0
+SECONDS_PER_DAY = 86400.0
+#: J2000 mean obliquity of the ecliptic used by SPICE for ECLIPJ2000, rad.
+OBLIQUITY_J2000 = np.deg2rad(84381.448 / 3600.0)
+_C, _S = np.cos(OBLIQUITY_J2000), np.sin(OBLIQUITY_J2000)
+#: Rotation ICRF/J2000 -> ECLIPJ2000 (``r_ecl = R @ r_icrf``).
+ECLIPJ2000_FROM_ICRF = np.array([[1.0, 0.0, 0.0], [0.0, _C, _S], [0.0, -_S, _C]])
+FRAMES = ("icrf", "eclipj2000")
+
+#: Body names users type.  Planets other than Earth are system barycentres.
+BODIES = ("sun", "mercury", "venus", "earth", "moon", "mars", "jupiter", "saturn", "uranus",
+          "neptune", "pluto")
+#: Extra origins (no gravity): solar-system and Earth-Moon barycentres.
+ORIGINS = BODIES + ("ssb", "emb")
+
+
+@lru_cache(maxsize=1)
+def _de421():
+    """The DE421 record arrays and constants (``jplephem.Ephemeris`` over the ``de421`` package)."""
+    import de421
+    from jplephem import Ephemeris
+
+    return Ephemeris(de421)
+
+
+def _constants() -> dict[str, float]:
+    e = _de421()
+    au = float(e.AU)  # km
+    scale = au**3 / SECONDS_PER_DAY**2  # AU^3/day^2 -> km^3/s^2
+    emrat = float(e.EMRAT)
+    gmb = float(e.GMB) * scale
+    gm = {"sun": float(e.GMS) * scale, "mercury": float(e.GM1) * scale,
+          "venus": float(e.GM2) * scale, "earth": gmb * emrat / (1.0 + emrat),
+          "moon": gmb / (1.0 + emrat), "mars": float(e.GM4) * scale,
+          "jupiter": float(e.GM5) * scale, "saturn": float(e.GM6) * scale,
+          "uranus": float(e.GM7) * scale, "neptune": float(e.GM8) * scale,
+          "pluto": float(e.GM9) * scale}
+    return {"au_km": au, "emrat": emrat, "jd_start": float(e.jalpha), "jd_end": float(e.jomega),
+            **{f"gm_{k}": v for k, v in gm.items()}}
+
+
+def gm(body: str) -> float:
+    """Gravitational parameter of ``body`` from the DE421 constants, km^3/s^2.
+
+    Values (DE421 header, AU = 149597870.6996262 km): Sun 1.32712440041e11, Earth 398600.436233,
+    Moon 4902.800076, Venus 324858.592, Mars system 42828.375214, Jupiter system 126712764.8.
+    Earth and Moon are split from ``GMB`` with ``EMRAT = 81.30056907``.
+    """
+    _check_body(body, BODIES, "body")
+    return _constants()[f"gm_{body}"]
+
+
+#: End of the official DE421 SPK file (de421.bsp): 2053-10-09 00:00 TDB.  JPL's DE421 spans
+#: 1899-07-29 .. 2053-10-09; the PyPI ``de421`` arrays hold 1899-12-04 .. 2200 (JPL's ASCII
+#: release).  We use the intersection so results are reproducible with the SPK file.
+DE421_SPK_END_JD = 2471184.5
+
+
+def de421_coverage() -> tuple[float, float]:
+    """First and last Julian date (TDB) usable: 1899-12-04 (start of the PyPI ``de421`` arrays;
+    DE421 itself starts 1899-07-29) and 2053-10-09 (end of DE421)."""
+    c = _constants()
+    return c["jd_start"], min(c["jd_end"], DE421_SPK_END_JD)
+
+
+def _check_body(name: str, allowed: Sequence[str], what: str) -> str:
+    if not isinstance(name, str) or name.lower() not in allowed:
+        raise ProblemError(f"{what} must be one of {list(allowed)}; got {name!r}")
+    return name.lower()
+
+
+# ---------------------------------------------------------------------------------------- epochs
+_EPOCH_RE = re.compile(
+    r"^\s*(\d{4})-(\d{1,2})-(\d{1,2})(?:[ T](\d{1,2}):(\d{2})(?::(\d{2}(?:\.\d*)?))?)?"
+    r"\s*(?:TDB)?\s*$", re.IGNORECASE)
+
+
+def parse_epoch(epoch: str | float | tuple) -> tuple[float, float]:
+    """Epoch (TDB) as an exact split Julian date ``(jd_day, day_fraction)``.
+
+    ``epoch`` is a TDB calendar string ``"2024-05-01 12:00:00"`` (also ``YYYY-MM-DD``,
+    ``...THH:MM[:SS.fff]``, optional suffix ``TDB``), a Julian date (float, TDB) or a split Julian
+    date ``(day, fraction)``.  ``jd_day`` ends in .5 (midnight) so that later time offsets keep
+    full precision.  Use :func:`epoch_from_et` for seconds past J2000 (SPICE ET, as in the epochs
+    of Patel & Scheeres Fig. 1-2).
+    """
+    if isinstance(epoch, tuple) and len(epoch) == 2:  # split Julian date (day, fraction)
+        day, frac = parse_epoch(float(epoch[0]))
+        frac += float(epoch[1])
+        if not np.isfinite(frac):
+            raise ProblemError(f"epoch must be finite; got {epoch!r}")
+        return day + np.floor(frac), frac - np.floor(frac)
+    if isinstance(epoch, str):
+        m = _EPOCH_RE.match(epoch)
+        if m is None:
+            raise ProblemError(f"epoch must be a TDB date 'YYYY-MM-DD[ HH:MM[:SS]]' or a Julian "
+                               f"date; got {epoch!r}")
+        y, mo, d = int(m[1]), int(m[2]), int(m[3])
+        hh, mm = int(m[4] or 0), int(m[5] or 0)
+        ss = float(m[6] or 0.0)
+        try:
+            day = _dt.date(y, mo, d).toordinal() + 1721424.5
+        except ValueError as exc:
+            raise ProblemError(f"epoch {epoch!r} is not a valid calendar date: {exc}") from None
+        if hh > 23 or mm > 59 or ss >= 61.0:
+            raise ProblemError(f"epoch {epoch!r} has an invalid time of day")
+        return day, (hh * 3600.0 + mm * 60.0 + ss) / SECONDS_PER_DAY
+    try:
+        jd = float(epoch)
+    except (TypeError, ValueError):
+        raise ProblemError(f"epoch must be a TDB date string or a Julian date; got {epoch!r}") from None
+    if not np.isfinite(jd):
+        raise ProblemError(f"epoch must be finite; got {epoch!r}")
+    day = np.floor(jd - 0.5) + 0.5
+    return float(day), float(jd - day)
+
+
+def epoch_from_et(seconds_past_j2000: float) -> tuple[float, float]:
+    """Split Julian date (TDB) of ``seconds_past_j2000`` TDB seconds after J2000 (SPICE ET).
+
+    Patel & Scheeres give their epochs this way (Fig. 1: 64.1 s; Fig. 2: 1072864.169 s).
+    """
+    return parse_epoch((J2000_JD - 0.5, 0.5 + float(seconds_past_j2000) / SECONDS_PER_DAY))
+
+
+def _format_jd(jd: float) -> str:
+    day = np.floor(jd - 0.5) + 0.5
+    date = _dt.date.fromordinal(int(day - 1721424.5))
+    secs = (jd - day) * SECONDS_PER_DAY
+    return f"{date.isoformat()} {int(secs // 3600):02d}:{int(secs % 3600 // 60):02d} TDB (JD {jd:.6f})"
+
+
+# -------------------------------------------------------------------------- raw DE421 records
+#: Each body as a linear combination of DE421 record series (positions w.r.t. the SSB, km).
+#: ``moon`` is the geocentric Moon record, ``earthmoon`` the Earth-Moon barycentre.
+def _combination(body: str) -> dict[str, float]:
+    c = _constants()
+    es = 1.0 / (1.0 + c["emrat"])
+    ms = c["emrat"] / (1.0 + c["emrat"])
+    if body == "ssb":
+        return {}
+    if body == "emb":
+        return {"earthmoon": 1.0}
+    if body == "earth":
+        return {"earthmoon": 1.0, "moon": -es}
+    if body == "moon":
+        return {"earthmoon": 1.0, "moon": ms}
+    return {body: 1.0}
+
+
+def _relative(body: str, origin: str) -> dict[str, float]:
+    """Series combination of ``body - origin``; exactly cancelling terms are dropped."""
+    out = dict(_combination(body))
+    for k, v in _combination(origin).items():
+        out[k] = out.get(k, 0.0) - v
+    # earth - moon etc.: moon coefficients es + ms are 1 up to rounding; keep them, drop zeros only
+    return {k: v for k, v in out.items() if v != 0.0}
+
+
+def de421_records(series: str, jd_day: float, days: np.ndarray, derivative: int = 0) -> np.ndarray:
+    """Evaluate one DE421 record series at ``jd_day + days`` (split date, full precision).
+
+    Returns shape ``(len(days), 3)``: position in km (``derivative=0``) or its ``derivative``-th
+    time derivative in km/s^k.  This is a direct evaluation of JPL's Chebyshev records (the truth
+    the fit is checked against when it is built).
+    """
+    e = _de421()
+    rec = e.load(series)  # (n_sets, 3, n_coef)
+    n_sets, _, n_coef = rec.shape
+    span = (e.jomega - e.jalpha) / n_sets
+    days = np.atleast_1d(np.asarray(days, dtype=float))
+    base = jd_day - e.jalpha
+    k0 = np.floor(base / span)
+    off = (base - k0 * span) + days
+    dk = np.floor(off / span)
+    idx = (k0 + dk).astype(int)
+    off = off - dk * span
+    last = idx == n_sets  # the very last instant belongs to the last record
+    idx[last] -= 1
+    off[last] += span
+    if np.any(idx < 0) or np.any(idx >= n_sets):
+        raise ProblemError("time outside DE421 coverage "
+                           f"{_format_jd(e.jalpha)} .. {_format_jd(e.jomega)}")
+    tau = 2.0 * off / span - 1.0
+    coef = rec[idx]  # (m, 3, n_coef)
+    if derivative:
+        coef = cheb.chebder(coef, m=derivative, axis=2, scl=2.0 / (span * SECONDS_PER_DAY))
+    T = cheb.chebvander(tau, coef.shape[2] - 1)  # (m, n_coef)
+    return np.einsum("mk,mck->mc", T, coef)
+
+
+# ----------------------------------------------------------------------------------- the fit
+class EphemerisFit:
+    """Chebyshev refit of DE421 body positions over ``[epoch + d0, epoch + d1]`` (days).
+
+    Parameters
+    ----------
+    bodies : body names (see :data:`BODIES`); positions relative to any of them, to ``"ssb"`` or
+        (with Earth or Moon in ``bodies``) to ``"emb"`` are available.
+    epoch_tdb : TDB date string or Julian date (:func:`parse_epoch`); model time 0.
+    span_days : ``d1`` (span ``[0, d1]``; negative for ``[d1, 0]``) or a pair ``(d0, d1)``.
+    tol_km : required max position error of the fit over the span (default 1e-5 km = 1 cm),
+        checked against the DE421 records on a grid of 8 points per coefficient.
+    max_degree : largest Chebyshev degree per piece; longer spans are split into equal pieces.
+    margin_days : the fit extends this far beyond the span on both sides (integrators overshoot);
+        default ``max(0.25, 0.02 |d1 - d0|)``.
+
+    Outside the fitted interval the polynomials diverge; the numeric methods raise, the CasADi
+    expressions cannot, so keep model times inside ``span``.
+    """
+
+    def __init__(self, bodies: Iterable[str], epoch_tdb: str | float, span_days,
+                 *, tol_km: float = 1e-5, max_degree: int = 64,
+                 margin_days: float | None = None) -> None:
+        self.bodies = tuple(sorted({_check_body(b, BODIES, "bodies entry") for b in bodies}))
+        if not self.bodies:
+            raise ProblemError("bodies must name at least one body; got an empty list")
+        self.epoch = parse_epoch(epoch_tdb)
+        self.epoch_tdb = epoch_tdb
+        if np.ndim(span_days) == 0:
+            s = float(span_days)
+            if not np.isfinite(s) or s == 0.0:
+                raise ProblemError(f"span_days must be a non-zero finite number of days or a pair "
+                                   f"(d0, d1); got {span_days!r}")
+            d0, d1 = min(0.0, s), max(0.0, s)
+        else:
+            if len(span_days) != 2:
+                raise ProblemError(f"span_days must be a number or a pair (d0, d1); got {span_days!r}")
+            d0, d1 = float(span_days[0]), float(span_days[1])
+            if not (np.isfinite(d0) and np.isfinite(d1) and d0 < d1):
+                raise ProblemError(f"span_days (d0, d1) must be finite with d0 < d1; got {span_days!r}")
+        self.span_days = (d0, d1)
+        if not (float(tol_km) > 0):
+            raise ProblemError(f"tol_km must be > 0; got {tol_km!r}")
+        if int(max_degree) < 8:
+            raise ProblemError(f"max_degree must be an integer >= 8; got {max_degree!r}")
+        margin = max(0.25, 0.02 * (d1 - d0)) if margin_days is None else float(margin_days)
+        if not margin >= 0:
+            raise ProblemError(f"margin_days must be >= 0; got {margin_days!r}")
+        self.fit_days = (d0 - margin, d1 + margin)
+
+        jd_start, jd_end = de421_coverage()
+        jd0 = self.epoch[0] + self.epoch[1]
+        if jd0 + self.fit_days[0] < jd_start or jd0 + self.fit_days[1] > jd_end:
+            raise ProblemError(
+                f"epoch {epoch_tdb!r} ({_format_jd(jd0)}) with span_days {span_days!r} (plus a "
+                f"fit margin of {margin:g} d) leaves DE421's coverage {_format_jd(jd_start)} .. "
+                f"{_format_jd(jd_end)} (DE421 spans 1899-07-29 to 2053-10-09; the de421 package starts "
+                f"1899-12-04)")
+
+        self.series = tuple(sorted({s for b in self.bodies for s in _combination(b)}))
+        self.tol_km = float(tol_km)
+        self._fit(int(max_degree))
+        self._cache: dict = {}
+
+    # ------------------------------------------------------------------ fitting
+    def _truth(self, days: np.ndarray) -> np.ndarray:
+        """DE421 record positions of all series, shape ``(len(days), 3 * n_series)``."""
+        return np.concatenate([de421_records(s, self.epoch[0], self.epoch[1] + days)
+                               for s in self.series], axis=1)
+
+    def _fit_piece(self, a: float, b: float, max_degree: int):
+        check = np.linspace(a, b, 8 * max_degree + 1)
+        truth = self._truth(check)
+        xc = (2.0 * check - (a + b)) / (b - a)
+        deg = 8
+        while True:
+            m = deg + 1
+            nodes = np.cos(np.pi * (np.arange(m) + 0.5) / m)
+            coef = cheb.chebfit(nodes, self._truth(0.5 * (a + b) + 0.5 * (b - a) * nodes), deg)
+            err = np.abs(cheb.chebval(xc, coef).T - truth).max()
+            if err <= self.tol_km:
+                return coef.T, deg, err  # (3 n_series, deg + 1)
+            if deg >= max_degree:
+                return None, deg, err
+            deg = min(max_degree, int(np.ceil(deg * 1.25 / 4) * 4))
+
+    def _fit(self, max_degree: int) -> None:
+        """One piece if possible, else ``n`` equal pieces that overlap by ``2 * blend`` days."""
+        a, b = self.fit_days
+        for n_pieces in range(1, int(np.ceil((b - a) / 2.0)) + 2):
+            edges = np.linspace(a, b, n_pieces + 1)
+            blend = BLEND_FRACTION * (b - a) / n_pieces
+            bounds = [(max(a, edges[i] - blend), min(b, edges[i + 1] + blend))
+                      for i in range(n_pieces)]
+            pieces = [self._fit_piece(lo, hi, max_degree) for lo, hi in bounds]
+            if all(p[0] is not None for p in pieces):
+                self.edges_days = edges
+                self.blend_days = blend
+                self.piece_bounds_days = bounds
+                self.coefficients = [p[0] for p in pieces]
+                self.degrees = tuple(p[1] for p in pieces)
+                self.fit_error_km = max(p[2] for p in pieces)
+                return
+        raise ProblemError(f"could not fit the ephemeris to tol_km = {self.tol_km} with "
+                           f"max_degree = {max_degree}; raise one of them")
+
+    # ------------------------------------------------------------------ helpers
+    def gm(self, body: str) -> float:
+        """Gravitational parameter of ``body`` (DE421), km^3/s^2."""
+        return gm(body)
+
+    @property
+    def epoch_jd(self) -> float:
+        return self.epoch[0] + self.epoch[1]
+
+    @property
+    def span_seconds(self) -> tuple[float, float]:
+        return self.span_days[0] * SECONDS_PER_DAY, self.span_days[1] * SECONDS_PER_DAY
+
+    def _matrix(self, body: str, origin: str, piece: int) -> np.ndarray:
+        """Chebyshev coefficients (3, deg+1) of ``body - origin`` on one piece."""
+        body = _check_body(body, ORIGINS, "body")
+        origin = _check_body(origin, ORIGINS, "origin")
+        comb = _relative(body, origin)
+        missing = [s for s in comb if s not in self.series]
+        if missing:
+            raise ProblemError(f"position of {body!r} relative to {origin!r} needs bodies that are "
+                               f"not in this fit (bodies = {list(self.bodies)})")
+        C = self.coefficients[piece]
+        out = np.zeros((3, C.shape[1]))
+        for s, w in comb.items():
+            i = self.series.index(s)
+            out += w * C[3 * i:3 * i + 3]
+        return out
+
+    @staticmethod
+    def _rotation(frame: str) -> np.ndarray | None:
+        frame = _check_body(frame, FRAMES, "frame")
+        return None if frame == "icrf" else ECLIPJ2000_FROM_ICRF
+
+    # ------------------------------------------------------------------ numeric
+    def position(self, body: str, t, origin: str = "ssb", *, derivative: int = 0,
+                 frame: str = "icrf") -> np.ndarray:
+        """Fitted position (km) of ``body`` w.r.t. ``origin`` at ``t`` seconds after the epoch.
+
+        ``derivative = k`` gives the k-th time derivative (km/s^k) of the fit.  ``t`` may be an
+        array; the result has shape ``t.shape + (3,)``.  Raises :class:`ProblemError` outside the
+        fitted interval.
+        """
+        t = np.asarray(t, dtype=float)
+        days = t / SECONDS_PER_DAY
+        a, b = self.fit_days
+        if np.any(~np.isfinite(days)) or np.any(days < a - 1e-9) or np.any(days > b + 1e-9):
+            raise ProblemError(f"t must lie in the fitted interval [{a * SECONDS_PER_DAY:.6g}, "
+                               f"{b * SECONDS_PER_DAY:.6g}] s after the epoch; got values in "
+                               f"[{np.min(days) * SECONDS_PER_DAY:.6g}, "
+                               f"{np.max(days) * SECONDS_PER_DAY:.6g}]")
+        flat = days.ravel()
+        k = int(derivative)
+        out = _piece_deriv(self, body, origin, 0, flat, k)
+        for j in range(1, len(self.coefficients)):
+            e, d = self.edges_days[j], self.blend_days
+            after = flat >= e + d
+            if np.any(after):
+                out[after] = _piece_deriv(self, body, origin, j, flat[after], k)
+            mid = (flat > e - d) & ~after
+            if np.any(mid):  # r = p + w (q - p); Leibniz rule for the k-th derivative
+                x = flat[mid]
+                s_ = (x - (e - d)) / (2 * d)
+                res = _piece_deriv(self, body, origin, j - 1, x, k)
+                for i in range(k + 1):
+                    wi = _SMOOTHSTEP.deriv(i)(s_) / (2 * d * SECONDS_PER_DAY) ** i
+                    dq = _piece_deriv(self, body, origin, j, x, k - i) \
+                        - _piece_deriv(self, body, origin, j - 1, x, k - i)
+                    res = res + comb(k, i) * wi[:, None] * dq
+                out[mid] = res
+        R = self._rotation(frame)
+        if R is not None:
+            out = out @ R.T
+        return out.reshape(t.shape + (3,))
+
+    def velocity(self, body: str, t, origin: str = "ssb", *, frame: str = "icrf") -> np.ndarray:
+        """Fitted velocity (km/s): the exact time derivative of :meth:`position`."""
+        return self.position(body, t, origin, derivative=1, frame=frame)
+
+    # ------------------------------------------------------------------ symbolic
+    def position_expr(self, body: str, t: ca.SX | ca.MX, origin: str = "ssb", *,
+                      frame: str = "icrf") -> ca.SX | ca.MX:
+        """CasADi expression (3x1, km) of the fitted position; ``t`` in seconds after the epoch.
+
+        A polynomial in ``t`` on each piece, hence smooth to any order there; when the span has
+        several pieces (selected with ``if_else``), neighbours are blended over their overlap with
+        the degree-9 smoothstep (:data:`_SMOOTHSTEP`), so the expression is C^4 everywhere and
+        ``ca.jacobian(expr, t)`` is the exact velocity of the fit.  Only valid inside the fitted
+        interval.
+        """
+        vals = []
+        for k, (lo, hi) in enumerate(self.piece_bounds_days):
+            lo, hi = lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY
+            C = self._matrix(body, origin, k)
+            vals.append(ca.mtimes(ca.DM(C), _basis((2.0 * t - (lo + hi)) / (hi - lo),
+                                                     C.shape[1] - 1)))
+        out = vals[0]
+        for k in range(1, len(vals)):
+            e0 = (self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY
+            e1 = (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY
+            w = _smoothstep_expr((t - e0) / (e1 - e0))
+            out = ca.if_else(t < e0, out,
+                             ca.if_else(t < e1, out + w * (vals[k] - out), vals[k]))
+        R = self._rotation(frame)
+        return out if R is None else ca.mtimes(ca.DM(R), out)
+
+    def __repr__(self) -> str:
+        return (f"EphemerisFit(bodies={list(self.bodies)}, epoch={_format_jd(self.epoch_jd)}, "
+                f"span_days={self.span_days}, pieces={len(self.coefficients)}, "
+                f"degrees={self.degrees}, fit_error_km={self.fit_error_km:.2e})")
+
+
+#: Overlap of neighbouring pieces, as a fraction of the piece length (on each side of an edge).
+BLEND_FRACTION = 0.05
+#: Degree-9 smoothstep on [0, 1]: 0 -> 1 with zero derivatives of orders 1..4 at both ends (C^4).
+_SMOOTHSTEP = np.polynomial.Polynomial(
+    [0.0] * 5 + [comb(4 + j, j) * comb(9, 4 - j) * (-1.0) ** j for j in range(5)])
+
+
+def _smoothstep_expr(s):
+    """:data:`_SMOOTHSTEP` as a CasADi expression (Horner)."""
+    out = 0.0
+    for c in _SMOOTHSTEP.coef[::-1]:
+        out = out * s + c
+    return out
+
+
+def _piece_deriv(fit: "EphemerisFit", body: str, origin: str, j: int, x, k: int) -> np.ndarray:
+    """``k``-th time derivative (km/s^k) of piece ``j`` of ``body - origin`` at ``x`` days."""
+    lo, hi = fit.piece_bounds_days[j]
+    C = fit._matrix(body, origin, j)
+    if k:
+        C = cheb.chebder(C, m=k, axis=1, scl=2.0 / ((hi - lo) * SECONDS_PER_DAY))
+    return cheb.chebval((2.0 * x - (lo + hi)) / (hi - lo), C.T).T
+
+
+def _basis(tau, degree: int):
+    """Column ``[T_0(tau), ..., T_degree(tau)]`` of Chebyshev polynomials (SX/MX ``tau``)."""
+    T = [1.0 + 0.0 * tau, tau]
+    for _ in range(2, degree + 1):
+        T.append(2.0 * tau * T[-1] - T[-2])
+    return ca.vertcat(*T[:degree + 1])
+
+
+@lru_cache(maxsize=32)
+def _cached_fit(bodies: tuple, epoch: tuple, span, tol_km: float, max_degree: int):
+    return EphemerisFit(bodies, epoch, span, tol_km=tol_km, max_degree=max_degree)
+
+
+def ephemeris_fit(bodies: Iterable[str], epoch_tdb: str | float, span_days,
+                  *, tol_km: float = 1e-5, max_degree: int = 64) -> EphemerisFit:
+    """Cached :class:`EphemerisFit` keyed by (bodies, epoch, span, tolerance): fit once per problem."""
+    key_b = tuple(sorted({_check_body(b, BODIES, "bodies entry") for b in bodies}))
+    ep = parse_epoch(epoch_tdb)
+    span = float(span_days) if np.ndim(span_days) == 0 else tuple(float(s) for s in span_days)
+    return _cached_fit(key_b, ep, span, float(tol_km), int(max_degree))
+
+
+class CircularEarthMoon:
+    """Stand-in ephemeris: Earth and Moon on circular orbits about a fixed barycentre (at the SSB).
+
+    The Earth-Moon vector is ``a [cos(n t), sin(n t), 0]`` in the ICRF x-y plane with
+    ``n = sqrt((GM_E + GM_M) / a^3)`` (Kepler), so in the synodic frame of Foss Eq. 6 the dynamics
+    reduce to the CR3BP.  For tests and for comparisons with :mod:`ocreach.models.cr3bp`.
+    Same interface as :class:`EphemerisFit` (``position_expr``, ``position``, ``gm``).
+    """
+
+    bodies = ("earth", "moon")
+
+    def __init__(self, distance_km: float = 384400.0, *, gm_earth: float | None = None,
+                 gm_moon: float | None = None, span_days=(-1e6, 1e6)) -> None:
+        if not float(distance_km) > 0:
+            raise ProblemError(f"distance_km must be > 0; got {distance_km!r}")
+        self.a = float(distance_km)
+        self._gm = {"earth": gm("earth") if gm_earth is None else float(gm_earth),
+                    "moon": gm("moon") if gm_moon is None else float(gm_moon)}
+        self.n = np.sqrt((self._gm["earth"] + self._gm["moon"]) / self.a**3)  # rad/s
+        self.span_days = tuple(span_days)
+
+    def gm(self, body: str) -> float:
+        return self._gm[_check_body(body, self.bodies, "body")]
+
+    def _share(self, body: str) -> float:
+        body = _check_body(body, ("earth", "moon", "emb", "ssb"), "body")
+        total = self._gm["earth"] + self._gm["moon"]
+        return {"earth": -self._gm["moon"] / total, "moon": self._gm["earth"] / total,
+                "emb": 0.0, "ssb": 0.0}[body]
+
+    def position_expr(self, body: str, t, origin: str = "ssb", *, frame: str = "icrf"):
+        if _check_body(frame, FRAMES, "frame") != "icrf":
+            raise ProblemError("CircularEarthMoon supports frame='icrf' only")
+        w = (self._share(body) - self._share(origin)) * self.a
+        return ca.vertcat(w * ca.cos(self.n * t), w * ca.sin(self.n * t), 0.0 * t)
+
+    def position(self, body: str, t, origin: str = "ssb", *, derivative: int = 0,
+                 frame: str = "icrf") -> np.ndarray:
+        if _check_body(frame, FRAMES, "frame") != "icrf":
+            raise ProblemError("CircularEarthMoon supports frame='icrf' only")
+        t = np.asarray(t, dtype=float)
+        w = (self._share(body) - self._share(origin)) * self.a * self.n**derivative
+        ph = self.n * t + derivative * np.pi / 2
+        return np.stack([w * np.cos(ph), w * np.sin(ph), 0.0 * t], axis=-1)
