@@ -44,7 +44,9 @@ def standard_rule(rule: str, n: int, order: int) -> tuple[np.ndarray, np.ndarray
     """Points ``(M, n)`` and weights ``(M,)`` integrating against ``N(0, I_n)``.
 
     ``rule="cut"``: conjugate unscented transform of ``order`` 4, 6 or 8 (Adurthi, Singla & Singh);
-    ``"ut"``: unscented transform (2n+1 points, ``order`` ignored); ``"gh"``: tensor Gauss-Hermite
+    ``"ut"``: unscented transform (2n+1 points, ``order`` ignored) with ``kappa = max(3 - n, 0)``
+    (Julier's ``3 - n`` where it is >= 0; for n > 3 it would make the centre weight negative and the
+    propagated covariance can lose definiteness, so ``kappa = 0``); ``"gh"``: tensor Gauss-Hermite
     with ``order // 2 + 1`` points per axis (exact to degree ``2 (order // 2) + 1`` >= ``order``).
     The rules come from :mod:`ocreach.quadrature`.
     """
@@ -59,7 +61,7 @@ def standard_rule(rule: str, n: int, order: int) -> tuple[np.ndarray, np.ndarray
     if rule == "cut":
         out = q.cut_rule(n, order, "gaussian")
     elif rule == "ut":
-        out = q.unscented_rule(n)
+        out = q.unscented_rule(n, kappa=float(max(3 - n, 0)))
     else:
         out = q.gauss_hermite_rule(n, order // 2 + 1)
     pts, w = (out.points, out.weights) if hasattr(out, "points") else out
