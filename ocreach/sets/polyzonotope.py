@@ -76,12 +76,16 @@ class PolyZonotope(SetBase):
         if E is None:
             E_a = np.eye(h, dtype=np.int64)
         else:
-            E_f = np.asarray(E, dtype=float)
+            E_f = np.asarray(E)
+            if not np.issubdtype(E_f.dtype, np.integer):
+                E_f = E_f.astype(float)
             if E_f.ndim == 1 and E_f.size == 0:
                 E_f = E_f.reshape(0, h)
             if E_f.ndim != 2 or E_f.shape[1] != h:
                 raise SetError(f"PolyZonotope exponent matrix E must have shape (p, {h}); got {E_f.shape}")
-            if not np.all(np.isfinite(E_f)) or np.any(E_f != np.round(E_f)) or np.any(E_f < 0):
+            if E_f.dtype.kind == "f" and (not np.all(np.isfinite(E_f)) or np.any(E_f != np.round(E_f))):
+                raise SetError("PolyZonotope exponent matrix E must hold non-negative integers")
+            if np.any(E_f < 0):
                 raise SetError("PolyZonotope exponent matrix E must hold non-negative integers")
             E_a = E_f.astype(np.int64)
         p = E_a.shape[0]
@@ -457,5 +461,9 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
     b_odd = has_b & ~even
     c = c + 0.5 * Gm[:, b_even].sum(axis=1)
     GI = np.hstack([0.5 * Gm[:, b_even], Gm[:, b_odd]])
-    out = PolyZonotope(c, Gm[:, dep], GI, Em[:p][:, dep], pz.id)
-    return out.compact()
+    dep &= np.any(Gm != 0, axis=0)
+    GI = GI[:, np.any(GI != 0, axis=0)]
+    Ed = Em[:p][:, dep]
+    used = np.any(Ed > 0, axis=1)
+    # columns are already merged (distinct keys); only zero generators/unused factors are dropped
+    return PolyZonotope(c, Gm[:, dep], GI, Ed[used], pz.id[used])

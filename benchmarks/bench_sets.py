@@ -1,0 +1,158 @@
+"""Benchmarks of the set library against plain numpy / per-point cvxpy.
+
+1. Order-2 tensor map (Foss et al. Eq. 21-22) of a 6-D polynomial zonotope with 400 dependent
+   generators followed by PCA reduction back to 400 generators: ``ocreach.sets.tensor_map`` +
+   ``reduce`` against the same math written here in plain numpy (full einsum over all h^2 pairs,
+   exponent sums, ``np.unique(axis=1)`` merge, PCA box of the smallest generators).  Target <= 1.5x.
+2. Membership of 10,000 points in a 6-D zonotope with 50 generators in ONE call against one cvxpy
+   (Clarabel) solve per point; the per-point loop is timed on 200 points and extrapolated.
+   Target >= 10x.
+
+``--write`` updates the ``## Sets`` section of docs/benchmarks.md.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ocreach.sets import PolyZonotope, Zonotope, new_ids, points_in_zonotope, reduce, tensor_map
+
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+
+def _best(fn, reps: int) -> float:
+    ts = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def make_pz(rng, n=6, h=400, p=12, deg=3) -> PolyZonotope:
+    E = rng.integers(0, deg + 1, size=(p, 4 * h)) * (rng.uniform(size=(p, 4 * h)) < 0.25)
+    E = np.unique(E[:, np.any(E, axis=0)], axis=1)
+    E = E[:, rng.permutation(E.shape[1])[:h]]
+    G = rng.normal(size=(n, h)) * np.exp(-0.01 * np.arange(h))
+    return PolyZonotope(rng.normal(size=n), G, None, E, new_ids(p))
+
+
+def numpy_reference(T, c, G, E, h_max):
+    """Plain numpy: Eq. 22 over all pairs with the centre as a zero-exponent generator, merge, PCA."""
+    n, h = G.shape
+    Ga = np.hstack([c[:, None], G])
+    Ea = np.hstack([np.zeros((E.shape[0], 1), int), E])
+    Gt = np.einsum("iab,aj,bk->ijk", T, Ga, Ga).reshape(T.shape[0], -1)
+    Et = (Ea[:, :, None] + Ea[:, None, :]).reshape(E.shape[0], -1)
+    Eu, inv = np.unique(Et, axis=1, return_inverse=True)
+    Gu = np.zeros((T.shape[0], Eu.shape[1]))
+    np.add.at(Gu.T, inv.ravel(), Gt.T)
+    const = ~np.any(Eu, axis=0)
+    c_new = Gu[:, const].sum(axis=1)
+    Gu, Eu = Gu[:, ~const], Eu[:, ~const]
+    order = np.argsort(-np.linalg.norm(Gu, axis=0))
+    keep, drop = order[: h_max - n], order[h_max - n:]
+    Gd, Ed = Gu[:, drop], Eu[:, drop]
+    even = np.all(Ed % 2 == 0, axis=0)
+    c_new = c_new + 0.5 * Gd[:, even].sum(axis=1)
+    Gr = np.hstack([0.5 * Gd[:, even], Gd[:, ~even]])
+    U = np.linalg.svd(Gr @ Gr.T)[0]
+    box = U * np.abs(U.T @ Gr).sum(axis=1)
+    return c_new, Gu[:, keep], Eu[:, keep], box
+
+
+def bench_tensor_map(reps: int = 5) -> dict:
+    rng = np.random.default_rng(0)
+    pz = make_pz(rng)
+    T = rng.normal(size=(6, 6, 6))
+    ours = lambda: reduce(tensor_map(T, pz), 400, "pca")  # noqa: E731
+    ref = lambda: numpy_reference(T, np.asarray(pz.c), np.asarray(pz.G), np.asarray(pz.E), 400)  # noqa: E731
+    out = ours()
+    c_ref, G_ref, E_ref, box = ref()
+    # same enclosure: compare support functions of the two results in random directions
+    D = rng.normal(size=(50, 6))
+    s_ours = out.to_zonotope().support(D)
+    ref_pz = PolyZonotope(c_ref, G_ref, box, E_ref, pz.id)
+    s_ref = ref_pz.to_zonotope().support(D)
+    t_ours, t_ref = _best(ours, reps), _best(ref, reps)
+    return {"t_ours": t_ours, "t_ref": t_ref, "ratio": t_ours / t_ref, "h_out": out.n_generators,
+            "support_rel_diff": float(np.max(np.abs(s_ours - s_ref) / np.abs(s_ref).clip(1e-9)))}
+
+
+def bench_containment(n_points: int = 10_000, n_loop: int = 200) -> dict:
+    import cvxpy as cp
+
+    rng = np.random.default_rng(1)
+    Z = Zonotope(rng.normal(size=6), rng.normal(size=(6, 50)))
+    d = rng.normal(size=(n_points, 6))
+    P = Z.c + (np.sign(d @ Z.G) @ Z.G.T) * rng.uniform(0.9, 1.1, size=(n_points, 1))  # near the boundary
+    t = time.perf_counter()
+    ours = points_in_zonotope(Z, P)
+    t_ours = time.perf_counter() - t
+
+    def one(x):
+        xi = cp.Variable(50)
+        prob = cp.Problem(cp.Minimize(0), [Z.G @ xi == x - Z.c, xi >= -1, xi <= 1])
+        prob.solve(solver=cp.CLARABEL)
+        return prob.status == "optimal"
+
+    t = time.perf_counter()
+    loop = np.array([one(x) for x in P[:n_loop]])
+    t_loop = (time.perf_counter() - t) * n_points / n_loop
+    return {"t_ours": t_ours, "t_loop_extrapolated": t_loop, "speedup": t_loop / t_ours,
+            "agree": int(np.sum(loop == ours[:n_loop])), "n_loop": n_loop, "inside_frac": float(ours.mean())}
+
+
+def section(tm: dict, ct: dict) -> str:
+    return f"""## Sets
+
+`python benchmarks/bench_sets.py` (median of 5 runs for the tensor map, one run for containment).
+
+| benchmark | ocreach | peer | ratio | target |
+|---|---|---|---|---|
+| order-2 tensor map of a 6-D PZ (400 dep. generators, 12 factors) + PCA reduction to 400 | {tm['t_ours'] * 1e3:.1f} ms | plain numpy einsum + `np.unique` merge + PCA: {tm['t_ref'] * 1e3:.1f} ms | {tm['ratio']:.2f}x time | <= 1.5x |
+| 10,000 points in a 6-D zonotope with 50 generators (points near the boundary, {ct['inside_frac'] * 100:.0f} % inside) | {ct['t_ours']:.2f} s, one call | one cvxpy + Clarabel solve per point: {ct['t_loop_extrapolated']:.1f} s (timed on {ct['n_loop']} points, extrapolated) | {ct['speedup']:.0f}x faster | >= 10x |
+
+Tensor map: both results have {tm['h_out']} generators and the same enclosure (support functions agree
+to {tm['support_rel_diff']:.1e} relative).  ocreach contracts the symmetrised tensor once over the pairs
+i <= j and merges equal monomials with a linear 128-bit hash of the exponent columns instead of
+`np.unique(axis=1)`.  Containment: exact certificates (least-norm factors / separating directions from a
+vectorised Frank-Wolfe run) decide about half of these near-boundary points; the rest go to block-diagonal LPs (HiGHS, 100 points
+per LP); the answers agree with the per-point cvxpy loop on {ct['agree']}/{ct['n_loop']} points.
+"""
+
+
+def write_section(text: str) -> None:
+    doc = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n\n"
+    pattern = re.compile(r"^## Sets\n.*?(?=^## |\Z)", re.S | re.M)
+    if pattern.search(doc):
+        doc = pattern.sub(lambda _: text + "\n", doc)
+    else:
+        doc = doc.rstrip("\n") + "\n\n" + text
+    DOCS.write_text(doc)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--write", action="store_true", help="update the Sets section of docs/benchmarks.md")
+    args = ap.parse_args(argv)
+    tm = bench_tensor_map()
+    print(f"tensor map + PCA reduce: ocreach {tm['t_ours'] * 1e3:.1f} ms, numpy {tm['t_ref'] * 1e3:.1f} ms, "
+          f"ratio {tm['ratio']:.2f} (target <= 1.5); support rel. diff {tm['support_rel_diff']:.1e}")
+    ct = bench_containment()
+    print(f"10k points in zonotope: ocreach {ct['t_ours']:.2f} s, per-point cvxpy {ct['t_loop_extrapolated']:.1f} s "
+          f"(extrapolated from {ct['n_loop']}), speedup {ct['speedup']:.0f}x (target >= 10); "
+          f"agree {ct['agree']}/{ct['n_loop']}")
+    text = section(tm, ct)
+    if args.write:
+        write_section(text)
+        print(f"wrote ## Sets to {DOCS}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
