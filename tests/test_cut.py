@@ -1,0 +1,125 @@
+"""Method ``cut`` (Jain et al. Eq. 4-15, Appendix Eq. 30) against independent truths.
+
+* a linear system, where Gaussian closure is exact: the closed-form mean/covariance recursion;
+* one nonlinear re-entry step from the Gaussian of Eq. 26-27: mean, covariance and third central
+  moment by a tensor Gauss-Hermite product over (x, u) written here in NumPy with the physical
+  equations (no CUT, no independence shortcut);
+* the glider problem over 120 s: a 4000-sample Monte Carlo with fresh controls per step; the
+  tolerance is 4 Monte Carlo standard errors (48 comparisons: family-wise false-alarm < 0.5 %).
+"""
+import itertools
+
+import numpy as np
+import pytest
+
+import ocreach
+from ocreach.errors import ProblemError
+from ocreach.models.reentry import GLIDER
+from ocreach.problem import get_problem
+from ocreach.stochastic_mc import stochastic_monte_carlo
+from test_reentry import _linear_problem, phys_rhs
+
+D = np.pi / 180
+
+
+@pytest.mark.parametrize("rule,order", [("ut", 4), ("cut", 4), ("cut", 6), ("gh", 4)])
+def test_linear_system_exact(rule, order):
+    p, means, covs = _linear_problem(np.array([[0.04, 0.01], [0.01, 0.02]]), np.array([[0.25]]))
+    r = ocreach.reach(p, "cut", rule=rule, order=order)
+    np.testing.assert_allclose(r.meta["mean"], means, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(r.meta["cov"], covs, rtol=1e-10, atol=1e-14)
+    # sets are the 3-sigma ellipsoids: support along e_i is mean_i + 3 std_i
+    for k in (0, 10, -1):
+        for i in range(2):
+            e = np.eye(2)[i]
+            assert r.support(e, k) == pytest.approx(means[k, i] + 3 * np.sqrt(covs[k, i, i]), rel=1e-10)
+
+
+def _gh_truth(p, dt):
+    """E, Cov and third central moment of x + dt f(x, u) by a 7-point-per-axis Gauss-Hermite
+    product over the 3 uncertain states (h, theta, psi) and the 2 controls (physical units)."""
+    veh = p.extra["vehicle"]
+    spec = p.stochastic
+    m = veh.to_physical(spec.x0_mean)
+    sx = np.sqrt(np.diag(spec.x0_cov)) * veh.scale
+    su = np.sqrt(np.diag(spec.u_cov))
+    z, w = np.polynomial.hermite_e.hermegauss(7)
+    w = w / w.sum()
+    vals, wts = [], []
+    dims = [0, 3, 4]
+    for combo in itertools.product(range(7), repeat=5):
+        x = m.copy()
+        for d, c in zip(dims, combo[:3]):
+            x[d] += sx[d] * z[c]
+        u = spec.u_nominal[0] + su * z[list(combo[3:])]
+        vals.append(x + dt * phys_rhs(x, u, veh))
+        wts.append(np.prod(w[list(combo)]))
+    V = np.array(vals) / veh.scale
+    W = np.array(wts)
+    mean = W @ V
+    Y = V - mean
+    cov = (Y * W[:, None]).T @ Y
+    m3 = np.einsum("i,ia,ib,ic->abc", W, Y, Y, Y)
+    return mean, cov, m3
+
+
+def test_one_nonlinear_step_mean_cov_third_moment():
+    dt = 2.0
+    p = get_problem("glider-reentry", t_final=dt, dt=dt)
+    mean, cov, m3 = _gh_truth(p, dt)
+    r = ocreach.reach(p, "cut", rule="cut", order=6, third_moments=True)
+    np.testing.assert_allclose(r.meta["mean"][1], mean, rtol=1e-9, atol=1e-12)
+    sd = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose(r.meta["cov"][1] / np.outer(sd + 1e-30, sd + 1e-30),
+                               cov / np.outer(sd + 1e-30, sd + 1e-30), atol=1e-7)
+    scale3 = np.einsum("a,b,c->abc", sd, sd, sd) + 1e-30
+    got = r.meta["m3"][1] / scale3
+    assert np.abs(got - m3 / scale3).max() < 1e-5
+    assert np.abs(m3 / scale3).max() > 1e-3  # the step is non-Gaussian enough to test Eq. 30
+
+
+@pytest.fixture(scope="module")
+def glider_runs():
+    p = get_problem("glider-reentry")
+    r = ocreach.reach(p, "cut", order=8, rule="cut")
+    N = 4000
+    mc = stochastic_monte_carlo(p, samples=N, seed=11, times=p.extra["report_times"])
+    return p, r, mc, N
+
+
+def test_glider_against_monte_carlo(glider_runs):
+    p, r, mc, N = glider_runs
+    idx = mc["index"]
+    m, s = r.meta["mean"][idx], r.meta["std"][idx]
+    se_mean = mc["std"] / np.sqrt(N)
+    se_std = mc["std"] / np.sqrt(2 * N)
+    live = mc["std"] > 0  # states with zero spread (none after the first step) are skipped
+    assert np.all(np.abs(m - mc["mean"])[live] <= 4 * se_mean[live]), (m - mc["mean"]) / se_mean
+    assert np.all(np.abs(s - mc["std"])[live] <= 4 * se_std[live]), (s - mc["std"]) / se_std
+    assert r.meta["points_x"] == 745 and r.meta["points_u"] == 21  # CUT8 sizes of Jain et al.
+
+
+def test_glider_three_sigma_bounds_contain_monte_carlo(glider_runs):
+    p, r, mc, N = glider_runs
+    idx = mc["index"]
+    lo, hi = r.meta["lower"][idx], r.meta["upper"][idx]
+    X = mc["trajectories"]
+    inside = np.mean((X >= lo[None]) & (X <= hi[None]), axis=0)  # (times, states)
+    # Gaussian: 0.9973 per state; binomial SE at N = 4000 is 0.0008; 4 SE below -> 0.994
+    assert inside.min() >= 0.994, inside
+
+
+def test_bad_input():
+    p = get_problem("glider-reentry", t_final=1.0)
+    with pytest.raises(ProblemError, match=r"rule must be one of \('cut', 'ut', 'gh'\)"):
+        ocreach.reach(p, "cut", rule="sparse")
+    with pytest.raises(ProblemError, match=r"order must be one of \(4, 6, 8\)"):
+        ocreach.reach(p, "cut", order=5)
+    bad = np.array(p.stochastic.x0_cov)
+    bad[0, 0] = -1e-3
+    p.stochastic = type(p.stochastic)(p.stochastic.x0_mean, bad, p.stochastic.u_nominal,
+                                      p.stochastic.u_cov)
+    with pytest.raises(ProblemError, match="x0_cov must be positive semidefinite"):
+        ocreach.reach(p, "cut")
+    with pytest.raises(ProblemError, match="no stochastic specification"):
+        ocreach.reach("vdp", "cut")
