@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import datetime as _dt
 import re
+from collections.abc import Iterable, Sequence
 from functools import lru_cache
 from math import comb
-from typing import Iterable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -210,7 +210,7 @@ def de421_records(series: str, jd_day: float, days: np.ndarray, derivative: int 
     """
     e = _de421()
     rec = e.load(series)  # (n_sets, 3, n_coef)
-    n_sets, _, n_coef = rec.shape
+    n_sets = rec.shape[0]
     span = (e.jomega - e.jalpha) / n_sets
     days = np.atleast_1d(np.asarray(days, dtype=float))
     base = jd_day - e.jalpha
@@ -466,7 +466,7 @@ def _smoothstep_expr(s):
     return out
 
 
-def _piece_deriv(fit: "EphemerisFit", body: str, origin: str, j: int, x, k: int) -> np.ndarray:
+def _piece_deriv(fit: EphemerisFit, body: str, origin: str, j: int, x, k: int) -> np.ndarray:
     """``k``-th time derivative (km/s^k) of piece ``j`` of ``body - origin`` at ``x`` days."""
     lo, hi = fit.piece_bounds_days[j]
     C = fit._matrix(body, origin, j)

@@ -13,13 +13,23 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from ocreach.ephemeris import (
+    ECLIPJ2000_FROM_ICRF,
+    EphemerisFit,
+    ephemeris_fit,
+    epoch_from_et,
+    gm,
+    parse_epoch,
+)
 from ocreach.errors import ProblemError
-from ocreach.ephemeris import (ECLIPJ2000_FROM_ICRF, EphemerisFit, epoch_from_et, ephemeris_fit,
-                               gm, parse_epoch)
 from ocreach.models.cr3bp import cr3bp
-from ocreach.models.ephemeris import (ephemeris_inertial, ephemeris_synodic,
-                                      inertial_state_from_si, inertial_to_synodic,
-                                      synodic_to_inertial)
+from ocreach.models.ephemeris import (
+    ephemeris_inertial,
+    ephemeris_synodic,
+    inertial_state_from_si,
+    inertial_to_synodic,
+    synodic_to_inertial,
+)
 from ocreach.units import EARTH_MOON_FOSS, Units
 
 FOSS_EPOCH = "2024-05-01 12:00:00"

@@ -14,14 +14,23 @@ The fitted ephemeris and frame data are stored in ``model.cache["ephemeris"]`` a
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import replace
-from typing import Iterable
 
 import casadi as ca
 import numpy as np
 
-from ocreach.ephemeris import (AU_KM, BODIES, FRAMES, ORIGINS, CircularEarthMoon, EphemerisFit,
-                               _check_body, ephemeris_fit, gm)
+from ocreach.ephemeris import (
+    AU_KM,
+    BODIES,
+    FRAMES,
+    ORIGINS,
+    CircularEarthMoon,
+    EphemerisFit,
+    _check_body,
+    ephemeris_fit,
+    gm,
+)
 from ocreach.errors import ProblemError, check_positive
 from ocreach.model import Model
 from ocreach.units import EARTH_MOON_FOSS, G0, Units
