@@ -1,0 +1,227 @@
+"""Reproduce Jain et al. Figs. 3-12: CUT8 moment propagation vs a 10,000-sample Monte Carlo.
+
+For the shuttle (first maneuver) and the glider (second maneuver) this script
+
+* propagates mean and covariance with ``cut`` (CUT8: 745 state points, 21 control points),
+* runs the stochastic Monte Carlo of the paper (10,000 initial states, fresh controls every step),
+* writes figures like the paper's into docs/figures/:  ``jain_<vehicle>_controls.png`` (Figs. 3, 8),
+  ``jain_<vehicle>_states.png`` (mean with 3-sigma bands and MC samples, Figs. 4, 9) and
+  ``jain_<vehicle>_contours_<k>.png`` (Gaussian density contours of 2-D projections with the MC
+  samples at the four report times, Figs. 5-7 and 10-12),
+* prints the validation table (mean and std differences in units of the MC standard error,
+  fraction of MC samples inside the 3-sigma bounds); ``--write`` puts it into docs/validation.md
+  under ``## CUT stochastic reachability``.
+
+Run: ``python examples/jain_reentry.py [--samples 10000] [--write]``  (about a minute).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+import ocreach  # noqa: E402
+from ocreach.problem import get_problem  # noqa: E402
+from ocreach.stochastic_mc import stochastic_monte_carlo  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+FIG = ROOT / "docs" / "figures"
+DEG = 180 / np.pi
+LABELS = ["h", "v", "gamma", "theta (lat)", "psi (azimuth)", "phi (lon)"]
+PAIRS = [[(0, 1), (1, 2)], [(0, 3), (3, 5)], [(0, 2), (2, 4)]]   # Figs. 5-7 / 10-12
+
+
+def physical(veh, x):
+    """Model state -> plotting units (length unit of the vehicle, degrees for the angles)."""
+    out = veh.to_physical(x)
+    out[..., 2:] *= DEG
+    return out
+
+
+def units(veh):
+    return [veh.length_name, f"{veh.length_name}/s", "deg", "deg", "deg", "deg"]
+
+
+def run(pid: str, samples: int, seed: int = 0) -> dict:
+    p = get_problem(pid)
+    t0 = time.perf_counter()
+    r = ocreach.reach(p, "cut", order=8, rule="cut")
+    t_cut = time.perf_counter() - t0
+    stride = max(1, p.n_segments // 100)
+    times = sorted(set(p.grid[::stride].tolist()) | set(p.extra["report_times"]))
+    t0 = time.perf_counter()
+    mc = stochastic_monte_carlo(p, samples=samples, seed=seed, times=times)
+    t_mc = time.perf_counter() - t0
+    return {"p": p, "r": r, "mc": mc, "t_cut": t_cut, "t_mc": t_mc, "samples": samples}
+
+
+def fig_controls(res, name):
+    p = res["p"]
+    u = p.stochastic.u_nominal * DEG
+    s = np.sqrt(np.diag(p.stochastic.u_cov)) * DEG
+    t = p.grid[:-1]
+    rng = np.random.default_rng(0)
+    fig, axs = plt.subplots(1, 2, figsize=(10, 3.5))
+    for j, lab in enumerate(["alpha [deg]", "bank [deg]"]):
+        k = np.linspace(0, t.size - 1, min(t.size, 200)).astype(int)
+        draws = u[k, j][None] + s[j] * rng.standard_normal((100, k.size))
+        axs[j].plot(np.repeat(t[k][None], 100, 0).ravel(), draws.ravel(), ".", ms=1, color="tab:purple",
+                    alpha=0.3, label="MC samples")
+        axs[j].plot(t, u[:, j], "r-", label="nominal")
+        axs[j].set_xlabel("t [s]")
+        axs[j].set_ylabel(lab)
+    axs[0].legend(loc="best")
+    fig.suptitle(f"{p.id}: controls, Gaussian with sigma 3 deg about the nominal (Jain Fig. {3 if 'shuttle' in name else 8})")
+    fig.tight_layout()
+    fig.savefig(FIG / f"jain_{name}_controls.png", dpi=110)
+    plt.close(fig)
+
+
+def fig_states(res, name):
+    p, r, mc = res["p"], res["r"], res["mc"]
+    veh = p.extra["vehicle"]
+    mean = physical(veh, r.meta["mean"])
+    lo = physical(veh, r.meta["lower"])
+    hi = physical(veh, r.meta["upper"])
+    X = physical(veh, mc["trajectories"][:300])
+    fig, axs = plt.subplots(2, 3, figsize=(13, 7))
+    for i, ax in enumerate(axs.ravel()):
+        ax.plot(np.repeat(mc["times"][None], X.shape[0], 0).ravel(), X[:, :, i].ravel(), ".",
+                ms=1, color="tab:purple", alpha=0.25)
+        ax.plot(p.grid, mean[:, i], "r-", label="CUT8 mean")
+        ax.plot(p.grid, lo[:, i], "g-", lw=0.8, label="CUT8 3-sigma")
+        ax.plot(p.grid, hi[:, i], "g-", lw=0.8)
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(f"{LABELS[i]} [{units(veh)[i]}]")
+    axs[0, 0].legend(loc="best")
+    fig.suptitle(f"{p.id}: CUT8 mean and 3-sigma bounds with Monte Carlo samples "
+                 f"(Jain Fig. {4 if 'shuttle' in name else 9})")
+    fig.tight_layout()
+    fig.savefig(FIG / f"jain_{name}_states.png", dpi=110)
+    plt.close(fig)
+
+
+def fig_contours(res, name):
+    p, r, mc = res["p"], res["r"], res["mc"]
+    veh = p.extra["vehicle"]
+    scale = veh.scale * np.r_[1, 1, DEG, DEG, DEG, DEG]
+    rep = p.extra["report_times"]
+    jj = [int(np.flatnonzero(np.isclose(mc["times"], t))[0]) for t in rep]
+    first_fig = 5 if "shuttle" in name else 10
+    for f, pairs in enumerate(PAIRS):
+        fig, axs = plt.subplots(2, len(rep), figsize=(4 * len(rep), 7.5))
+        for row, (a, b) in enumerate(pairs):
+            for col, (t, j) in enumerate(zip(rep, jj)):
+                ax = axs[row, col]
+                k = int(np.argmin(np.abs(p.grid - t)))
+                m = r.meta["mean"][k][[a, b]] * scale[[a, b]]
+                C = r.meta["cov"][k][np.ix_([a, b], [a, b])] * np.outer(scale[[a, b]], scale[[a, b]])
+                pts = mc["trajectories"][:2000, j][:, [a, b]] * scale[[a, b]]
+                ax.plot(pts[:, 0], pts[:, 1], ".", ms=1, color="tab:purple", alpha=0.4)
+                sd = np.sqrt(np.clip(np.diag(C), 1e-300, None))
+                g0 = np.linspace(m[0] - 4 * sd[0], m[0] + 4 * sd[0], 120)
+                g1 = np.linspace(m[1] - 4 * sd[1], m[1] + 4 * sd[1], 120)
+                G0, G1 = np.meshgrid(g0, g1)
+                Z = np.stack([G0 - m[0], G1 - m[1]], -1)
+                Ci = np.linalg.pinv(C)
+                d2 = np.einsum("...i,ij,...j->...", Z, Ci, Z)
+                if sd.min() > 1e-12 * max(sd.max(), 1e-300):
+                    ax.contour(G0, G1, d2, levels=[1, 4, 9], colors=["r", "orange", "g"], linewidths=1)
+                ax.set_title(f"t = {t:g} s", fontsize=9)
+                ax.set_xlabel(f"{LABELS[a]} [{units(veh)[a]}]", fontsize=8)
+                ax.set_ylabel(f"{LABELS[b]} [{units(veh)[b]}]", fontsize=8)
+                ax.tick_params(labelsize=7)
+        fig.suptitle(f"{p.id}: Gaussian density contours (1, 2, 3 sigma) from CUT8 with MC samples "
+                     f"(Jain Fig. {first_fig + f})")
+        fig.tight_layout()
+        fig.savefig(FIG / f"jain_{name}_contours_{f + 1}.png", dpi=100)
+        plt.close(fig)
+
+
+def table(res) -> tuple[str, dict]:
+    p, r, mc, N = res["p"], res["r"], res["mc"], res["samples"]
+    veh = p.extra["vehicle"]
+    rep = p.extra["report_times"]
+    lines = [f"### {p.id} (CUT8: {r.meta['points_x']} + {r.meta['points_u']} points; MC: {N} samples, "
+             f"seed 0; same Euler map)", "",
+             "Mean and std differences in units of the MC standard error (mean: std/sqrt(N); std: "
+             "std/sqrt(2N)); `in3s` = fraction of MC samples inside the CUT mean +- 3 sigma.  "
+             "Bold: |z| > 3.", "",
+             "| t [s] | state | CUT mean | MC mean | z_mean | CUT std | MC std | z_std | in3s |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    worst = {"z_mean": 0.0, "z_std": 0.0, "in3s_min": 1.0}
+    for t in rep:
+        j = int(np.flatnonzero(np.isclose(mc["times"], t))[0])
+        k = int(np.argmin(np.abs(p.grid - t)))
+        cm, cs = r.meta["mean"][k], r.meta["std"][k]
+        mm, ms = mc["mean"][j], mc["std"][j]
+        X = mc["trajectories"][:, j]
+        inside = np.mean(np.abs(X - cm[None]) <= 3 * cs[None], axis=0)
+        for i in range(6):
+            if ms[i] == 0:
+                continue
+            zm = (cm[i] - mm[i]) / (ms[i] / np.sqrt(N))
+            zs = (cs[i] - ms[i]) / (ms[i] / np.sqrt(2 * N))
+            worst["z_mean"] = max(worst["z_mean"], abs(zm))
+            worst["z_std"] = max(worst["z_std"], abs(zs))
+            worst["in3s_min"] = min(worst["in3s_min"], inside[i])
+            f = (lambda z: f"**{z:+.2f}**" if abs(z) > 3 else f"{z:+.2f}")
+            sc = veh.scale[i] * (DEG if i >= 2 else 1)
+            u = units(veh)[i]
+            lines.append(f"| {t:g} | {LABELS[i]} [{u}] | {cm[i] * sc:.6g} | {mm[i] * sc:.6g} | {f(zm)} | "
+                         f"{cs[i] * sc:.4g} | {ms[i] * sc:.4g} | {f(zs)} | {inside[i]:.4f} |")
+    lines.append("")
+    lines.append(f"Runtime: cut {res['t_cut']:.2f} s (incl. rule setup), MC {res['t_mc']:.2f} s.")
+    return "\n".join(lines), worst
+
+
+def write_section(path: Path, heading: str, body: str) -> None:
+    """Replace (or append) the section ``heading`` of a markdown file, leaving the rest alone."""
+    text = path.read_text() if path.exists() else ""
+    lines = text.splitlines()
+    start = next((i for i, ln in enumerate(lines) if ln.strip() == heading), None)
+    if start is None:
+        new = (text.rstrip() + "\n\n" if text.strip() else "") + heading + "\n\n" + body.rstrip() + "\n"
+    else:
+        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+        new = "\n".join(lines[:start] + [heading, "", body.rstrip(), ""] + lines[end:]) + "\n"
+    from ocreach.reach.result import atomic_write_text
+
+    atomic_write_text(path, new)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=10000)
+    ap.add_argument("--write", action="store_true", help="update docs/validation.md")
+    args = ap.parse_args(argv)
+    FIG.mkdir(parents=True, exist_ok=True)
+    parts = []
+    for pid, name in (("shuttle-reentry", "shuttle"), ("glider-reentry", "glider")):
+        res = run(pid, args.samples)
+        fig_controls(res, name)
+        fig_states(res, name)
+        fig_contours(res, name)
+        txt, worst = table(res)
+        print(txt)
+        print(f"worst |z_mean| {worst['z_mean']:.2f}, |z_std| {worst['z_std']:.2f}, "
+              f"min in3s {worst['in3s_min']:.4f}\n")
+        parts.append(txt)
+    if args.write:
+        intro = (Path(__file__).with_name("jain_reentry_notes.md").read_text()
+                 if Path(__file__).with_name("jain_reentry_notes.md").exists() else "")
+        body = "\n\n".join([s for s in [intro.strip()] if s] + parts)
+        write_section(ROOT / "docs" / "validation.md", "## CUT stochastic reachability",
+                      "Generated by `python examples/jain_reentry.py --write`.\n\n" + body)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
