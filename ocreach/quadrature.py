@@ -267,7 +267,8 @@ def _structure(n: int, order: int, density: str) -> tuple[CutOrbit, ...]:
     CUT4: sigma + c^(n) without the centre (2n + 2^n points, Adurthi et al. 2018 CUT4; n = 6 gives
     76). For the Gaussian with n = 2 that system has no finite solution (r_c^2 = (n+2)/(n-2)), so
     the centre is added (9 points). CUT6: centre + sigma + c^(n) + c^(2) (1 + 2n + 2^n + 2n(n-1);
-    n = 6 gives 137; for n = 2, c^(2) and c^(n) are two rings of different radius). CUT8: centre +
+    n = 6 gives 137; for n = 2, c^(2) and c^(n) are two rings of different radius); for n >= 7
+    c^(3) replaces c^(2), whose system has a negative centre weight there. CUT8: centre +
     sigma + c^(n) twice + c^(2) + c^(3) + s^(n) (1 + 2n + 2^(n+1) + 2n(n-1) + 4n(n-1)(n-2)/3 + n 2^n;
     n = 6 gives 745); orbits that coincide with c^(n) in low dimension are dropped (c^(3) for
     n = 3, c^(2) for n = 2, which gives 59 and 21 points).
