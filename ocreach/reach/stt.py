@@ -1,0 +1,649 @@
+"""STT polynomial-zonotope reachability (Foss, Rosengren & Biria, AMOS 2024, Algorithm 1).
+
+The dynamics with inputs are written for the augmented state ``z = [x; u]`` (Foss Eq. 12) and
+discretised on the problem's grid by state-transition tensors integrated once along the reference
+(control 0, the centre of the input set; Eq. 11-13, :func:`ocreach.flow.stt`).  One step maps the
+deviation set through the STT polynomial (Eq. 18-19)::
+
+    dZ_k     = dR_k x U_k                                  (Eq. 17, U_k with fresh identifiers)
+    dR_{k+1} = (+)_{j=1..n} 1/j! Phi_k^(j) [x] dZ_k        (tensor maps, Eq. 21-22)
+    dR_{k+1} = Reduce(dR_{k+1}, h_max)   if it has more than h_max generators (PCA, Kopetzki 2017)
+    R_{k+1}  = dR_{k+1} + phi(t_{k+1})
+
+Every operation is exact on polynomial zonotopes except the reduction, so ``R_k`` is the exact image
+of the STT polynomial map up to the reduction; it is *not* a guaranteed enclosure of the true
+reachable set (the STT truncation error is not bounded, Foss Sec. 5).
+
+Beyond the paper (documented in docs/stt.md):
+
+* **splitting** (``split=(max_parts, threshold)``): before a step, the nonlinearity index
+  ``eta = max ||order-n term|| / max ||linear term||`` of the STT polynomial on samples of ``dZ_k``
+  is computed; while ``eta > threshold`` and parts remain, the part is split exactly along its
+  largest dependent factor (independent generators are first turned into dependent factors, which
+  is exact) and each half gets its own reference trajectory started at its centre (one extra STT
+  integration per part and segment).  The set at a time is then a :class:`PZUnion`.
+* **reachable tube** (``tube_substeps=s``): for each segment the sets at ``s - 1`` interior times
+  are computed by second-order STTs from ``t_k`` to ``t_k + i dt / s`` applied to ``dZ_k`` (the
+  control is held on the segment, so the map is exact in the same sense), and each is bloated by
+  a box of half-width ``dt/(2s) * max |f|`` (the speed estimated on the extreme samples of the
+  neighbouring sets, times 1.5) to cover the motion between sampled times.  ``result.tube[k]``
+  is the union over the segment ``[t_k, t_{k+1}]``.
+* directional STTs (Boone & McMahon) are not implemented: STT generation is below 5 % of the
+  runtime on all three problems (see docs/benchmarks.md), so they would not pay off.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ocreach.errors import ProblemError, SetError
+from ocreach.problem import Problem
+from ocreach.reach.base import Method, Timer
+from ocreach.reach.result import ReachResult
+
+INPUT_SETS = ("box", "ball")
+REDUCTIONS = ("pca", "girard")
+
+
+# ============================================================================ union of PZs
+class PZUnion:
+    """Union of polynomial zonotopes (the parts of a split reachable set).
+
+    Offers the set queries used by results and comparisons: ``support`` (max over parts),
+    ``contains`` (any part), ``sample``, ``project``, ``outline`` (all parts' polygons),
+    ``interval_hull``, ``plot``.
+    """
+
+    def __init__(self, parts: Sequence[Any]):
+        parts = list(parts)
+        if not parts:
+            raise SetError("PZUnion needs at least one part")
+        dims = {p.dim for p in parts}
+        if len(dims) != 1:
+            raise SetError(f"PZUnion parts must share one dimension; got {sorted(dims)}")
+        self.parts = tuple(parts)
+
+    @property
+    def dim(self) -> int:
+        return int(self.parts[0].dim)
+
+    @property
+    def n_generators(self) -> int:
+        return int(sum(p.n_generators for p in self.parts))
+
+    def __repr__(self) -> str:
+        return f"PZUnion(dim={self.dim}, parts={len(self.parts)})"
+
+    def project(self, dims: Any) -> "PZUnion":
+        return PZUnion([p.project(dims) for p in self.parts])
+
+    def support(self, d: Any, splits: int = 0):
+        vals = np.array([np.atleast_1d(p.support(d, splits=splits)) for p in self.parts])
+        out = vals.max(axis=0)
+        return float(out[0]) if np.ndim(d) == 1 else out
+
+    def contains(self, points: Any, splits: int = 0, tol: float = 1e-7):
+        P = np.atleast_2d(np.asarray(points, dtype=float))
+        ok = np.zeros(P.shape[0], dtype=bool)
+        for part in self.parts:
+            todo = ~ok
+            if not np.any(todo):
+                break
+            ok[todo] = np.atleast_1d(part.contains(P[todo], splits=splits, tol=tol))
+        return bool(ok[0]) if np.ndim(points) == 1 else ok
+
+    def sample(self, n: int, rng: Any = None, mode: str = "uniform") -> np.ndarray:
+        rng = np.random.default_rng(rng)
+        counts = np.bincount(rng.integers(0, len(self.parts), size=int(n)), minlength=len(self.parts))
+        return np.vstack([p.sample(int(c), rng, mode) for p, c in zip(self.parts, counts) if c > 0]
+                         or [np.zeros((0, self.dim))])
+
+    def outline(self, dims: Any = (0, 1), pieces: int = 64) -> list[np.ndarray]:
+        per = max(2, int(pieces) // len(self.parts))
+        return [poly for p in self.parts for poly in p.outline(dims, pieces=per)]
+
+    def interval_hull(self):
+        from ocreach.sets import Interval
+
+        hulls = [p.interval_hull() for p in self.parts]
+        return Interval(np.min([h.lo for h in hulls], axis=0), np.max([h.hi for h in hulls], axis=0))
+
+    def plot(self, ax, dims=(0, 1), **kw):
+        from ocreach.sets.plot import plot_set
+
+        out = None
+        for i, p in enumerate(self.parts):
+            out = plot_set(p, ax, dims=dims, **(kw if i == 0 else {**kw, "label": None}))
+        return out
+
+
+def polygons_union_area(polys: Sequence[np.ndarray], resolution: int = 600) -> float:
+    """Area of the union of 2-D polygons on a ``resolution``-square raster of their bounding box.
+
+    Used for the area of a polynomial zonotope's outline (its parts overlap, so the sum of the
+    parts' areas would over-count).  Relative error ~ perimeter * cell / area (< 1 % here).
+    """
+    from matplotlib.path import Path
+
+    polys = [np.asarray(p, float) for p in polys if len(p) >= 3]
+    if not polys:
+        return 0.0
+    allv = np.vstack(polys)
+    lo, hi = allv.min(axis=0), allv.max(axis=0)
+    span = np.where(hi - lo > 0, hi - lo, 1.0)
+    xs = lo[0] + (np.arange(resolution) + 0.5) * span[0] / resolution
+    ys = lo[1] + (np.arange(resolution) + 0.5) * span[1] / resolution
+    X, Y = np.meshgrid(xs, ys)
+    pts = np.column_stack([X.ravel(), Y.ravel()])
+    inside = np.zeros(pts.shape[0], dtype=bool)
+    for P in polys:
+        pl, ph = P.min(axis=0), P.max(axis=0)
+        box = ~inside & np.all((pts >= pl) & (pts <= ph), axis=1)
+        if np.any(box):
+            inside[box] = Path(P).contains_points(pts[box])
+    return float(inside.sum() * span[0] * span[1] / resolution ** 2)
+
+
+def points_in_polygons(points: np.ndarray, polys: Sequence[np.ndarray], tol: float = 1e-9) -> np.ndarray:
+    """Mask of 2-D ``points`` inside the union of convex polygons (counter-clockwise or not)."""
+    from matplotlib.path import Path
+
+    P = np.asarray(points, float)
+    ok = np.zeros(P.shape[0], dtype=bool)
+    for poly in polys:
+        poly = np.asarray(poly, float)
+        if poly.shape[0] < 3:
+            continue
+        todo = ~ok
+        if not np.any(todo):
+            break
+        path = Path(poly)
+        r = tol * max(1.0, float(np.ptp(poly, axis=0).max()))
+        ok[todo] = path.contains_points(P[todo], radius=r) | path.contains_points(P[todo], radius=-r)
+    return ok
+
+
+# ============================================================================ helpers
+def input_pz(kind: str, n_u: int):
+    """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
+
+    ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"``: the unit ball by
+    Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer approximation).
+    """
+    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz
+
+    if kind == "box":
+        return PolyZonotope(np.zeros(n_u), np.eye(n_u), None, np.eye(n_u, dtype=np.int64), new_ids(n_u))
+    if kind == "ball":
+        return unit_ball_pz(n_u, ids=new_ids(n_u))
+    raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
+
+
+def make_dependent(pz):
+    """The same set with every independent generator turned into a dependent one with a fresh
+    linear factor (exact: an independent generator is a factor that appears in one monomial)."""
+    from ocreach.sets import PolyZonotope, new_ids
+
+    q = pz.n_independent
+    if q == 0:
+        return pz
+    h, p = pz.n_dependent, pz.n_factors
+    E = np.zeros((p + q, h + q), dtype=np.int64)
+    E[:p, :h] = pz.E
+    E[p:, h:] = np.eye(q, dtype=np.int64)
+    return PolyZonotope(pz.c, np.hstack([pz.G, pz.GI]), None, E, np.concatenate([pz.id, new_ids(q)]))
+
+
+def _point_pz(c: np.ndarray):
+    from ocreach.sets import PolyZonotope
+
+    return PolyZonotope(np.asarray(c, float))
+
+
+def stt_polynomial(phi: Sequence[np.ndarray], dz: np.ndarray) -> list[np.ndarray]:
+    """Terms ``1/j! Phi^(j)[dz]^j`` (j = 1..n) for samples ``dz`` (N, n_z) (Foss Eq. 13)."""
+    out = [dz @ phi[0].T]
+    if len(phi) >= 2:
+        out.append(0.5 * np.einsum("iab,na,nb->ni", phi[1], dz, dz, optimize=True))
+    if len(phi) >= 3:
+        out.append(np.einsum("iabc,na,nb,nc->ni", phi[2], dz, dz, dz, optimize=True) / 6.0)
+    return out
+
+
+def nonlinearity_index(phi: Sequence[np.ndarray], dZ, samples: int = 64, seed: int = 0) -> float:
+    """``max_s ||order-n term|| / max_s ||linear term||`` over extreme samples of ``dZ``.
+
+    Small values mean the STT polynomial is nearly linear over the set, i.e. the set is well
+    inside the region where a truncated expansion is trustworthy; it grows like the set size.
+    """
+    if len(phi) < 2:
+        return 0.0
+    S = dZ.sample(samples, np.random.default_rng(seed), mode="extreme")
+    terms = stt_polynomial(phi, S)
+    lin = float(np.max(np.linalg.norm(terms[0], axis=1)))
+    top = float(np.max(np.linalg.norm(terms[-1], axis=1)))
+    return top / lin if lin > 0 else (0.0 if top == 0 else math.inf)
+
+
+def stt_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str, engine: str, timer: Timer,
+             counts: dict[str, int]):
+    """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` (Foss Eq. 18-19, Alg. 1 lines 6-9).
+
+    ``engine="library"``: the set library's ``tensor_map`` per order, exact sums and
+    ``reduce_pz``; ``engine="fused"``: :func:`fused_step` (same set, faster).
+    """
+    if engine == "fused":
+        return fused_step(phi, dZ, h_max, method, timer, counts)
+    from ocreach.sets import tensor_map
+
+    with timer("tensor_maps"):
+        out = phi[0] @ dZ
+        for j in range(2, len(phi) + 1):
+            out = out + tensor_map(phi[j - 1] / math.factorial(j), dZ)
+    counts["tensor_maps"] += 1
+    if out.n_generators > h_max:
+        with timer("reductions"):
+            out = out.reduce(h_max, method)
+        counts["reductions"] += 1
+    return out
+
+
+# ---------------------------------------------------------------------------- fused step
+_COMBO_CACHE: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+
+
+def _combos(H: int, order: int) -> tuple[np.ndarray, ...]:
+    """Index multisets over ``H`` generators with their multiplicities (cached; numpy only).
+
+    order 2: ``(i, j, mult)`` with ``i <= j``; order 3: ``(i, j, k, q, mult)`` with ``i <= j <= k``
+    and ``q`` the index of the pair ``(i, j)`` in ``np.triu_indices(H)``.
+    """
+    key = (H, order)
+    if key not in _COMBO_CACHE:
+        if order == 2:
+            i, j = np.triu_indices(H)
+            _COMBO_CACHE[key] = (i, j, np.where(i == j, 1.0, 2.0))
+        else:
+            pi, pj = np.triu_indices(H)                       # pairs i <= j, index q
+            cnt = H - pj                                      # number of k >= j for each pair
+            q = np.repeat(np.arange(pi.size), cnt)
+            start = np.repeat(np.cumsum(cnt) - cnt, cnt)
+            k = np.arange(q.size) - start + np.repeat(pj, cnt)
+            i, j = pi[q], pj[q]
+            mult = np.where((i != j) & (j != k), 6.0, np.where((i == j) & (j == k), 1.0, 3.0))
+            _COMBO_CACHE[key] = (i, j, k, q, mult)
+        if len(_COMBO_CACHE) > 8:
+            _COMBO_CACHE.pop(next(iter(_COMBO_CACHE)))
+    return _COMBO_CACHE[key]
+
+
+def _bitmask(B: np.ndarray) -> np.ndarray:
+    """Rows of a boolean matrix (H, r) packed into uint64 words (H, ceil(r/64))."""
+    H, r = B.shape
+    W = max(1, -(-r // 64))
+    pad = np.zeros((H, W * 64), dtype=bool)
+    pad[:, :r] = B
+    return np.packbits(pad, axis=1, bitorder="little").view(np.uint64).reshape(H, W)
+
+
+def _sym(T: np.ndarray) -> np.ndarray:
+    import itertools
+
+    N = T.ndim - 1
+    perms = list(itertools.permutations(range(1, N + 1)))
+    return sum(np.transpose(T, (0, *p)) for p in perms) / len(perms)
+
+
+def fused_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str = "pca",
+               timer: Timer | None = None, counts: dict[str, int] | None = None):
+    """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` in one vectorised pass (Foss Eq. 18, 21-22).
+
+    Same result as the set library's ``tensor_map`` per order, exact sum and ``reduce_pz`` (checked
+    in tests/test_stt.py), but faster: (1) all orders are generated together over the augmented
+    generator list ``[c, G, GI]`` (Eq. 22 with the centre as a zero-exponent generator) -- order 3
+    as a dense product of all pairs ``(i <= j)`` with all ``k`` followed by a gather of ``k >= j``;
+    (2) equal monomials are merged once by the library's linear monomial hash; (3) the reduction
+    is applied *before* any exponent matrix is formed: the classification a removed generator
+    needs (constant, all-even, contains an independent factor) comes from XOR/OR of packed
+    parity/support bit masks, and the exponent matrix is built only for the kept generators.
+    Independent generators are treated as in ``tensor_map`` (temporary factors, every product
+    containing one becomes independent; all-even ones shift the centre by half).
+    ``timer`` gets the phases ``tensor_maps`` (generation and merging) and ``reductions``.
+    """
+    timer = timer or Timer()
+    with timer("tensor_maps"):
+        out = _fused_generate(phi, dZ)
+    with timer("reductions"):
+        res = _fused_reduce(dZ, h_max, method, *out)
+    if counts is not None:
+        counts["tensor_maps"] += 1
+        counts["reductions"] += int(res[1])
+    return res[0]
+
+
+def _fused_generate(phi, dZ):
+    """Generators, merged, of ``sum_j 1/j! Phi^(j)[x]dZ`` with their classification bits."""
+    from ocreach.sets.polyzonotope import monomial_keys
+
+    n_ord = len(phi)
+    p, h, q = dZ.n_factors, dZ.n_dependent, dZ.n_independent
+    n = phi[0].shape[0]
+    Ga = np.hstack([dZ.c[:, None], dZ.G, dZ.GI])
+    H = Ga.shape[1]
+    Ea = np.zeros((p + q, H), dtype=np.int64)
+    Ea[:p, 1:1 + h] = dZ.E
+    Ea[p:, 1 + h:] = np.eye(q, dtype=np.int64)
+    ka = monomial_keys(Ea)
+    par = _bitmask((Ea % 2 == 1).T)
+    sup = _bitmask((Ea > 0).T)
+    bmask = _bitmask(np.arange(p + q)[None, :] >= p)[0]
+    cols, k0s, k1s, idx = [phi[0] @ Ga], [ka[:, 0]], [ka[:, 1]], [(np.arange(H),)]
+    if n_ord >= 2:
+        T2 = _sym(phi[1]) / 2.0
+        i, j, mult = _combos(H, 2)
+        B = np.matmul(Ga.T[None], T2 @ Ga)                     # (n, H, H)
+        cols.append(B.reshape(n, -1)[:, i * H + j] * mult)
+        k0s.append(ka[i, 0] + ka[j, 0])
+        k1s.append(ka[i, 1] + ka[j, 1])
+        idx.append((i, j))
+    if n_ord >= 3:
+        T3 = _sym(phi[2]) / 6.0
+        i, j, k, qq, mult = _combos(H, 3)
+        pi, pj = np.triu_indices(H)
+        nz = Ga.shape[0]
+        A = (T3 @ Ga).reshape(n, nz * nz, H).transpose(1, 0, 2).reshape(nz * nz, n * H)
+        P2 = np.ascontiguousarray((Ga[:, None, pi] * Ga[None, :, pj]).reshape(nz * nz, -1).T)
+        Q = (P2 @ A).reshape(pi.size, n, H)                    # Q[pair, m, k] (one BLAS product)
+        cols.append((Q[qq, :, k] * mult[:, None]).T)
+        del Q
+        k0s.append((ka[pi, 0] + ka[pj, 0])[qq] + ka[k, 0])
+        k1s.append((ka[pi, 1] + ka[pj, 1])[qq] + ka[k, 1])
+        idx.append((i, j, k))
+    G = np.hstack(cols)
+    k0, k1 = np.concatenate(k0s), np.concatenate(k1s)
+    # merge equal monomials (sort by the first hash word; a group needs both words equal)
+    order = np.argsort(k0)
+    a0, a1 = k0[order], k1[order]
+    new = np.ones(order.size, dtype=bool)
+    new[1:] = (a0[1:] != a0[:-1]) | (a1[1:] != a1[:-1])
+    starts = np.flatnonzero(new)
+    Gm = np.add.reduceat(np.take(G, order, axis=1), starts, axis=1)
+    rep = order[starts]
+    # classification of the merged monomials from one representative each (bit masks)
+    offs = np.cumsum([0] + [len(ix[0]) for ix in idx])
+    src = np.searchsorted(offs, rep, side="right") - 1
+    PAR = np.zeros((rep.size, par.shape[1]), dtype=np.uint64)
+    SUP = np.zeros_like(PAR)
+    for o, ix in enumerate(idx):             # at most 3 iterations (one per STT order)
+        sel = np.flatnonzero(src == o)
+        local = rep[sel] - offs[o]
+        for comp in ix:
+            PAR[sel] ^= par[comp[local]]
+            SUP[sel] |= sup[comp[local]]
+    const = ~np.any(SUP, axis=1)
+    has_b = np.any(SUP & bmask, axis=1)
+    even = ~np.any(PAR, axis=1)
+    return Gm, rep, const, has_b, even, Ea, idx
+
+
+def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx):
+    """Reduction (as ``reduce_pz``) before the exponent matrix is formed; see :func:`fused_step`."""
+    from ocreach.sets import PolyZonotope
+    from ocreach.sets.reduce import box_generators
+
+    p = dZ.n_factors
+    n = Gm.shape[0]
+    c = Gm[:, const].sum(axis=1)
+    # independent products: all-even ones range over [0, 1]
+    be = has_b & even
+    c = c + 0.5 * Gm[:, be].sum(axis=1)
+    Gb = np.where(be[None, :], 0.5, 1.0) * Gm
+    dep = ~(const | has_b)
+    ind = has_b
+    cand = np.flatnonzero(dep | ind)
+    norms = np.linalg.norm(Gb[:, cand], axis=0)
+    keep_mask = np.ones(cand.size, dtype=bool)
+    if cand.size > h_max:
+        n_keep = max(h_max - n, 0)
+        keep_mask[:] = False
+        if n_keep:
+            keep_mask[np.argpartition(-norms, n_keep - 1)[:n_keep]] = True
+    kept, removed = cand[keep_mask], cand[~keep_mask]
+    kd = kept[dep[kept]]
+    ki = kept[ind[kept]]
+    rd = removed[dep[removed]]
+    ri = removed[ind[removed]]
+    # removed dependent monomials: zonotope enclosure (all-even -> centre shift + half generator)
+    rde = rd[even[rd]]
+    c = c + 0.5 * Gm[:, rde].sum(axis=1)
+    Grem = np.hstack([0.5 * Gm[:, rde], Gm[:, rd[~even[rd]]], Gb[:, ri]])
+    GI = np.hstack([Gb[:, ki], box_generators(Grem, method)])
+    # exponent matrix of the kept dependent monomials only
+    src = np.concatenate([np.zeros(0, dtype=np.int64)] + [np.full(len(ix[0]), o, dtype=np.int64)
+                                                          for o, ix in enumerate(idx)])
+    offs = np.cumsum([0] + [len(ix[0]) for ix in idx])
+    r = rep[kd]
+    o = src[r]
+    E = np.zeros((p, r.size), dtype=np.int64)
+    for ordr, ix in enumerate(idx):          # at most 3 iterations (one per STT order)
+        sel = o == ordr
+        local = r[sel] - offs[ordr]
+        E[:, sel] = sum(Ea[:p, a[local]] for a in ix)
+    used = np.any(E > 0, axis=1)
+    return PolyZonotope(c, Gm[:, kd], GI, E[used], dZ.id[used]), removed.size > 0
+
+
+@dataclass
+class _Part:
+    """One piece of the reachable set: its reference state at ``t_k`` and deviation set."""
+
+    x_ref: np.ndarray
+    dR: Any
+    nominal: bool = True  # True while the reference is the problem's nominal (precomputed STTs)
+    depth: int = 0
+    dZ: Any = None        # dR x U of the current step (for the tube)
+
+
+# ============================================================================ method
+class STTReach(Method):
+    """Polynomial-zonotope propagation through state-transition tensors (Foss Algorithm 1)."""
+
+    name = "stt"
+    description = "STT polynomial-zonotope propagation (Foss et al. Algorithm 1), optional splitting"
+
+    @dataclass
+    class Options:
+        """Options (defaults in brackets).
+
+        ``order`` [2]: STT order n in {1, 2, 3}.
+        ``h_max`` [200]: maximum number of generators (dependent + independent) per part.
+        ``input_set`` [None]: ``"box"`` or ``"ball"`` (Eq. 16); None = the problem's control set.
+        ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
+        ``split`` [None]: ``(max_parts, threshold)``; split a part while its nonlinearity index
+        exceeds ``threshold`` and fewer than ``max_parts`` parts exist (None = Algorithm 1 as is).
+        ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
+        ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
+        library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.
+        ``rtol``, ``atol``: integrator tolerances of the STT generation.
+        """
+
+        order: int = 2
+        h_max: int = 200
+        input_set: str | None = None
+        reduction: str = "pca"
+        split: tuple | None = None
+        tube_substeps: int = 0
+        engine: str = "fused"
+        rtol: float = 1e-10
+        atol: float = 1e-12
+
+        def __post_init__(self) -> None:
+            if self.order not in (1, 2, 3):
+                raise ProblemError(f"order must be 1, 2 or 3; got {self.order!r}")
+            self.h_max = int(self.h_max)
+            if self.h_max < 1:
+                raise ProblemError(f"h_max must be >= 1; got {self.h_max!r}")
+            if self.input_set is not None and self.input_set not in INPUT_SETS:
+                raise ProblemError(f"input_set must be one of {INPUT_SETS} or None; got {self.input_set!r}")
+            if self.reduction not in REDUCTIONS:
+                raise ProblemError(f"reduction must be one of {REDUCTIONS}; got {self.reduction!r}")
+            if self.split is not None:
+                try:
+                    parts, thr = self.split
+                    parts, thr = int(parts), float(thr)
+                except (TypeError, ValueError):
+                    raise ProblemError(f"split must be (max_parts, threshold) or None; got {self.split!r}") from None
+                if parts < 1 or not thr > 0:
+                    raise ProblemError(f"split needs max_parts >= 1 and threshold > 0; got {self.split!r}")
+                self.split = (parts, thr)
+            self.tube_substeps = int(self.tube_substeps)
+            if self.tube_substeps < 0 or self.tube_substeps == 1:
+                raise ProblemError(f"tube_substeps must be 0 (off) or >= 2; got {self.tube_substeps!r}")
+            if self.engine not in ("fused", "library"):
+                raise ProblemError(f"engine must be 'fused' or 'library'; got {self.engine!r}")
+            if not 0 < self.rtol < 1e-3:
+                raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, problem: Problem) -> ReachResult:
+        from ocreach.flow import stt as stt_flow
+
+        opt = self.options
+        model = problem.model
+        kind = opt.input_set or problem.control_set.kind
+        if kind not in INPUT_SETS:
+            raise ProblemError(f"method 'stt' needs a 'box' or 'ball' input set; the problem's control "
+                               f"set is {problem.control_set.kind!r} and input_set={opt.input_set!r}")
+        if opt.h_max < model.n_x:
+            raise ProblemError(f"h_max must be >= n_x = {model.n_x}; got {opt.h_max}")
+        grid = problem.grid
+        K = grid.size - 1
+        timer = Timer()
+        counts = {"tensor_maps": 0, "reductions": 0, "splits": 0, "part_stts": 0}
+        with timer("stt_generation"):
+            ref = stt_flow(model, problem.x0, np.zeros((K, model.n_u)), grid, opt.order,
+                           p=problem.params, rtol=opt.rtol, atol=opt.atol)
+        self._ref = ref
+        with timer("other"):
+            if problem.initial_set is not None:
+                from ocreach.sets import to_polyzonotope
+
+                dR0 = to_polyzonotope(problem.initial_set) - problem.x0
+            else:
+                dR0 = _point_pz(np.zeros(model.n_x))
+        parts = [_Part(problem.x0.copy(), dR0)]
+        sets: list[Any] = [self._assemble(parts)]
+        tube: list[Any] = []
+        eta_hist = np.zeros(K)
+        gens = np.zeros(K + 1, dtype=int)
+        gens[0] = sets[0].n_generators
+        for k in range(K):
+            with timer("other"):
+                U = [input_pz(kind, model.n_u) for _ in parts]
+            new_parts, done = [], []
+            stack = [(p, u) for p, u in zip(parts, U)]
+            while stack:
+                part, Uk = stack.pop()
+                phi, x1 = self._segment_phi(part, k, problem, timer, counts)
+                with timer("other"):
+                    dZ = part.dR.cartesian(Uk)
+                if opt.split is not None and opt.order >= 2:
+                    with timer("splitting"):
+                        eta = nonlinearity_index(phi, dZ)
+                        eta_hist[k] = max(eta_hist[k], eta)
+                        n_now = len(new_parts) + len(stack) + 1
+                        if eta > opt.split[1] and n_now < opt.split[0] and part.dR.n_generators > 0:
+                            counts["splits"] += 1
+                            for child in self._split(part):
+                                stack.append((child, Uk))
+                            continue
+                dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts)
+                new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
+                part.dZ = dZ  # kept for the tube
+                done.append(part)
+            if opt.tube_substeps:
+                with timer("tube"):
+                    tube.append(self._tube_segment(problem, k, parts_with_dz=done, new=new_parts))
+            parts = new_parts
+            with timer("other"):
+                sets.append(self._assemble(parts))
+            gens[k + 1] = sets[-1].n_generators
+        meta = self.base_meta(problem, timer.times)
+        meta["evaluations"] = counts
+        meta["input_set"] = kind
+        meta["generators"] = gens
+        meta["parts"] = [len(s.parts) if isinstance(s, PZUnion) else 1 for s in sets]
+        if opt.split is not None:
+            meta["nonlinearity_index"] = eta_hist
+        meta["reference"] = ref.states
+        res = ReachResult(times=grid, sets=sets, meta=meta)
+        if opt.tube_substeps:
+            res.tube = tube  # type: ignore[attr-defined]
+        return res
+
+    # ------------------------------------------------------------------ pieces
+    def _segment_phi(self, part: _Part, k: int, problem: Problem, timer: Timer,
+                     counts) -> tuple[list[np.ndarray], np.ndarray]:
+        """``Phi_k^(j)`` about the part's reference: precomputed for the nominal reference, else one
+        STT integration of the segment from the part's own reference state."""
+        if part.nominal:
+            return [ph[k] for ph in self._ref.phi], self._ref.states[k + 1]
+        from ocreach.flow import stt as stt_flow
+
+        opt = self.options
+        with timer("stt_generation"):
+            r = stt_flow(problem.model, part.x_ref, np.zeros((1, problem.model.n_u)),
+                         problem.grid[k:k + 2], opt.order, p=problem.params, rtol=opt.rtol, atol=opt.atol)
+        counts["part_stts"] += 1
+        return [ph[0] for ph in r.phi], r.states[-1]
+
+    def _split(self, part: _Part) -> list[_Part]:
+        """Split the part's deviation set along its largest dependent factor (exact) and re-centre
+        each half on its own reference state."""
+        dR = make_dependent(part.dR)
+        out = []
+        for half in dR.split():
+            ih = half.interval_hull()
+            centre = 0.5 * (np.asarray(ih.lo) + np.asarray(ih.hi))
+            out.append(_Part(part.x_ref + centre, half - centre, nominal=False, depth=part.depth + 1))
+        return out
+
+    @staticmethod
+    def _assemble(parts: list[_Part]):
+        sets = [p.dR + p.x_ref for p in parts]
+        return sets[0] if len(sets) == 1 else PZUnion(sets)
+
+    def _tube_segment(self, problem: Problem, k: int, parts_with_dz, new) -> Any:
+        """Union of the sets at the interior times of segment k, bloated to cover the motion
+        between sampled times (see the module docstring)."""
+        from ocreach.flow import stt as stt_flow
+        from ocreach.sets import Zonotope
+
+        opt = self.options
+        s = opt.tube_substeps
+        model = problem.model
+        t0, t1 = problem.grid[k], problem.grid[k + 1]
+        sub = np.linspace(t0, t1, s + 1)
+        pieces = []
+        for part in parts_with_dz:
+            dZ = part.dZ
+            for i in range(1, s):
+                r = stt_flow(model, part.x_ref, np.zeros((1, model.n_u)), [t0, sub[i]], min(opt.order, 2),
+                             p=problem.params, rtol=opt.rtol, atol=opt.atol)
+                S = stt_step([ph[0] for ph in r.phi], dZ, opt.h_max, opt.reduction, opt.engine, Timer(),
+                             {"tensor_maps": 0, "reductions": 0})
+                pieces.append(S + r.states[-1])
+        ends = [p.dR + p.x_ref for p in parts_with_dz] + [p.dR + p.x_ref for p in new]
+        pieces = ends[: len(parts_with_dz)] + pieces + ends[len(parts_with_dz):]
+        # speed bound on extreme samples of all pieces (x, and the input set's extreme controls)
+        rng = np.random.default_rng(k)
+        X = np.vstack([p.sample(200, rng, mode="extreme") for p in pieces])
+        Uc = problem.control_set.sample_boundary(rng, (X.shape[0],)) if problem.control_set.kind != "free" \
+            else np.zeros((X.shape[0], model.n_u))
+        F = np.asarray(model.f_fun.map(X.shape[0])(X.T, Uc.T, t0, problem.params)).T
+        half = 1.5 * (t1 - t0) / (2 * s) * np.max(np.abs(F), axis=0)
+        box = Zonotope(np.zeros(model.n_x), np.diag(half))
+        return PZUnion([p + box for p in pieces])
