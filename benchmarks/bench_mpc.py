@@ -174,7 +174,7 @@ the 2 cores and vary by tens of percent between runs; the ratios are stable (cal
 
 def write_section(text: str) -> None:
     old = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
-    pattern = re.compile(r"^## MPC\n.*?(?=^## |\Z)", re.S | re.M)
+    pattern = re.compile(r"^## MPC\n.*?(?=^## |\Z)", re.DOTALL | re.MULTILINE)
     new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip() + "\n\n" + text
     tmp = DOCS.with_suffix(".md.tmp")
     tmp.write_text(new)

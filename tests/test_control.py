@@ -3,6 +3,7 @@ SciPy's solve_ivp (discretisation, STM), scipy.linalg.expm + solve_discrete_are 
 Riccati recursion written out in the test (MPC without active constraints)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -12,8 +13,15 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 import ocreach
-from ocreach.control import (LQR, MPC, Discretization, SimOptions, compare_controllers,
-                             natural_reference, reference_from_problem)
+from ocreach.control import (
+    LQR,
+    MPC,
+    Discretization,
+    SimOptions,
+    compare_controllers,
+    natural_reference,
+    reference_from_problem,
+)
 from ocreach.errors import ProblemError
 from ocreach.models import cr3bp
 
@@ -284,3 +292,28 @@ def test_bad_inputs_raise_problem_error_naming_the_parameter(halo_ref):
         MPC(Q_PAPER, R_PAPER).setup(natural_reference(cr3bp(MU), halo_ref.state(0), 0.01, 5), "ball")
     with pytest.raises(ProblemError, match="max_cpu_time must be > 0"):
         MPC(Q_PAPER, R_PAPER, max_cpu_time=0)
+
+
+def test_non_periodic_reference_and_extra_constraints():
+    """dro without its periodic orbit: finite-horizon LQR and MPC on the natural trajectory,
+    padded for the MPC window; an extra constraint u_y = 0 is honoured by the plan."""
+    prob = dataclasses.replace(ocreach.get_problem("dro"), reference=None)
+    Q2, R2 = np.diag([1000.0] * 2 + [100.0] * 2), np.eye(2)
+    lqr = LQR(Q2, R2)
+
+    def no_uy(X, U, params):
+        return [(U[1, :], 0.0, 0.0)]
+
+    mpc = MPC(Q2, R2, n_p=6, n_c=3, fallback=lqr)
+    mpc_c = MPC(Q2, R2, n_p=6, n_c=3, extra_constraints=no_uy, fallback=LQR(Q2, R2))
+    opt = SimOptions(x0_offset=[1e-4, -1e-4, 2e-4, 0.0], disturbance=1e-7, progress=False)
+    res = compare_controllers(prob, {"lqr": lqr, "mpc": mpc, "mpc_uy0": mpc_c}, opt)
+    assert lqr.mode == "finite"
+    for name, r in res.items():
+        assert r.U.shape[0] == prob.n_segments  # the problem's horizon, not the padded one
+        assert r.metrics["fallbacks"] == 0
+        if name != "mpc_uy0":  # with only u_x the tracking is not required to converge
+            e = np.linalg.norm(r.X - r.X_ref, axis=1)
+            assert e[-1] < 1e-2 * e[0], name
+    assert np.max(np.abs(res["mpc_uy0"].U[:, 1])) < 1e-8
+    assert np.max(np.abs(res["mpc"].U[:, 1])) > 1e-4

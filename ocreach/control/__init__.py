@@ -13,10 +13,20 @@ The report ``lqr_vs_mpc_report(problem, out_dir, **options)`` lives in
 from ocreach.control.discretize import Discretization, rk4_expression
 from ocreach.control.lqr import LQR, dare, periodic_riccati, riccati_backward
 from ocreach.control.mpc import MPC
-from ocreach.control.reference import (TrackingReference, natural_reference, periodic_reference,
-                                       reference_from_problem)
-from ocreach.control.simulate import (Plant, SimOptions, SimResult, closed_loop_metrics,
-                                      compare_controllers, simulate)
+from ocreach.control.reference import (
+    TrackingReference,
+    natural_reference,
+    periodic_reference,
+    reference_from_problem,
+)
+from ocreach.control.simulate import (
+    Plant,
+    SimOptions,
+    SimResult,
+    closed_loop_metrics,
+    compare_controllers,
+    simulate,
+)
 
 
 def lqr_vs_mpc_report(problem, out_dir, **options) -> dict:
@@ -27,8 +37,22 @@ def lqr_vs_mpc_report(problem, out_dir, **options) -> dict:
 
 
 __all__ = [
-    "Discretization", "LQR", "MPC", "Plant", "SimOptions", "SimResult", "TrackingReference",
-    "closed_loop_metrics", "compare_controllers", "dare", "lqr_vs_mpc_report", "natural_reference",
-    "periodic_reference", "periodic_riccati", "reference_from_problem", "riccati_backward",
-    "rk4_expression", "simulate",
+    "LQR",
+    "MPC",
+    "Discretization",
+    "Plant",
+    "SimOptions",
+    "SimResult",
+    "TrackingReference",
+    "closed_loop_metrics",
+    "compare_controllers",
+    "dare",
+    "lqr_vs_mpc_report",
+    "natural_reference",
+    "periodic_reference",
+    "periodic_riccati",
+    "reference_from_problem",
+    "riccati_backward",
+    "rk4_expression",
+    "simulate",
 ]

@@ -103,7 +103,7 @@ class LQR:
         self.reference: TrackingReference | None = None
 
     # ------------------------------------------------------------------ setup
-    def setup(self, reference: TrackingReference, control_set_kind: str) -> "LQR":
+    def setup(self, reference: TrackingReference, control_set_kind: str) -> LQR:
         """Validate weights, linearise along ``reference`` and solve the Riccati equation."""
         model = reference.model
         check_thrust(model, reference.params)

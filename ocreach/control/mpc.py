@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -106,7 +107,7 @@ class MPC:
         self.reset()
 
     # ------------------------------------------------------------------ setup
-    def setup(self, reference: TrackingReference, control_set_kind: str) -> "MPC":
+    def setup(self, reference: TrackingReference, control_set_kind: str) -> MPC:
         """Validate, build the fallback LQR and the NLP (once per reference)."""
         model = reference.model
         check_thrust(model, reference.params)
@@ -263,7 +264,8 @@ class MPC:
             U = self._w[: nu * Nc].reshape(Nc, nu)
             U = np.vstack([U[1:], U[-1:]]) if Nc > 1 else U
             Xprev = self._X_abs
-            Xs = np.vstack([Xprev[1:], np.asarray(F(Xprev[-1], self.plan[-1], self.reference.time(k + N - 1), p)).ravel()])
+            x_end = F(Xprev[-1], self.plan[-1], self.reference.time(k + N - 1), p)
+            Xs = np.vstack([Xprev[1:], np.asarray(x_end).ravel()])
         else:
             U = np.tile(self.lqr.control(k, x), (Nc, 1))
             Xs = np.empty((N, nx))
@@ -308,7 +310,8 @@ class MPC:
             ok = bool(np.all(np.isfinite(w)))
         if ok:
             Uc = w[: nu * Nc].reshape(Nc, nu)
-            if np.max(thrust_ratio(Uc, "ball" if self.kind == "ball" else "box")) > self.u_bound * (1 + 1e-6):
+            ratio = np.max(thrust_ratio(Uc, "ball" if self.kind == "ball" else "box"))
+            if ratio > self.u_bound * (1 + 1e-6):
                 ok, status = False, f"{status} (thrust bound violated)"
         if ok:
             self._w = w

@@ -55,6 +55,7 @@ class TrackingReference:
     n_sub: int = 2
     A: np.ndarray | None = None
     B: np.ndarray | None = None
+    n_track: int | None = None
     cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -72,6 +73,11 @@ class TrackingReference:
     def n_steps(self) -> int:
         """Number of grid steps ``M`` stored."""
         return self.U.shape[0]
+
+    @property
+    def n_default(self) -> int:
+        """Steps a closed loop runs by default (the problem's horizon, without look-ahead padding)."""
+        return self.n_steps if self.n_track is None else int(self.n_track)
 
     @property
     def discretization(self) -> Discretization:
@@ -104,7 +110,7 @@ class TrackingReference:
         idx = np.arange(k, k + n + 1)
         return self.state(idx), self.control(idx[:-1])
 
-    def linearize(self) -> "TrackingReference":
+    def linearize(self) -> TrackingReference:
         """Fill ``A_k = Phi(t_{k+1}, t_k)`` and ``B_k`` along the reference (one mapped call)."""
         if self.A is None:
             ks = np.arange(self.n_steps)
@@ -141,13 +147,14 @@ def periodic_reference(model: Model, x0, period: float, steps_per_period: int, *
 
 
 def reference_from_problem(problem, *, dt: float | None = None, n_steps: int | None = None,
-                           n_sub: int = 2) -> TrackingReference:
+                           n_sub: int = 2, pad: int = 0) -> TrackingReference:
     """Tracking reference of a :class:`ocreach.Problem`.
 
     With ``problem.reference`` (a corrected periodic orbit) the reference is one period on steps of
     about ``dt`` (rounded so the period is an integer number of steps; default: the problem's grid
-    step), periodic.  Otherwise it is the natural trajectory from ``problem.x0`` on ``n_steps``
-    steps of ``dt`` (defaults: the problem's grid).
+    step), periodic; ``n_default`` covers the problem's grid span (or ``n_steps``).  Otherwise it
+    is the natural trajectory from ``problem.x0`` on ``n_steps`` steps of ``dt`` (defaults: the
+    problem's grid).
     """
     grid = problem.grid
     step = float(dt) if dt is not None else float(abs(grid[1] - grid[0]))
@@ -155,10 +162,17 @@ def reference_from_problem(problem, *, dt: float | None = None, n_steps: int | N
     ref = problem.reference
     if ref is not None:
         M = max(2, int(round(ref.period / step)))
-        return periodic_reference(problem.model, ref.x0, ref.period, M, params=problem.params,
-                                  n_sub=n_sub, name=getattr(ref, "name", "") or problem.id)
+        out = periodic_reference(problem.model, ref.x0, ref.period, M, params=problem.params,
+                                 n_sub=n_sub, name=getattr(ref, "name", "") or problem.id)
+        span = abs(grid[-1] - grid[0])
+        out.n_track = int(n_steps) if n_steps is not None else max(1, int(round(span / out.dt)))
+        return out
     if problem.backward:
         raise ProblemError(f"problem {problem.id!r} has a backward grid; tracking needs forward time")
     K = int(n_steps) if n_steps is not None else int(round((grid[-1] - grid[0]) / step))
-    return natural_reference(problem.model, problem.x0, step, K, params=problem.params,
-                             t0=float(grid[0]), n_sub=n_sub, name=problem.id)
+    if int(pad) != pad or pad < 0:
+        raise ProblemError(f"pad (look-ahead steps) must be an integer >= 0; got {pad!r}")
+    ref = natural_reference(problem.model, problem.x0, step, K + int(pad), params=problem.params,
+                            t0=float(grid[0]), n_sub=n_sub, name=problem.id)
+    ref.n_track = K
+    return ref

@@ -28,7 +28,7 @@ class SimOptions:
     """Closed-loop simulation settings (all quantities in model units).
 
     dt : control step (default: the problem's grid step; rounded to divide a reference period).
-    n_steps : number of control steps (default: the whole reference, i.e. one period).
+    n_steps : number of control steps (default: the problem's grid span; l2-halo: one period).
     x0_offset : initial state minus reference state (overrides ``offset_box``).
     offset_box : half-widths of the uniform initial-offset box (length ``n_x``), or ``None``.
     disturbance : generator ``W`` (scalar times identity, diagonal, or matrix) of the per-step
@@ -121,7 +121,7 @@ def simulate(reference: TrackingReference, controller, *, control_set_kind: str,
     opt = options or SimOptions()
     model = reference.model
     nx = model.n_x
-    K = reference.n_steps if opt.n_steps is None else int(opt.n_steps)
+    K = reference.n_default if opt.n_steps is None else int(opt.n_steps)
     if K < 1:
         raise ProblemError(f"n_steps must be >= 1; got {opt.n_steps!r}")
     rng = np.random.default_rng(opt.seed)
@@ -200,7 +200,8 @@ def compare_controllers(problem, controllers: dict[str, Any], sim_options: SimOp
     Returns ``{label: SimResult}`` with ``metrics`` filled (:func:`closed_loop_metrics`).
     """
     opt = sim_options or SimOptions()
-    ref = reference or reference_from_problem(problem, dt=opt.dt, n_sub=opt.n_sub)
+    pad = max([int(getattr(c, "n_p", 0)) for c in controllers.values()] + [0])
+    ref = reference or reference_from_problem(problem, dt=opt.dt, n_sub=opt.n_sub, pad=pad)
     kind = problem.control_set.kind
     out = {}
     for label, ctl in controllers.items():
