@@ -266,6 +266,8 @@ def test_report_writes_files(halo, tmp_path):
             assert key in data[name] and key in out[name]
     for f in ("report.md", "report.html", "tracking_error.png", "control.png", "trajectory.png"):
         assert (tmp_path / f).stat().st_size > 0
+    with pytest.raises(ProblemError, match=r"no option\(s\) \['horizon'\]; allowed: \['dt'"):
+        lqr_vs_mpc_report(halo, tmp_path, horizon=3)
 
 
 # ----------------------------------------------------------------------------- errors

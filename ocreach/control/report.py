@@ -8,6 +8,7 @@ offset and disturbance draws and writes, atomically, into ``out_dir``: ``metrics
 from __future__ import annotations
 
 import html
+import inspect
 import io
 import json
 from pathlib import Path
@@ -134,7 +135,24 @@ def _ratio_text(m_lqr: dict, m_mpc: dict, key: str, what: str) -> str:
     return f"{what}: MPC/LQR = {b / a:.4f} (MPC {abs(rel):.2f} % {word} than LQR)."
 
 
-def lqr_vs_mpc_report(problem, out_dir: str | Path, *, dt: float | None = None,
+def lqr_vs_mpc_report(problem, out_dir: str | Path, **options: Any) -> dict:
+    """Compare the periodic LQR and the nonlinear MPC on ``problem`` and write the report.
+
+    Options (all keyword, defaults in brackets): ``dt`` (control step, model units [problem grid
+    step]), ``n_steps`` [problem grid span], ``n_p`` [10], ``n_c`` [5], ``Q``, ``R`` [Patel &
+    Subbarao Table 3], ``thrust_set`` ["plant"], ``offset_box`` ["paper"], ``x0_offset``,
+    ``disturbance`` [1e-7], ``seed`` [0], ``n_sub`` [2], ``max_cpu_time`` [1.0 s],
+    ``progress`` [True].  See :func:`_report` for their meaning.  Unknown options raise
+    :class:`ProblemError`.
+    """
+    allowed = [n for n in inspect.signature(_report).parameters if n not in ("problem", "out_dir")]
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise ProblemError(f"lqr-vs-mpc report has no option(s) {unknown}; allowed: {allowed}")
+    return _report(problem, out_dir, **options)
+
+
+def _report(problem, out_dir: str | Path, *, dt: float | None = None,
                       n_steps: int | None = None, n_p: int = 10, n_c: int = 5,
                       Q: Any = PAPER_Q, R: Any = PAPER_R, thrust_set: str = "plant",
                       offset_box: Any = "paper", x0_offset: Any = None,
