@@ -1,4 +1,9 @@
-/* Adaptive Dormand-Prince 8(5,3) driver for ocreach.flow.integrate_batch.
+"""C source of the adaptive DOP853 driver loop used by :mod:`ocreach.flow`.
+
+Kept as a Python string so it ships with the package without package-data settings.
+"""
+
+DRIVER_SRC = r'''/* Adaptive Dormand-Prince 8(5,3) driver for ocreach.flow.integrate_batch.
  *
  * Included after the CasADi-generated code of STEP (one DOP853 step with error norm, see
  * ocreach.flow._build_step) and RHS.  Loops over samples and steps in C; the step-size
@@ -107,3 +112,4 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
   free(arg); free(res); free(iw); free(w); free(buf);
   return n_fail;
 }
+'''
