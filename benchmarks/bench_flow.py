@@ -180,9 +180,9 @@ def markdown(d: dict, h: dict) -> str:
 `python benchmarks/bench_flow.py` (ocreach.flow: vectorised DOP853 with a compiled CasADi step and
 a C driver loop; rtol = {RTOL:g}, atol = {ATOL:g} for everybody).
 
-| case | ocreach | peer | ratio (peer / ocreach time) |
+| case | ocreach | peer | ratio |
 |---|---|---|---|
-| {d['n']} planar CR3BP DRO trajectories, grid 0:0.1:3, random disk controls | {d['t_ours']:.3f} s (one `propagate` call) | SciPy `solve_ivp` DOP853 one by one: {d['t_scipy_full']:.1f} s (timed {d['n_scipy']}: {d['t_scipy']:.2f} s, extrapolated x{d['n'] // d['n_scipy']}) | **{d['ratio']:.0f}x faster** (target >= 20x) |
+| {d['n']} planar CR3BP DRO trajectories, grid 0:0.1:3, random disk controls | {d['t_ours']:.3f} s (one `propagate` call) | SciPy `solve_ivp` DOP853 one by one: {d['t_scipy_full']:.1f} s (timed {d['n_scipy']}: {d['t_scipy']:.2f} s, extrapolated x{d['n'] // d['n_scipy']}) | SciPy / ocreach time = **{d['ratio']:.0f}x** (target >= 20x) |
 | order-2 STT (z = [x; u], 9 vars) over one 9:2 NRHO period ({h['period']:.4f} TU) | {1e3 * h['t_ours']:.2f} ms | heyoka `var_ode_sys` + `taylor_adaptive`, compact mode: {1e3 * h['t_hy_compact']:.2f} ms | ocreach / heyoka time = **{h['ratio_compact']:.2f}** (target <= 2) |
 | same | {1e3 * h['t_ours']:.2f} ms | heyoka, compact_mode=False: {1e3 * h['t_hy_full']:.2f} ms | ocreach / heyoka time = **{h['ratio_full']:.2f}** |
 | same, ocreach at rtol 1e-12 (Phi2 accuracy matched to heyoka's at 1e-10) | {1e3 * h['t_tight']:.2f} ms | heyoka compact {1e3 * h['t_hy_compact']:.2f} ms / full {1e3 * h['t_hy_full']:.2f} ms | ocreach / heyoka time = **{h['ratio_tight_compact']:.2f}** / **{h['ratio_tight_full']:.2f}** |
