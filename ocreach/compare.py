@@ -24,7 +24,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ocreach.geometry import circle_directions, convex_hull_polygon, in_convex_hull, polygon_area
+from ocreach.geometry import (circle_directions, convex_hull_polygon, in_convex_hull, outline_area,
+                              polygon_area)
 from ocreach.problem import Problem, get_problem
 from ocreach.reach.base import reach
 from ocreach.reach.result import ReachResult, _jsonable, atomic_write_bytes, atomic_write_text
@@ -67,7 +68,7 @@ def _projected_estimate(result: ReachResult, dims: Sequence[int]):
         s = result.sets[-1].project(dims)
         outline = s.outline() if hasattr(s, "outline") else convex_hull_polygon(
             s.sample(4000, np.random.default_rng(0), mode="extreme"))
-        return (lambda d: np.array([s.support(di) for di in d]), polygon_area(outline),
+        return (lambda d: np.array([s.support(di) for di in d]), outline_area(outline),
                 lambda pts: np.asarray(s.contains(pts), dtype=bool))
     pts = np.asarray(result.points[-1])[:, dims]
     poly = convex_hull_polygon(pts)

@@ -26,6 +26,28 @@ def polygon_area(vertices: np.ndarray | None) -> float:
     return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
+def union_of_polygons(polygons):
+    """Union of 2-D polygons (list of (k, 2) vertex arrays) as a shapely geometry.
+
+    Used for the outline of a split polynomial zonotope, whose pieces overlap: the union is the
+    (possibly non-convex) outer approximation of the projection.
+    """
+    from shapely.geometry import Polygon
+    from shapely.ops import unary_union
+
+    polys = [Polygon(np.asarray(p, dtype=float)) for p in polygons if p is not None and len(p) >= 3]
+    return unary_union([p.buffer(0) for p in polys])
+
+
+def outline_area(outline) -> float:
+    """Area of an outline: one polygon (k, 2), or a list of overlapping polygons (their union)."""
+    if outline is None:
+        return 0.0
+    if isinstance(outline, (list, tuple)):
+        return float(union_of_polygons(outline).area)
+    return polygon_area(outline)
+
+
 def hull_area(points: np.ndarray) -> float:
     """Area of the convex hull of 2-D points."""
     return polygon_area(convex_hull_polygon(points))

@@ -351,6 +351,13 @@ class PolyZonotope(SetBase):
             raise SetError(f"outline needs two dims; got {dims!r}")
         return [p.to_zonotope().outline((0, 1)) for _, p in P._split_pieces(max(int(pieces) - 1, 0), _size_score)]
 
+    def area(self, dims: Any = (0, 1), pieces: int = 64) -> float:
+        """Area of the union of :meth:`outline`'s pieces: an upper bound of the projection's area
+        that tightens as ``pieces`` grows (exact union by shapely, not the sum of the pieces)."""
+        from ocreach.geometry import outline_area
+
+        return outline_area(self.outline(dims, pieces))
+
 
 def _size_score(pz: PolyZonotope) -> float:
     return float(np.linalg.norm(pz.G, axis=0).sum())
