@@ -32,36 +32,78 @@ def _table(rows: list[tuple[str, dict]]) -> str:
     return "\n".join(lines)
 
 
+def _l2_point(prob) -> np.ndarray:
+    """Collinear L2 point of the problem's CR3BP (root of the x-axis force balance)."""
+    from scipy.optimize import brentq
+
+    mu = float(prob.param("mu"))
+
+    def gx(x):
+        return x - (1 - mu) * (x + mu) / abs(x + mu) ** 3 - mu * (x - 1 + mu) / abs(x - 1 + mu) ** 3
+
+    return np.array([brentq(gx, 1 - mu + 1e-3, 1.5), 0, 0, 0, 0, 0])
+
+
+def _designs(Q, R, weights_in: str, l2=None, mpc: bool = True) -> dict:
+    """The LQR designs compared with the MPC (same weights, same units)."""
+    lqr = LQR(Q, R, weights_in=weights_in)
+    out = {"lqr": lqr,
+           "lqr_const": LQR(Q, R, riccati="constant", linearize_at=0, weights_in=weights_in)}
+    if l2 is not None:
+        out["lqr_const_L2"] = LQR(Q, R, riccati="constant", linearize_at=l2, weights_in=weights_in)
+        out["lqr_dare"] = LQR(Q, R, riccati="dare", weights_in=weights_in)
+    if mpc:
+        out["mpc"] = MPC(Q, R, weights_in=weights_in, fallback=lqr)
+    return out
+
+
+def _ratio_summary(label: str, res_list: list[dict]) -> str:
+    """LQR/MPC ratios (effort, tracking error) per LQR design, min..max over the runs."""
+    lines = [f"\n{label}: LQR/MPC over {len(res_list)} seeds (paper: effort 9.80, tracking 1.67)"]
+    for name in res_list[0]:
+        if name == "mpc":
+            continue
+        e = [r[name].metrics["effort"] / r["mpc"].metrics["effort"] for r in res_list]
+        t = [r[name].metrics["tracking_error"] / r["mpc"].metrics["tracking_error"] for r in res_list]
+        lines.append(f"  {name}: effort {min(e):.4f} .. {max(e):.4f}, tracking error "
+                     f"{min(t):.4f} .. {max(t):.4f}")
+    return "\n".join(lines) + "\n"
+
+
 def study(n_seeds: int = 5) -> str:
+    """Which LQR design gives the paper's Table 2 gap? (docs/validation.md, 'LQR vs MPC on l2-halo')."""
     prob = ocreach.get_problem("l2-halo")
     ref = reference_from_problem(prob, n_sub=2)
     Q, R = np.diag(PAPER_Q), np.diag(PAPER_R)
     box = np.asarray(PAPER_OFFSET_BOX)
-    rows = []
-    ratios = []
-    for seed in range(n_seeds):
-        lqr = LQR(Q, R)
-        res = compare_controllers(prob, {"lqr": lqr, "mpc": MPC(Q, R, fallback=lqr)},
-                                  SimOptions(offset_box=box, seed=seed, progress=False), reference=ref)
-        rows.append((f"paper, seed {seed}", res))
-        ratios.append((res["mpc"].metrics["effort"] / res["lqr"].metrics["effort"],
-                       res["mpc"].metrics["tracking_error"] / res["lqr"].metrics["tracking_error"]))
+    l2 = _l2_point(prob)
+    rows, text = [], []
+    for weights_in, tag in (("acceleration", "R on accel."), ("normalised", "R on throttle")):
+        runs = []
+        for seed in range(n_seeds):
+            res = compare_controllers(
+                prob, _designs(Q, R, weights_in, l2 if seed == 0 else None),
+                SimOptions(offset_box=box, seed=seed, progress=False), reference=ref)
+            rows.append((f"{tag}, seed {seed}", res))
+            runs.append({k: v for k, v in res.items() if k in ("lqr", "lqr_const", "mpc")})
+        text.append(_ratio_summary(f"{tag}, one period", runs))
+    for weights_in, tag in (("acceleration", "R on accel."), ("normalised", "R on throttle")):
+        res = compare_controllers(prob, _designs(Q, R, weights_in),
+                                  SimOptions(offset_box=box, seed=0, n_steps=5 * ref.n_steps,
+                                             progress=False), reference=ref)
+        rows.append((f"{tag}, 5 periods, seed 0", res))
+        for name, r in res.items():
+            e = np.linalg.norm(r.X - r.X_ref, axis=1)[:: ref.n_steps]
+            text.append(f"{tag}, 5 periods, {name}: state error at period ends "
+                        + ", ".join(f"{v:.2e}" for v in e))
     lqr = LQR(Q, R)
     res = compare_controllers(
-        prob, {"lqr": lqr, "lqr-dare": LQR(Q, R, riccati="dare"), "mpc": MPC(Q, R, fallback=lqr),
+        prob, {"lqr": lqr, "lqr_dare": LQR(Q, R, riccati="dare"),
+               "lqr_const": LQR(Q, R, riccati="constant"), "mpc": MPC(Q, R, fallback=lqr),
                "mpc-box": MPC(Q, R, thrust_set="box", fallback=lqr)},
         SimOptions(offset_box=10 * box, seed=0, progress=False), reference=ref)
-    rows.append(("10x offset, seed 0", res))
-    lqr = LQR(Q, R)
-    res = compare_controllers(
-        prob, {"lqr-dare": LQR(Q, R, riccati="dare"), "mpc-box": MPC(Q, R, thrust_set="box", fallback=lqr)},
-        SimOptions(offset_box=box, seed=0, progress=False), reference=ref)
-    rows.append(("paper, seed 0", res))
-    r = np.array(ratios)
-    summary = (f"\nMPC/LQR over {n_seeds} seeds (paper scenario): effort ratio "
-               f"{r[:, 0].min():.4f} .. {r[:, 0].max():.4f}, tracking-error ratio "
-               f"{r[:, 1].min():.4f} .. {r[:, 1].max():.4f}\n")
-    return _table(rows) + "\n" + summary
+    rows.append(("R on accel., 10x offset, seed 0", res))
+    return _table(rows) + "\n" + "\n".join(text) + "\n"
 
 
 def main(argv=None) -> int:
@@ -71,7 +113,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5)
     args = ap.parse_args(argv)
     data = lqr_vs_mpc_report(ocreach.get_problem("l2-halo"), args.out)
-    for name in ("lqr", "mpc"):
+    for name in ("lqr", "lqr_const", "mpc"):
         m = data[name]
         print(f"{name}: effort {m['effort']:.6g} DU/TU^2, tracking error {m['tracking_error']:.6g}, "
               f"delta-v {m['delta_v']:.4g} m/s, max thrust ratio {m['max_thrust_ratio']:.4f}, "

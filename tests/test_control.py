@@ -119,6 +119,56 @@ def test_lqr_gain_matches_scipy_dare_time_invariant(mode):
         assert np.allclose(lqr.cost_to_go(3), P, rtol=1e-6)
 
 
+def _variational(model, x, u, t0, dt, p):
+    """(Phi, Psi) over [t0, t0 + dt] from the variational equations (DOP853, rtol 1e-13)."""
+    n, m = model.n_x, model.n_u
+
+    def var(t, s):
+        xx = s[:n]
+        _, fx, fu = (np.asarray(v) for v in model.jac_fun(xx, u, t, p))
+        Phi, Psi = s[n:n + n * n].reshape(n, n), s[n + n * n:].reshape(n, m)
+        return np.concatenate([np.asarray(model.f_fun(xx, u, t, p)).ravel(),
+                               (fx @ Phi).ravel(), (fx @ Psi + fu).ravel()])
+
+    s0 = np.concatenate([x, np.eye(n).ravel(), np.zeros(n * m)])
+    s = solve_ivp(var, (t0, t0 + dt), s0, method="DOP853", rtol=1e-13, atol=1e-14).y[:, -1]
+    return s[n:n + n * n].reshape(n, n), s[n + n * n:].reshape(n, m)
+
+
+@pytest.mark.parametrize("weights_in", ["acceleration", "normalised"])
+def test_constant_gain_lqr_is_the_dare_gain_at_the_initial_state(halo, halo_ref, halo_lqr, weights_in):
+    """riccati='constant': one gain, K = (R_u + B'PB)^-1 B'PA with P from SciPy's DARE of the
+    linearisation (variational equations, DOP853) at the reference's initial state, at every step;
+    at the L2 point it is the DARE gain of the exact ZOH discretisation (matrix exponential)."""
+    model, p, dt = halo.model, halo.params, halo_ref.dt
+    a_max = halo.param("a_max")
+    Ru = (a_max**2 if weights_in == "acceleration" else 1.0) * R_PAPER
+    lqr = LQR(Q_PAPER, R_PAPER, riccati="constant", weights_in=weights_in).setup(halo_ref, "ball")
+    Ad, Bd = _variational(model, halo_ref.state(0), np.zeros(3), halo_ref.time(0), dt, p)
+    P = sla.solve_discrete_are(Ad, Bd, Q_PAPER, Ru)
+    K = np.linalg.solve(Ru + Bd.T @ P @ Bd, Bd.T @ P @ Ad)
+    for k in (0, 123, halo_ref.n_steps - 1, halo_ref.n_steps + 7):
+        assert np.allclose(lqr.gain(k), K, rtol=1e-5, atol=1e-7 * np.abs(K).max())
+        assert np.allclose(lqr.cost_to_go(k), P, rtol=1e-5, atol=1e-7 * np.abs(P).max())
+    dx = 1e-5 * np.arange(1, 7)
+    assert np.allclose(lqr.unsaturated(123, halo_ref.state(123) + dx), -K @ dx, rtol=1e-5)
+    if weights_in == "acceleration":  # not the periodic law: the gains differ along the orbit
+        assert np.abs(halo_lqr.gain(170) - K).max() > 1e-2 * np.abs(K).max()
+    xl = np.array([_l2_point(halo.param("mu")), 0, 0, 0, 0, 0])
+    lqr_l2 = LQR(Q_PAPER, R_PAPER, riccati="constant", linearize_at=xl,
+                 weights_in=weights_in).setup(halo_ref, "ball")
+    _, Ac, Bc = (np.asarray(v) for v in model.jac_fun(xl, np.zeros(3), 0.0, p))
+    Maug = np.zeros((9, 9))
+    Maug[:6, :6], Maug[:6, 6:] = Ac * dt, Bc * dt
+    E = sla.expm(Maug)
+    Ad, Bd = E[:6, :6], E[:6, 6:]
+    P = sla.solve_discrete_are(Ad, Bd, Q_PAPER, Ru)
+    K = np.linalg.solve(Ru + Bd.T @ P @ Bd, Bd.T @ P @ Ad)
+    assert np.allclose(lqr_l2.gain(50), K, rtol=1e-5, atol=1e-7 * np.abs(K).max())
+    with pytest.raises(ProblemError, match="linearize_at must be a reference step 0..348"):
+        LQR(Q_PAPER, R_PAPER, riccati="constant", linearize_at=349).setup(halo_ref, "ball")
+
+
 def test_lqr_saturates_like_the_plant(halo_ref, halo_lqr):
     x = halo_ref.state(10) + np.r_[1e-2, 0, 0, 0, 0, 0]  # 3800 km off: far beyond the thrust
     u_raw = halo_lqr.unsaturated(10, x)
@@ -260,7 +310,7 @@ def test_report_writes_files(halo, tmp_path):
 
     out = lqr_vs_mpc_report(halo, tmp_path, n_steps=12, progress=False)
     data = json.loads((tmp_path / "metrics.json").read_text())
-    for name in ("lqr", "mpc"):
+    for name in ("lqr", "lqr_const", "mpc"):
         for key in ("effort", "tracking_error", "delta_v", "time_per_step", "total_time",
                     "max_thrust_ratio", "fallbacks"):
             assert key in data[name] and key in out[name]

@@ -15,7 +15,12 @@ Modes (``riccati``):
 * ``"finite"`` (default otherwise): one backward sweep from a terminal ``P_M`` (``P_terminal``,
   default ``Q``);
 * ``"dare"``: frozen-time steady state, ``P_k`` from the discrete algebraic Riccati equation of
-  ``(A_k, B_k)`` (SciPy's ``solve_discrete_are``).
+  ``(A_k, B_k)`` (SciPy's ``solve_discrete_are``), a new gain at every step;
+* ``"constant"``: one gain for the whole run, ``K`` from the DARE of a single linearisation
+  ``(A, B)``: at reference step ``linearize_at`` (an integer, default 0: the initial state) or at a
+  given state (an array, e.g. the L2 point; ``u = 0``, ``t = t_0``).  This is the textbook
+  "LQR about an operating point" (MATLAB ``dlqr(A, B, Q, R)`` once, applied everywhere); on a halo
+  orbit it ignores how the linearisation changes along the orbit.
 """
 from __future__ import annotations
 
@@ -26,7 +31,7 @@ from ocreach.control.common import as_weight, check_thrust, control_scale, satur
 from ocreach.control.reference import TrackingReference
 from ocreach.errors import ProblemError, SolverError
 
-RICCATI_MODES = ("auto", "periodic", "finite", "dare")
+RICCATI_MODES = ("auto", "periodic", "finite", "dare", "constant")
 
 
 def riccati_step(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray,
@@ -84,16 +89,20 @@ class LQR:
     Q : state weight (``n_x x n_x`` or its diagonal), symmetric positive semidefinite.
     R : control weight (``n_u x n_u`` or diagonal), symmetric positive definite, in the units of
         ``weights_in`` (see :mod:`ocreach.control.common`; default: thrust acceleration).
-    riccati : ``"auto"``, ``"periodic"``, ``"finite"`` or ``"dare"`` (module docstring).
+    riccati : ``"auto"``, ``"periodic"``, ``"finite"``, ``"dare"`` or ``"constant"`` (module
+        docstring).
     P_terminal : terminal cost of the ``"finite"`` mode (default ``Q``).
+    linearize_at : where the ``"constant"`` mode linearises: a reference step index (default 0) or
+        a state of length ``n_x``.
     """
 
     name = "lqr"
 
     def __init__(self, Q, R, *, riccati: str = "auto", weights_in: str = "auto",
-                 P_terminal=None) -> None:
+                 P_terminal=None, linearize_at=0) -> None:
         if riccati not in RICCATI_MODES:
             raise ProblemError(f"riccati must be one of {RICCATI_MODES}; got {riccati!r}")
+        self.linearize_at = linearize_at
         self.Q_in, self.R_in = Q, R
         self.riccati = riccati
         self.weights_in = weights_in
@@ -122,6 +131,13 @@ class LQR:
                                f"non-periodic reference {reference.name!r}")
         if mode == "periodic":
             self.K, self.P = periodic_riccati(A, B, self.Q, self.R)
+        elif mode == "constant":
+            Ac, Bc = self.operating_point(reference)
+            K, P = dare(Ac, Bc, self.Q, self.R)
+            M = A.shape[0]
+            self.K = np.repeat(K[None], M, axis=0)
+            self.P = np.repeat(P[None], M + 1, axis=0)
+            self.A_const, self.B_const = Ac, Bc
         elif mode == "finite":
             PT = self.Q if self.P_terminal_in is None else as_weight(
                 "P_terminal", self.P_terminal_in, model.n_x, definite=False)
@@ -133,6 +149,22 @@ class LQR:
             self.P = np.concatenate([P, P[-1:]])
         self.mode = mode
         return self
+
+    def operating_point(self, reference: TrackingReference) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, B)`` of the ``"constant"`` mode: the discrete linearisation at ``linearize_at``."""
+        at = self.linearize_at
+        model = reference.model
+        if isinstance(at, str) or np.ndim(at) == 0:
+            if not isinstance(at, (int, np.integer)) or isinstance(at, bool) \
+                    or not 0 <= int(at) < reference.n_steps:
+                raise ProblemError(f"linearize_at must be a reference step 0..{reference.n_steps - 1} "
+                                   f"or a state of length {model.n_x}; got {at!r}")
+            k = int(at)
+            return reference.A[k], reference.B[k]
+        x = model.validate_state(at, "linearize_at")
+        _, A, B = reference.discretization.linearize(
+            x[None], np.zeros((1, model.n_u)), np.array([reference.t0]), reference.params)
+        return A[0], B[0]
 
     def reset(self) -> None:
         self.fallbacks = 0
