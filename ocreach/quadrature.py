@@ -355,6 +355,39 @@ def _extent(structure, theta) -> float:
                if orb.kind != "centre")
 
 
+_CACHE_VERSION = 1  # bump when the root selection of _solve_cut changes
+
+
+def _disk_cache_path(n: int, order: int, density: str):
+    from ocreach.flow import _cache_dir
+
+    return _cache_dir().parent / "cut_rules" / f"cut{order}_{density}_n{n}_v{_CACHE_VERSION}.npy"
+
+
+def _disk_cache_load(n: int, order: int, density: str, size: int) -> np.ndarray | None:
+    """The solved unknowns of a CUT rule from the on-disk cache (next to the JIT cache), or None."""
+    try:
+        theta = np.load(_disk_cache_path(n, order, density))
+    except (OSError, ValueError):
+        return None
+    return theta if theta.shape == (size,) and np.all(np.isfinite(theta)) else None
+
+
+def _disk_cache_store(n: int, order: int, density: str, theta: np.ndarray) -> None:
+    """Store the unknowns atomically; an unwritable cache only costs the solve next time."""
+    import os
+
+    path = _disk_cache_path(n, order, density)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        part = path.with_name(f"{path.name}.{os.getpid()}.part")
+        with open(part, "wb") as fh:
+            np.save(fh, np.asarray(theta, dtype=float))
+        os.replace(part, path)
+    except OSError:
+        pass
+
+
 @lru_cache(maxsize=None)
 def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], tuple[np.ndarray, ...]]:
     """Solve the CUT moment equations for the orbit radii and weights.
@@ -362,7 +395,8 @@ def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], 
     Unknowns: per orbit a weight and a radius (two radii a, b for s^(n)). Equations: one per even
     partition of degree <= order with at most n parts (relative residuals). Solved by bounded
     nonlinear least squares (scipy TRF, exact Jacobian) from a deterministic sequence of starting
-    points, then polished by Gauss-Newton. Several roots (or, where the system is
+    points, then polished by Gauss-Newton (the chosen root is cached on disk next to the JIT cache
+    and re-verified on load, so the solve is a one-off per machine). Several roots (or, where the system is
     underdetermined - CUT8, and CUT4 with a centre - a family) exist; among the first converged
     candidates with a smallest orbit weight within a factor 100 of the best one the most compact
     (smallest largest coordinate) is kept. Raises
@@ -372,6 +406,15 @@ def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], 
     structure = _structure(n, order, density)
     system = _MomentSystem(n, structure, density, order)
     lo, hi = _bounds(n, structure, density)
+
+    def valid(theta) -> bool:
+        in_box = np.all(theta >= lo - 1e-12) and np.all(theta <= hi + 1e-12)
+        return bool(np.max(np.abs(system.residual(theta))) < _RESIDUAL_TOL and in_box
+                    and _weights_ok(structure, theta))
+
+    cached = _disk_cache_load(n, order, density, system.size)
+    if cached is not None and valid(cached):  # re-verified: a stale or corrupt file is re-solved
+        return structure, tuple(np.array(p, dtype=float) for p in _split(structure, cached))
     rng = np.random.default_rng([n, order, 0 if density == "gaussian" else 1])
     want = 1 if system.size <= len(system.parts) and order == 4 else 4
     found: list[np.ndarray] = []
@@ -382,9 +425,7 @@ def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], 
         if np.max(np.abs(sol.fun)) > 1e-8:
             continue
         theta = _polish(system, sol.x)
-        in_box = np.all(theta >= lo - 1e-12) and np.all(theta <= hi + 1e-12)
-        if np.max(np.abs(system.residual(theta))) < _RESIDUAL_TOL and in_box \
-                and _weights_ok(structure, theta):
+        if valid(theta):
             found.append(theta)
             if len(found) >= want:
                 break
@@ -396,6 +437,7 @@ def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], 
     minw = [_min_weight(structure, th) for th in found]
     eligible = [th for th, mw in zip(found, minw) if mw >= 1e-2 * max(minw)]
     best = min(eligible, key=lambda th: _extent(structure, th))
+    _disk_cache_store(n, order, density, best)
     return structure, tuple(np.array(p, dtype=float) for p in _split(structure, best))
 
 

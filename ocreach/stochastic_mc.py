@@ -233,6 +233,121 @@ class _BatchFunction:
         return outs
 
 
+_MC_C = """
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+/* Steps k0..k1-1 of the Monte Carlo for N samples X (N x n, updated in place) with controls
+   u = unom[k] + Lu z, z from Z ((k1-k0) x N x m standard normals); after every step the sample mean and std (ddof 1, two-pass) go to row k+1
+   of gmean/gstd.  Returns 0, 1 (non-finite sample at step fail[0]) or -1/2 (memory/evaluation). */
+CASADI_SYMBOL_EXPORT int ocr_mc_run(long N, long n, long m, long k0, long k1, const double* grid,
+                                    const double* Z, const double* unom, const double* Lu,
+                                    const double* p, double* X, double* gmean, double* gstd,
+                                    long* fail) {
+  casadi_int sa, sr, si, sw;
+  OCR_FUN_work(&sa, &sr, &si, &sw);
+  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + 7));
+  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + 2));
+  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
+  casadi_real* w = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
+  double* xn = (double*)malloc(sizeof(double) * n);
+  double* u = (double*)malloc(sizeof(double) * (m + 1));
+  int flag = 0;
+  if (!arg || !res || !iw || !w || !xn || !u) flag = -1;
+  for (long k = k0; k < k1 && !flag; ++k) {
+    double t = grid[k], dt = grid[k + 1] - grid[k];
+    const double* Zk = Z + (k - k0) * N * m;
+    for (long s = 0; s < N; ++s) {
+      double* x = X + s * n;
+      const double* z = Zk + s * m;
+      for (long i = 0; i < m; ++i) {
+        double v = unom[k * m + i];
+        for (long j = 0; j < m; ++j) v += Lu[i * m + j] * z[j];
+        u[i] = v;
+      }
+      arg[0] = x; arg[1] = u; arg[2] = &t; arg[3] = &dt; arg[4] = p; arg[5] = p;
+      res[0] = xn;
+      if (OCR_FUN(arg, res, iw, w, 0)) { flag = 2; fail[0] = k + 1; break; }
+      int ok = 1;
+      for (long a = 0; a < n; ++a) { x[a] = xn[a]; ok &= isfinite(xn[a]) ? 1 : 0; }
+      if (!ok) { flag = 1; fail[0] = k + 1; }
+    }
+    if (flag) break;
+    double* mu = gmean + (k + 1) * n;
+    double* sd = gstd + (k + 1) * n;
+    for (long a = 0; a < n; ++a) { mu[a] = 0.0; sd[a] = 0.0; }
+    for (long s = 0; s < N; ++s)
+      for (long a = 0; a < n; ++a) mu[a] += X[s * n + a];
+    for (long a = 0; a < n; ++a) mu[a] /= (double)N;
+    for (long s = 0; s < N; ++s)
+      for (long a = 0; a < n; ++a) { double d = X[s * n + a] - mu[a]; sd[a] += d * d; }
+    for (long a = 0; a < n; ++a) sd[a] = sqrt(sd[a] / (double)(N - 1));
+  }
+  free(arg); free(res); free(iw); free(w); free(xn); free(u);
+  return flag;
+}
+"""
+
+
+class _MCKernel:
+    """Compiled Monte Carlo run over a block of steps: the Euler step of every sample (the same
+    CasADi-generated step as :meth:`SplitStepMap.step`) and the per-step sample mean and std, with
+    no Python work per step (the peer of the ``cut`` kernel, so the benchmark ratio is fair)."""
+
+    def __init__(self, fun: ca.Function):
+        import ctypes
+
+        from ocreach.flow import _codegen, _compile_source
+
+        main = (f"#define OCR_FUN {fun.name()}\n#define OCR_FUN_work {fun.name()}_work\n"
+                "#include \"gen.c\"\n#include \"mc.c\"\n").encode()
+        lib = _compile_source(f"ocr_mc_{fun.name()}", {"gen.c": _codegen([fun]), "mc.c": _MC_C.encode(),
+                                                        "main.c": main}, "main.c", ("-O2",))
+        self._dll = ctypes.CDLL(str(lib))
+        self._fn = self._dll.ocr_mc_run
+        self._fn.restype = ctypes.c_int
+
+    def run(self, k0: int, k1: int, grid: np.ndarray, Z: np.ndarray, u_nom: np.ndarray,
+            Lu: np.ndarray, p: np.ndarray, X: np.ndarray, gmean: np.ndarray, gstd: np.ndarray) -> int:
+        """Advance ``X`` (C-contiguous, in place) over steps ``k0..k1-1`` with controls
+        ``u_nom[k] + Lu z`` (``Z`` the block's standard normals); returns the step at which a
+        sample became non-finite, or -1."""
+        import ctypes
+
+        N, n = X.shape
+        fail = np.zeros(1, dtype=np.int64)
+        grid = np.ascontiguousarray(grid, dtype=float)
+        p = np.ascontiguousarray(p, dtype=float)
+        u_nom = np.ascontiguousarray(u_nom, dtype=float)
+        Lu = np.ascontiguousarray(Lu, dtype=float)
+        L = ctypes.c_long
+        ptr = [a.ctypes.data_as(ctypes.c_void_p) for a in (grid, Z, u_nom, Lu, p, X, gmean, gstd, fail)]
+        flag = self._fn(L(N), L(n), L(Z.shape[-1]), L(k0), L(k1), *ptr)
+        if flag == 1:
+            return int(fail[0])
+        if flag != 0:
+            raise SolverError(f"stochastic_monte_carlo: the compiled step failed (flag {flag}, "
+                              f"step {int(fail[0])})")
+        return -1
+
+
+def _mc_kernel(sm: SplitStepMap) -> _MCKernel | None:
+    from ocreach.flow import _jit_enabled
+
+    if "mc_kernel" not in sm._maps:
+        kern = None
+        if _jit_enabled():
+            try:
+                kern = _MCKernel(sm._step().fun)
+            except Exception as exc:  # no compiler: the per-step batched path, same numbers
+                import warnings
+
+                warnings.warn(f"ocreach.stochastic_mc: compiling the Monte Carlo kernel failed "
+                              f"({exc}); using the per-step path (slower)", RuntimeWarning, stacklevel=3)
+        sm._maps["mc_kernel"] = kern
+    return sm._maps["mc_kernel"]
+
+
 def step_map_for(problem) -> SplitStepMap:
     """The split map of ``problem``: ``problem.extra["step_map"]`` if present (e.g. re-entry,
     whose controls enter through ``hu(u) = [c_D, c_L cos, c_L sin]``), else ``hu(u) = u``,
@@ -277,6 +392,12 @@ def stochastic_spec(problem):
     Lx = psd_factor("stochastic.x0_cov", spec.x0_cov, n)
     Lu = psd_factor("stochastic.u_cov", spec.u_cov, m)
     return mean, Lx, u_nom, Lu
+
+
+def _raise_nonfinite(X: np.ndarray, samples: int, grid: np.ndarray, k: int) -> None:
+    bad = np.flatnonzero(~np.all(np.isfinite(X), axis=1))
+    raise SolverError(f"stochastic_monte_carlo: {bad.size} of {samples} samples became "
+                      f"non-finite at t = {grid[k]:g} (step {k}); first {bad[:10].tolist()}")
 
 
 def time_indices(grid: np.ndarray, times: Sequence[float] | None) -> np.ndarray:
@@ -345,7 +466,27 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
             out_traj[:, where[k]] = X
 
     record(0, X)
-    for k in range(K):
+    kern = _mc_kernel(sm) if step == "euler" else None
+    if kern is not None:
+        # blocks of <= 64 steps ending at every recorded index: one C call per block, controls
+        # drawn per block (the same random stream as one (samples, m) draw per step)
+        X = np.ascontiguousarray(X)
+        stops = sorted(set(range(64, K, 64)) | {int(k) for k in idx if 0 < k < K} | {K})
+        k0 = 0
+        for k1 in stops:
+            Z = rng.standard_normal((k1 - k0, samples, m))
+            if keep_controls:
+                controls[:, k0:k1] = (u_nom[k0:k1, None, :] + Z @ Lu.T).transpose(1, 0, 2)
+            bad_k = kern.run(k0, k1, grid, Z, u_nom, Lu, sm.p, X, grid_mean, grid_std)
+            if bad_k >= 0:
+                _raise_nonfinite(X, samples, grid, bad_k)
+            if k1 in where:
+                out_traj[:, where[k1]] = X
+            k0 = k1
+        K_done = K
+    else:
+        K_done = 0
+    for k in range(K_done, K):
         U = u_nom[k] + rng.standard_normal((samples, m)) @ Lu.T
         if keep_controls:
             controls[:, k] = U
@@ -356,9 +497,7 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
             X = integrate_batch(rhs, X, grid[k], grid[k + 1], np.concatenate([U, P], axis=1),
                                 rtol=rtol, atol=atol)
         if not np.all(np.isfinite(X)):
-            bad = np.flatnonzero(~np.all(np.isfinite(X), axis=1))
-            raise SolverError(f"stochastic_monte_carlo: {bad.size} of {samples} samples became "
-                              f"non-finite at t = {grid[k + 1]:g} (step {k + 1}); first {bad[:10].tolist()}")
+            _raise_nonfinite(X, samples, grid, k + 1)
         record(k + 1, X)
 
     out = {"times": grid[idx], "index": idx, "mean": grid_mean[idx], "std": grid_std[idx],

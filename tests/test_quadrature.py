@@ -195,3 +195,23 @@ def test_moments_errors():
         moments(x, w, lambda v: np.log(v[:, 0]))
     with pytest.raises(ProblemError, match="weights"):
         moments(x, w[:-1])
+
+
+def test_cut_rule_disk_cache_is_verified(tmp_path, monkeypatch):
+    """The solved rule is stored next to the JIT cache; a corrupt cached file is re-solved (the
+    result is then checked by the closed-form moments, as in test_cut_exact_positive)."""
+    from ocreach import quadrature as q
+
+    monkeypatch.setenv("OCREACH_CACHE_DIR", str(tmp_path / "jit"))
+    solve = q._solve_cut.__wrapped__  # bypass the in-process cache
+    _, params = solve(3, 6, "gaussian")
+    path = q._disk_cache_path(3, 6, "gaussian")
+    assert path.exists()
+    _, again = solve(3, 6, "gaussian")  # from disk
+    for a, b in zip(params, again):
+        np.testing.assert_array_equal(a, b)
+    np.save(path, np.concatenate(params) * 1.01)  # wrong radii and weights: must be rejected
+    structure, fixed = solve(3, 6, "gaussian")
+    pts = np.vstack([q._orbit_points(3, o, p) for o, p in zip(structure, fixed)])
+    w = np.concatenate([np.full(q._orbit_size(3, o), p[-1]) for o, p in zip(structure, fixed)])
+    check_exact(pts, w, 3, 7, "gaussian")

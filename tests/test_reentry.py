@@ -116,16 +116,19 @@ def test_problems_follow_the_paper():
         get_problem("glider-reentry", dt=0.0)
 
 
-def _linear_problem(cov0, u_cov, K=30, dt=0.1):
-    """x' = A x + B u: the exact mean/covariance recursion of its Euler map is the truth."""
+def _linear_problem(cov0, u_cov, K=30, dt=0.1, A=None):
+    """x' = A x + B u: the exact mean/covariance recursion of its Euler map is the truth.
+    A zero column of ``A`` makes that state absent from f (exercises ``cut``'s ``reduce``)."""
     import casadi as ca
     from ocreach.model import Model
 
     x = ca.SX.sym("x", 2)
     u = ca.SX.sym("u", 1)
-    A = np.array([[0.0, 1.0], [-1.0, -0.2]])
+    A = np.array([[0.0, 1.0], [-1.0, -0.2]]) if A is None else np.asarray(A, dtype=float)
     B = np.array([[0.0], [0.5]])
-    model = Model.build("lin", x, u, ca.mtimes(ca.DM(A), x) + ca.mtimes(ca.DM(B), u), control_set="free")
+    f = ca.vertcat(*[sum((float(A[i, j]) * x[j] for j in range(2) if A[i, j] != 0), ca.SX(0))
+                     for i in range(2)]) + ca.mtimes(ca.DM(B), u)
+    model = Model.build("lin" if A[0, 0] or A[1, 0] else "lin_red", x, u, f, control_set="free")
     grid = np.arange(K + 1) * dt
     spec = StochasticSpec(x0_mean=np.array([1.0, 0.0]), x0_cov=np.asarray(cov0),
                           u_nominal=np.sin(grid[:-1])[:, None], u_cov=np.asarray(u_cov))
@@ -171,3 +174,25 @@ def test_psd_factor_and_errors():
         stochastic_monte_carlo(p, samples=10)
     with pytest.raises(ProblemError, match="times must be times of the problem grid"):
         stochastic_monte_carlo(get_problem("glider-reentry", t_final=1.0), samples=10, times=[0.55])
+
+
+def test_compiled_monte_carlo_matches_per_step_path():
+    """The fused C Monte Carlo (steps + per-step statistics in one call per block of steps) gives
+    the numbers of the per-step batched path: same random stream, same compiled step."""
+    p = get_problem("glider-reentry", t_final=8.0)
+    T = [0.1, 3.0, 8.0]
+    a = stochastic_monte_carlo(p, samples=500, seed=4, times=T, keep_controls=True)
+    sm = step_map_for(p)
+    kern = sm._maps.pop("mc_kernel")
+    sm._maps["mc_kernel"] = None  # per-step path
+    try:
+        b = stochastic_monte_carlo(p, samples=500, seed=4, times=T, keep_controls=True)
+    finally:
+        sm._maps["mc_kernel"] = kern
+    assert kern is not None
+    for key in ("trajectories", "controls", "grid_mean"):
+        np.testing.assert_allclose(a[key], b[key], rtol=1e-13, atol=0)
+    np.testing.assert_allclose(a["grid_std"], b["grid_std"], rtol=1e-10, atol=0)
+    # the per-step statistics are the sample mean/std of the kept states (independent numpy)
+    k = int(a["index"][1])
+    np.testing.assert_allclose(a["grid_std"][k], a["trajectories"][:, 1].std(axis=0, ddof=1), rtol=1e-10)

@@ -27,8 +27,10 @@ ellipsoid, 3 by default) and, in ``meta``, the arrays ``mean`` (K+1, n), ``cov``
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError
@@ -73,68 +75,113 @@ def standard_rule(rule: str, n: int, order: int) -> tuple[np.ndarray, np.ndarray
 
 
 # =============================================================================== propagation
-def _factor(P: np.ndarray, k: int) -> np.ndarray:
-    """Square root of a propagated covariance (symmetrised; round-off negatives clipped)."""
-    P = 0.5 * (P + P.T)
-    w, V = np.linalg.eigh(P)
-    scale = max(float(np.abs(w).max(initial=0.0)), 1e-300)
-    if w.size and w.min() < -1e-8 * scale:
-        raise SolverError(f"cut: the propagated covariance at step {k} is indefinite (smallest "
-                          f"eigenvalue {w.min():.3g} of {scale:.3g}); the rule has negative weights "
-                          "or the dynamics produced non-finite values")
-    return V * np.sqrt(np.clip(w, 0.0, None))[None, :]
+def dependency_dims(sm) -> np.ndarray:
+    """States the increment ``f0(x) + G(x) h`` of ``sm`` depends on (structural Jacobian sparsity).
+
+    The Euler step is ``x+ = x + dt (f0 + G h)``: a state outside this set enters only through the
+    identity, which lets ``cut`` integrate over the dependency states alone (``reduce=True``).
+    """
+    x = ca.SX.sym("x", sm.n_x)
+    t = ca.SX.sym("t")
+    p = ca.SX.sym("p", sm.f0.size1_in(2))
+    e = ca.vertcat(ca.vec(sm.f0(x, t, p)), ca.vec(sm.G(x, t, p)))
+    cols = np.unique(np.asarray(ca.jacobian(e, x).sparsity().get_col(), dtype=int))
+    return cols
 
 
-def propagate_moments(step_map, grid: np.ndarray, mean0: np.ndarray, L0: np.ndarray,
-                      u_nominal: np.ndarray, Lu: np.ndarray, xi_x: np.ndarray, w_x: np.ndarray,
-                      xi_u: np.ndarray, w_u: np.ndarray, third: bool = False) -> dict[str, np.ndarray]:
+def psd_cholesky(P: np.ndarray, k: int = 0) -> np.ndarray:
+    """Lower ``L`` with ``L L^T = P`` for a symmetric positive semidefinite ``P`` (row by row).
+
+    A pivot whose remaining variance is <= 1e-12 of the state's own variance gets a zero column
+    (that state is, to this precision, an affine function of the earlier ones); the same
+    algorithm as the compiled kernel (:mod:`ocreach.reach.cut_kernel`).  Raises
+    :class:`SolverError` naming step ``k`` if ``P`` is indefinite or not finite.
+    """
+    n = P.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        pjj = P[j, j]
+        d = pjj - L[j, :j] @ L[j, :j]
+        if not (pjj >= 0.0) or not np.isfinite(d) or (d <= 1e-12 * pjj and d < -1e-8 * pjj):
+            raise SolverError(f"cut: the propagated covariance at step {k} is indefinite or not "
+                              f"finite (pivot {j}: {d:.3g} of variance {pjj:.3g}); the rule has "
+                              "negative weights or the dynamics produced non-finite values")
+        if d <= 1e-12 * pjj:
+            continue
+        L[j, j] = np.sqrt(d)
+        L[j + 1:, j] = (P[j + 1:, j] - L[j + 1:, :j] @ L[j, :j]) / L[j, j]
+    return L
+
+
+def control_moments(sm, u_nominal: np.ndarray, Lu: np.ndarray, xi_u: np.ndarray, w_u: np.ndarray,
+                    third: bool = False) -> tuple[np.ndarray, ...]:
+    """``E[h(u_k)]`` ``(K, r)``, ``Cov[h(u_k)]`` ``(K, r, r)`` (and the third central moment
+    ``(K, r, r, r)``) of every step by the control rule (Jain et al. Eq. 13, 15), one batched call."""
+    K, Mu = u_nominal.shape[0], w_u.size
+    U = u_nominal[:, None, :] + (xi_u @ Lu.T)[None, :, :]
+    H = sm.control(U.reshape(K * Mu, -1)).reshape(K, Mu, -1)
+    Eh = np.einsum("j,kjp->kp", w_u, H)
+    dH = H - Eh[:, None, :]
+    Ch = np.einsum("j,kjp,kjq->kpq", w_u, dH, dH)
+    if not third:
+        return Eh, Ch
+    return Eh, Ch, np.einsum("j,kjp,kjq,kjs->kpqs", w_u, dH, dH, dH)
+
+
+def propagate_moments(step_map, grid: np.ndarray, mean0: np.ndarray, cov0: np.ndarray,
+                      ctrl: tuple[np.ndarray, ...], xi_x: np.ndarray, w_x: np.ndarray,
+                      perm: np.ndarray, third: bool = False) -> dict[str, np.ndarray]:
     """Propagate mean, covariance (and third central moment) of Jain et al. Eq. 1 on ``grid``.
 
-    ``step_map`` is a :class:`ocreach.stochastic_mc.SplitStepMap` (Euler step ``dt f0``,
-    ``dt G``); ``L0``, ``Lu`` are square roots of the initial-state and control covariances;
-    ``xi_x, w_x`` and ``xi_u, w_u`` the standard-normal rules of dimension ``n_x`` and ``n_u``.
-    Returns ``mean (K+1, n)``, ``cov (K+1, n, n)`` and, if ``third``, ``m3 (K+1, n, n, n)``.
+    NumPy reference of the compiled kernel (:mod:`ocreach.reach.cut_kernel`) and the path for
+    ``third_moments``.  ``step_map`` is a :class:`ocreach.stochastic_mc.SplitStepMap` (Euler step
+    ``dt f0``, ``dt G``); ``ctrl = (Eh, Ch[, M3h])`` from :func:`control_moments`; ``xi_x, w_x`` the
+    standard-normal rule of dimension ``n_y``; ``perm`` the states with the ``n_y`` dependency
+    states first.  Points are ``m + L[:, :n_y] xi`` with ``L`` the Cholesky factor of the permuted
+    covariance: the remaining states sit at their conditional mean given the dependency states,
+    and their conditional covariance ``R = L[:, n_y:] L[:, n_y:]^T`` (unchanged by the identity
+    part of the step, independent of everything else) is added to the new covariance.  Exact
+    under the Gaussian closure; the third moment gets no term from ``R`` (zero-mean Gaussian,
+    independent).  Returns ``mean (K+1, n)``, ``cov (K+1, n, n)`` and, if ``third``,
+    ``m3 (K+1, n, n, n)``.
     """
     K = grid.size - 1
     n = mean0.size
+    ny = xi_x.shape[1]
+    inv = np.argsort(perm)
+    Eh, Ch = ctrl[0], ctrl[1]
     mean = np.empty((K + 1, n))
     cov = np.empty((K + 1, n, n))
     m3 = np.zeros((K + 1, n, n, n)) if third else None
     mean[0] = mean0
-    cov[0] = L0 @ L0.T
-    L = L0
+    cov[0] = cov0
     for k in range(K):
         dt = grid[k + 1] - grid[k]
-        X = mean[k] + xi_x @ L.T                                   # points of N(m_k, P_k)
+        L = psd_cholesky(cov[k][np.ix_(perm, perm)], k)
+        X = mean[k] + (xi_x @ L[:, :ny].T)[:, inv]                 # points of N(m_k, P_k)
         F, G = step_map.drift_gain(X, grid[k])
-        Fd = X + dt * F                                            # f(x) of Eq. 1 (Euler)
         Gd = dt * G                                                # G(x) of Eq. 1 (Euler)
-        H = step_map.control(u_nominal[k] + xi_u @ Lu.T)           # h(u) at the control points
-        Eh = w_u @ H                                               # Eq. 13
-        dH = H - Eh
-        Ch = (dH * w_u[:, None]).T @ dH                            # Eq. 15 (central)
-        mu = Fd + Gd @ Eh                                          # E[x+ | x]
+        mu = X + dt * F + Gd @ Eh[k]                               # E[x+ | x], Eq. 6
         m_new = w_x @ mu                                           # Eq. 6 with Eq. 10
         Y = mu - m_new
-        GC = Gd @ Ch
+        GC = Gd @ Ch[k]
+        Lz = L[:, ny:][inv]                                        # conditional spread, rows in state order
         P_new = ((Y * w_x[:, None]).T @ Y                                           # Eq. 9, 11-15
-                 + np.tensordot(GC * w_x[:, None, None], Gd, axes=([0, 2], [0, 2])))
+                 + np.tensordot(GC * w_x[:, None, None], Gd, axes=([0, 2], [0, 2]))
+                 + Lz @ Lz.T)
         P_new = 0.5 * (P_new + P_new.T)
         if not (np.all(np.isfinite(m_new)) and np.all(np.isfinite(P_new))):
             raise SolverError(f"cut: non-finite moments at t = {grid[k + 1]:g} (step {k + 1})")
         mean[k + 1] = m_new
         cov[k + 1] = P_new
         if third:
-            M3h = np.einsum("j,jp,jq,js->pqs", w_u, dH, dH, dH)
-            Q = GC @ Gd.transpose(0, 2, 1)
-            S = np.tensordot(Y * w_x[:, None], Q, axes=([0], [0]))
             # E[y_a Q_bc] with Q = G C_h G^T, and its two index rotations (Eq. 30 terms 4, 6, 7)
             Q = GC @ Gd.transpose(0, 2, 1)
             S = np.tensordot(Y * w_x[:, None], Q, axes=([0], [0]))
             m3[k + 1] = (np.einsum("i,ia,ib,ic->abc", w_x, Y, Y, Y)
                          + S + S.transpose(1, 0, 2) + S.transpose(1, 2, 0)
-                         + np.einsum("i,iap,ibq,ics,pqs->abc", w_x, Gd, Gd, Gd, M3h, optimize=True))
-        L = _factor(P_new, k + 1)
+                         + np.einsum("i,iap,ibq,ics,pqs->abc", w_x, Gd, Gd, Gd, ctrl[2][k],
+                                     optimize=True))
     out = {"mean": mean, "cov": cov}
     if third:
         out["m3"] = m3
@@ -154,14 +201,20 @@ class CUTMoments(Method):
         """``order``: 4, 6 or 8 (moment order the CUT / Gauss-Hermite rule integrates exactly; the
         paper uses 8); ``rule``: ``"cut"`` | ``"ut"`` | ``"gh"``; ``control_rule``: rule for the
         controls (default: same as ``rule``); ``third_moments``: also propagate the third central
-        moment (Appendix Eq. 30); ``sigma_level``: the ellipsoid of ``sets`` is
-        ``sigma_level``-sigma (3)."""
+        moment (Appendix Eq. 30; NumPy path, slower); ``sigma_level``: the ellipsoid of ``sets`` is
+        ``sigma_level``-sigma (3); ``reduce``: integrate only over the states the step's increment
+        depends on (exact under the Gaussian closure, see :func:`propagate_moments`; for re-entry
+        the longitude drops out and CUT8 needs 355 instead of 745 points; ``False`` is the paper's
+        full 6-D rule); ``compiled``: run the fused C kernel (:mod:`ocreach.reach.cut_kernel`;
+        ``False`` or no C compiler: the NumPy reference, same numbers)."""
 
         order: int = 8
         rule: str = "cut"
         control_rule: str | None = None
         third_moments: bool = False
         sigma_level: float = 3.0
+        reduce: bool = True
+        compiled: bool = True
 
         def __post_init__(self) -> None:
             if self.rule not in RULES:
@@ -173,31 +226,75 @@ class CUTMoments(Method):
             if not (np.isfinite(self.sigma_level) and self.sigma_level > 0):
                 raise ProblemError(f"sigma_level must be a finite number > 0; got {self.sigma_level!r}")
             self.third_moments = bool(self.third_moments)
+            self.reduce = bool(self.reduce)
+            self.compiled = bool(self.compiled)
 
     def solve(self, problem) -> ReachResult:
-        from ocreach.sets.ellipsoid import Ellipsoid
+        from ocreach.reach.cut_kernel import cut_kernel
         from ocreach.stochastic_mc import step_map_for, stochastic_spec
 
         opt = self.options
         timer = Timer()
+        n = problem.model.n_x
         with timer("setup"):
             mean0, L0, u_nom, Lu = stochastic_spec(problem)
             sm = step_map_for(problem)
-            xi_x, w_x = standard_rule(opt.rule, problem.model.n_x, opt.order)
+            dep = dependency_dims(sm) if opt.reduce else np.arange(n)
+            if dep.size == 0:
+                dep = np.arange(n)
+            perm = np.concatenate([dep, np.setdiff1d(np.arange(n), dep)])
+            xi_x, w_x = standard_rule(opt.rule, int(dep.size), opt.order)
             xi_u, w_u = standard_rule(opt.control_rule or opt.rule, problem.model.n_u, opt.order)
+            kern = cut_kernel(sm) if opt.compiled and not opt.third_moments else None
         with timer("propagation"):
-            mom = propagate_moments(sm, problem.grid, mean0, L0, u_nom, Lu, xi_x, w_x, xi_u, w_u,
-                                    third=opt.third_moments)
-        with timer("sets"):
-            s2 = opt.sigma_level**2
-            sets = [Ellipsoid(m, s2 * P) for m, P in zip(mom["mean"], mom["cov"])]
+            ctrl = control_moments(sm, u_nom, Lu, xi_u, w_u, third=opt.third_moments)
+            cov0 = L0 @ L0.T
+            if kern is not None:
+                mean, cov = kern.run(problem.grid, mean0, cov0, xi_x, w_x, perm, ctrl[0], ctrl[1])
+                mom = {"mean": mean, "cov": cov}
+            else:
+                mom = propagate_moments(sm, problem.grid, mean0, cov0, ctrl, xi_x, w_x, perm,
+                                        third=opt.third_moments)
         std = np.sqrt(np.clip(np.einsum("kii->ki", mom["cov"]), 0.0, None))
         meta = self.base_meta(problem, timer.times)
         meta.update({
             "mean": mom["mean"], "cov": mom["cov"], "std": std,
             "lower": mom["mean"] - opt.sigma_level * std, "upper": mom["mean"] + opt.sigma_level * std,
             "points_x": int(w_x.size), "points_u": int(w_u.size), "stochastic": True,
+            "rule_dims": dep.tolist(), "compiled": kern is not None,
         })
         if "m3" in mom:
             meta["m3"] = mom["m3"]
+        sets = EllipsoidSequence(mom["mean"], mom["cov"], opt.sigma_level**2)
         return ReachResult(times=problem.grid, sets=sets, meta=meta)
+
+
+class EllipsoidSequence(Sequence):
+    """``sets[k] = Ellipsoid(mean[k], s2 cov[k])``, built on first access (a 2000-step horizon
+    would otherwise spend longer building ellipsoids than propagating the moments)."""
+
+    def __init__(self, mean: np.ndarray, cov: np.ndarray, s2: float):
+        self.mean, self.cov, self.s2 = mean, cov, float(s2)
+        self._cache: dict[int, Any] = {}
+
+    def __len__(self) -> int:
+        return self.mean.shape[0]
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        n = len(self)
+        if not -n <= k < n:
+            raise IndexError(f"ellipsoid index {k} out of range for {n} times")
+        k = int(k) % n
+        if k not in self._cache:
+            from ocreach.sets.ellipsoid import Ellipsoid
+
+            self._cache[k] = Ellipsoid(self.mean[k], self.s2 * self.cov[k])
+        return self._cache[k]
+
+    def __getstate__(self):
+        return {"mean": self.mean, "cov": self.cov, "s2": self.s2}
+
+    def __setstate__(self, state):
+        self.__init__(state["mean"], state["cov"], state["s2"])
