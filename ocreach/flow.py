@@ -170,6 +170,16 @@ def _build_step(rhs: ca.Function) -> ca.Function:
                        ["y", "f0", "t", "h", "a", "rtol", "atol"], ["y_new", "f_new", "err"])
 
 
+def _opt_flags(source_size: int) -> tuple[str, ...]:
+    """Optimisation level: ``-O2`` for ordinary sources; huge generated sources (order-3 STTs of
+    the spatial CR3BP, ~1.5 MB of straight-line C) take minutes at -O1/-O2, so they get ``-O0``
+    (seconds).  ``OCREACH_JIT_FLAGS`` overrides (space separated)."""
+    env = os.environ.get("OCREACH_JIT_FLAGS")
+    if env:
+        return tuple(env.split())
+    return ("-O0",) if source_size > 400_000 else ("-O2",)
+
+
 class _Stepper:
     """Everything integrate_batch needs for one rhs: the native C driver (or None) and the
     CasADi step Function with its mapped versions for the NumPy fallback loop."""
@@ -195,8 +205,7 @@ class _Stepper:
         gen = _codegen([self.step, self.rhs])
         main = (f"#define STEP {self.step.name()}\n#define RHS {self.rhs.name()}\n"
                 "#include \"gen.c\"\n#include \"driver.c\"\n").encode()
-        big = len(gen) > 2_000_000  # huge STT right-hand sides: -O1 compiles much faster
-        flags = ("-O1",) if big else ("-O2",)
+        flags = _opt_flags(len(gen))
         lib = _compile_source(f"ocr_{self.rhs.name()}",
                               {"gen.c": gen, "driver.c": DRIVER_SRC.encode(), "main.c": main},
                               "main.c", flags)
