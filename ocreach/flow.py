@@ -7,7 +7,8 @@ Dormand-Prince 8(5,3) pair (Hairer, Norsett & Wanner, *Solving ODEs I*, Sec. II.
 ``DOP853`` tableau, error norm, step-size controller and initial-step rule, and one step size per
 sample.  One step (12 stages, FSAL derivative, error norm) is a single CasADi Function built from
 the right-hand side; it is generated as C together with a small C driver loop over samples and
-steps (:mod:`ocreach._dop853_driver`), compiled once with the system C compiler (``cc -O2``) and
+steps (:mod:`ocreach._dop853_driver`), compiled once with the system C compiler (``cc -O2``; ``-O0`` for
+sources over 400 kB such as spatial order-3 STTs, see :func:`_opt_flags`) and
 cached on disk (``$OCREACH_CACHE_DIR`` or ``~/.cache/ocreach/jit``, keyed by a hash of the
 source), then called through ctypes.  Without a compiler (or with ``OCREACH_JIT=0``) the same
 algorithm runs as a NumPy loop over steps, vectorised over samples with ``Function.map``; results
