@@ -9,6 +9,7 @@ Public API::
     ocreach.compare(p, ["mc", "ode"])
 """
 from ocreach.errors import OcreachError, ProblemError, SetError, SolverError, UnknownNameError
+from ocreach.flow import integrate_batch, propagate, stm, stt
 from ocreach.model import Model
 from ocreach.problem import ControlSet, Problem, Reference, get_problem, list_problems, load_problem_file
 from ocreach.reach import ReachResult, available_methods, load, reach
@@ -27,5 +28,6 @@ def compare(problem, methods, **kwargs):
 __all__ = [
     "ControlSet", "Model", "OcreachError", "Problem", "ProblemError", "ReachResult", "Reference",
     "SetError", "SolverError", "UnknownNameError", "Units", "available_methods", "compare",
-    "get_problem", "list_problems", "load", "load_problem_file", "reach",
+    "get_problem", "integrate_batch", "list_problems", "load", "load_problem_file", "propagate",
+    "reach", "stm", "stt",
 ]
