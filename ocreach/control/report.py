@@ -266,11 +266,11 @@ def _summary_lines(data: dict) -> list[str]:
         _ratio_text(ml, mm, "tracking_error", "Tracking error vs periodic LQR"),
         _ratio_text(mc, mm, "effort", "Effort vs constant-gain LQR", "LQR_const"),
         _ratio_text(mc, mm, "tracking_error", "Tracking error vs constant-gain LQR", "LQR_const"),
-        f"Time per step: MPC {1e3 * mm['time_per_step']:.3g} ms, periodic LQR "
-        f"{1e3 * ml['time_per_step']:.3g} ms ({mm['time_per_step'] / ml['time_per_step']:.0f}x).",
-        f"Constant-gain vs periodic LQR: effort {_gap(ml['effort'], mc['effort'])}, tracking "
-        f"error {_gap(ml['tracking_error'], mc['tracking_error'])} (the price of ignoring how "
-        "the linearisation changes along the orbit).",
+        (f"Time per step: MPC {1e3 * mm['time_per_step']:.3g} ms, periodic LQR "
+         f"{1e3 * ml['time_per_step']:.3g} ms ({mm['time_per_step'] / ml['time_per_step']:.0f}x)."),
+        (f"Constant-gain vs periodic LQR: effort {_gap(ml['effort'], mc['effort'])}, tracking "
+         f"error {_gap(ml['tracking_error'], mc['tracking_error'])} (the price of ignoring how "
+         "the linearisation changes along the orbit)."),
     ]
     worst = max(d["max_thrust_ratio"] for d in (ml, mc, mm))
     lines.append("Thrust limit: max ||u||/limit = "
@@ -304,10 +304,10 @@ def _markdown(problem, data: dict, figs: list[str]) -> str:
     out = [f"# LQR vs MPC station keeping: {problem.id}", "",
            f"{problem.description}", ""]
     step = f"{s['dt_hours']:.4g} h" if s["dt_hours"] else f"{s['dt_TU']:.4g} TU"
-    out += [f"Step {step}, {s['n_steps']} steps; MPC N_p = {s['n_p']}, N_c = {s['n_c']}, "
-            f"thrust set {s['thrust_set_mpc']} (plant: {s['plant_control_set']}); "
-            f"LQR Riccati mode {s['lqr_riccati']}; Q = {s['Q']}, "
-            f"R = {s['R']} on {s['R_units']}; disturbance W = {s['disturbance_W']}, seed {s['seed']}.", ""]
+    out += [(f"Step {step}, {s['n_steps']} steps; MPC N_p = {s['n_p']}, N_c = {s['n_c']}, "
+             f"thrust set {s['thrust_set_mpc']} (plant: {s['plant_control_set']}); "
+             f"LQR Riccati mode {s['lqr_riccati']}; Q = {s['Q']}, R = {s['R']} on {s['R_units']}; "
+             f"disturbance W = {s['disturbance_W']}, seed {s['seed']}."), ""]
     out += [f"- `{c}`: {d}" for c, d in CONTROLLERS.items()]
     out += ["", "| metric | " + " | ".join(CONTROLLERS) + " | mpc/lqr | mpc/lqr_const |",
             "| --- |" + " ---: |" * (len(CONTROLLERS) + 2)]
