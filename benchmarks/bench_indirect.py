@@ -141,7 +141,7 @@ def markdown(rows_o, rows_s, sw, samples) -> str:
 
 def write_section(text: str) -> None:
     old = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
-    pattern = re.compile(r"^## Indirect\n.*?(?=^## |\Z)", re.S | re.M)
+    pattern = re.compile(r"^## Indirect\n.*?(?=^## |\Z)", re.DOTALL | re.MULTILINE)
     new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip() + "\n\n" + text
     tmp = DOCS.with_suffix(".md.tmp")
     tmp.write_text(new)

@@ -18,11 +18,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from ocreach.problem import get_problem  # noqa: E402
-from ocreach.reach.base import reach  # noqa: E402
+from ocreach.problem import get_problem
+from ocreach.reach.base import reach
 
 ROOT = Path(__file__).resolve().parents[1]
 R_EARTH_KM, R_MOON_KM = 6378.137, 1737.4

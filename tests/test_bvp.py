@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from test_indirect import cr3bp_np, dt_optimum
 
 from ocreach.errors import ProblemError
 from ocreach.models import cr3bp
 from ocreach.problem import Problem, get_problem
 from ocreach.reach.base import reach
 from ocreach.units import EARTH_MOON_FOSS
-from test_indirect import cr3bp_np, dt_optimum
 
 N_DIRS = 6
 

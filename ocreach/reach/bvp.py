@@ -148,7 +148,7 @@ class BVPContinuation(FFOE):
     def _residual(self, problem, p, manifold, lam0, zhat, dims, x_ref):
         """``F``, ``dF/dlam0`` and ``dF/dz-hat`` (a matrix acting on d z-hat) at ``lam0``."""
         n = problem.model.n_x
-        x0, xf, lf, (Pxx, Pxl, Plx, Pll) = self._shoot(problem, p, manifold, lam0)
+        _x0, xf, lf, (Pxx, Pxl, Plx, Pll) = self._shoot(problem, p, manifold, lam0)
         dx0 = manifold.jacobian(lam0) if manifold.active else np.zeros((n, n))
         dxf = Pxx @ dx0 + Pxl
         dlf = Plx @ dx0 + Pll

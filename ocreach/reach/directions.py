@@ -8,7 +8,7 @@ seeded Gaussian samples normalised to the sphere.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
