@@ -298,7 +298,7 @@ def _sym(T: np.ndarray) -> np.ndarray:
 
 
 def fused_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str = "pca",
-               timer: Timer | None = None, counts: dict[str, int] | None = None):
+               timer: Timer | None = None, counts: dict[str, int] | None = None, prune: float = 1e-3):
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` in one vectorised pass (Foss Eq. 18, 21-22).
 
     Same result as the set library's ``tensor_map`` per order, exact sum and ``reduce_pz`` (checked
@@ -311,26 +311,35 @@ def fused_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str = "pca",
     parity/support bit masks, and the exponent matrix is built only for the kept generators.
     Independent generators are treated as in ``tensor_map`` (temporary factors, every product
     containing one becomes independent; all-even ones shift the centre by half).
+    ``prune``: see :func:`_fused_generate` (0 = merge every product).
     ``timer`` gets the phases ``tensor_maps`` (generation and merging) and ``reductions``.
     """
     timer = timer or Timer()
     with timer("tensor_maps"):
-        out = _fused_generate(phi, dZ)
+        out = _fused_generate(phi, dZ, h_max, prune)
     with timer("reductions"):
         res = _fused_reduce(dZ, h_max, method, *out)
     if counts is not None:
         counts["tensor_maps"] += 1
         counts["reductions"] += int(res[1])
+        counts["pruned"] = counts.get("pruned", 0) + int(out[-1].shape[1])
     return res[0]
 
 
-def _fused_generate(phi, dZ):
-    """Generators, merged, of ``sum_j 1/j! Phi^(j)[x]dZ`` with their classification bits."""
+def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0):
+    """Generators, merged, of ``sum_j 1/j! Phi^(j)[x]dZ`` with their classification bits.
+
+    With ``prune > 0`` and many order-3 products, every product whose norm bound
+    ``mult ||T3||_F |g_i| |g_j| |g_k|`` is below ``prune`` times the ``h_max``-th largest order-1/2
+    generator is not merged but returned apart (``Gp``) for the reduction's box: sound (a sum of
+    boxed generators is enclosed by the box of the parts), it only skips sorting the tiny ones.
+    """
     from ocreach.sets.polyzonotope import monomial_keys
 
     n_ord = len(phi)
     p, h, q = dZ.n_factors, dZ.n_dependent, dZ.n_independent
     n = phi[0].shape[0]
+    Gp = np.zeros((n, 0))
     Ga = np.hstack([dZ.c[:, None], dZ.G, dZ.GI])
     H = Ga.shape[1]
     Ea = np.zeros((p + q, H), dtype=np.int64)
@@ -357,8 +366,18 @@ def _fused_generate(phi, dZ):
         A = (T3 @ Ga).reshape(n, nz * nz, H).transpose(1, 0, 2).reshape(nz * nz, n * H)
         P2 = np.ascontiguousarray((Ga[:, None, pi] * Ga[None, :, pj]).reshape(nz * nz, -1).T)
         Q = (P2 @ A).reshape(pi.size, n, H)                    # Q[pair, m, k] (one BLAS product)
-        cols.append((Q[qq, :, k] * mult[:, None]).T)
+        C3 = (Q[qq, :, k] * mult[:, None]).T
         del Q
+        if prune > 0 and C3.shape[1] > 50_000 and h_max > 0:
+            small = np.concatenate([np.linalg.norm(c, axis=0) for c in cols])
+            theta = np.partition(small, -min(h_max, small.size))[-min(h_max, small.size)]
+            gn = np.linalg.norm(Ga, axis=0)
+            bound = (gn[pi] * gn[pj])[qq] * gn[k] * mult * np.linalg.norm(T3)
+            big = bound >= prune * theta
+            Gp = C3[:, ~big]
+            sel = np.flatnonzero(big)
+            C3, i, j, k, qq = C3[:, sel], i[sel], j[sel], k[sel], qq[sel]
+        cols.append(C3)
         k0s.append((ka[pi, 0] + ka[pj, 0])[qq] + ka[k, 0])
         k1s.append((ka[pi, 1] + ka[pj, 1])[qq] + ka[k, 1])
         idx.append((i, j, k))
@@ -386,10 +405,10 @@ def _fused_generate(phi, dZ):
     const = ~np.any(SUP, axis=1)
     has_b = np.any(SUP & bmask, axis=1)
     even = ~np.any(PAR, axis=1)
-    return Gm, rep, const, has_b, even, Ea, idx
+    return Gm, rep, const, has_b, even, Ea, idx, Gp
 
 
-def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx):
+def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx, Gp):
     """Reduction (as ``reduce_pz``) before the exponent matrix is formed; see :func:`fused_step`."""
     from ocreach.sets import PolyZonotope
     from ocreach.sets.reduce import box_generators
@@ -406,7 +425,7 @@ def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx):
     cand = np.flatnonzero(dep | ind)
     norms = np.linalg.norm(Gb[:, cand], axis=0)
     keep_mask = np.ones(cand.size, dtype=bool)
-    if cand.size > h_max:
+    if cand.size > h_max or Gp.shape[1]:
         n_keep = max(h_max - n, 0)
         keep_mask[:] = False
         if n_keep:
@@ -419,7 +438,7 @@ def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx):
     # removed dependent monomials: zonotope enclosure (all-even -> centre shift + half generator)
     rde = rd[even[rd]]
     c = c + 0.5 * Gm[:, rde].sum(axis=1)
-    Grem = np.hstack([0.5 * Gm[:, rde], Gm[:, rd[~even[rd]]], Gb[:, ri]])
+    Grem = np.hstack([0.5 * Gm[:, rde], Gm[:, rd[~even[rd]]], Gb[:, ri], Gp])
     GI = np.hstack([Gb[:, ki], box_generators(Grem, method)])
     # exponent matrix of the kept dependent monomials only
     src = np.concatenate([np.zeros(0, dtype=np.int64)] + [np.full(len(ix[0]), o, dtype=np.int64)

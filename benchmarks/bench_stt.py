@@ -1,0 +1,171 @@
+"""STT polynomial-zonotope reachability (Foss et al. Algorithm 1): runtime breakdowns vs the paper.
+
+Usage: ``python benchmarks/bench_stt.py [--write]``; ``--write`` updates the ``## STT`` section of
+docs/benchmarks.md.
+
+Times, in one process: Algorithm 1 on ``vdp`` (n = 3, h_max = 200), ``dro`` (n = 2, h_max = 400,
+box input) and ``nrho-flyby`` (n = 2, h_max = 60, ball input), split like Foss Table 1 (STT
+generation, tensor maps, reductions); the peer on ``dro`` is the extremal-ODE method with 100
+trajectories (Foss Table 2 reports stt/ode = 5.7925 / 4.0389 = 1.43); and the two set-propagation
+engines (the fused step against the set library's tensor maps + sum + reduction) on ``dro``.
+Each timing is the median of ``--repeat`` warm runs (compilation and caches excluded; the first
+run's time is reported apart).
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+PAPER = {  # Foss et al. Table 1 (VdP) and the totals quoted in Sec. 4 (Julia, their machine)
+    "vdp": {"stt_generation": 1.549, "tensor_maps": 3.750, "reductions": 0.478, "total": 5.777},
+    "dro": {"total": 5.7925},
+    "nrho-flyby": {"total": 0.716},
+}
+
+
+def _median_runs(fn, repeat: int):
+    first_t0 = time.perf_counter()
+    out = fn()
+    first = time.perf_counter() - first_t0
+    times, metas = [], []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+        metas.append(out.meta)
+    k = int(np.argsort(times)[len(times) // 2])
+    return first, times[k], metas[k], out
+
+
+def bench_problem(pid: str, repeat: int, **opts) -> dict:
+    import ocreach
+    from ocreach.problem import get_problem
+
+    p = get_problem(pid)
+    first, t, meta, res = _median_runs(lambda: ocreach.reach(p, "stt", **opts), repeat)
+    return {"pid": pid, "first": first, "t": t, "runtime": meta["runtime"], "evals": meta["evaluations"],
+            "options": meta["options"], "generators": int(meta["generators"][-1]), "problem": p}
+
+
+def bench_ratio(repeat: int) -> dict:
+    """stt and ode (100 trajectories) on dro, interleaved in one process."""
+    import ocreach
+    from ocreach.problem import get_problem
+
+    p = get_problem("dro")
+    ocreach.reach(p, "stt")
+    ocreach.reach(p, "ode", samples=100)
+    ts, to = [], []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        ocreach.reach(p, "stt")
+        ts.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        ocreach.reach(p, "ode", samples=100)
+        to.append(time.perf_counter() - t0)
+    return {"stt": float(np.median(ts)), "ode": float(np.median(to)),
+            "ratio": float(np.median(ts) / np.median(to))}
+
+
+def bench_engines(repeat: int) -> dict:
+    import ocreach
+    from ocreach.problem import get_problem
+
+    p = get_problem("dro")
+    out = {}
+    for eng in ("fused", "library"):
+        _, t, meta, res = _median_runs(lambda e=eng: ocreach.reach(p, "stt", engine=e), max(1, repeat // 2))
+        out[eng] = {"t": t, "runtime": meta["runtime"], "set": res.sets[-1]}
+    d = np.vstack([np.eye(4), -np.eye(4)])
+    a, b = out["fused"]["set"].support(d), out["library"]["set"].support(d)
+    out["support_diff"] = float(np.max(np.abs(a - b) / np.maximum(np.abs(b), 1e-12)))
+    return out
+
+
+def markdown(rows: list[dict], ratio: dict, eng: dict) -> str:
+    lines = ["## STT", "",
+             "`python benchmarks/bench_stt.py` -- Foss et al. Algorithm 1 (`ocreach.reach(p, \"stt\")`),",
+             "median of warm runs; \"first run\" includes building the CasADi functions and compiling",
+             "the STT integrator (cached on disk afterwards).  Paper: Julia on the authors' machine.", "",
+             "| problem | options | STT generation | tensor maps (evals) | reductions (evals) | other | total | first run | paper total | paper breakdown |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for r in rows:
+        rt, ev, o = r["runtime"], r["evals"], r["options"]
+        other = r["t"] - rt.get("stt_generation", 0) - rt.get("tensor_maps", 0) - rt.get("reductions", 0)
+        pp = PAPER[r["pid"]]
+        brk = (f"{pp['stt_generation']:.3f} / {pp['tensor_maps']:.3f} (30) / {pp['reductions']:.3f} (26) s"
+               if "tensor_maps" in pp else "--")
+        lines.append(
+            f"| {r['pid']} | n = {o['order']}, h_max = {o['h_max']}, {o['input_set'] or 'problem'} input | "
+            f"{rt.get('stt_generation', 0):.3f} s | {rt.get('tensor_maps', 0):.3f} s ({ev['tensor_maps']}) | "
+            f"{rt.get('reductions', 0):.3f} s ({ev['reductions']}) | {other:.3f} s | **{r['t']:.3f} s** | "
+            f"{r['first']:.2f} s | {pp['total']:.3f} s | {brk} |")
+    lines += ["",
+              f"stt / ode (100 extremals) on dro, interleaved in one run: {ratio['stt']:.3f} s / "
+              f"{ratio['ode']:.3f} s = **{ratio['ratio']:.2f}** (paper Table 2: 5.7925 / 4.0389 = 1.43).", "",
+              "Set-propagation engine on dro (same options): fused step "
+              f"{eng['fused']['t']:.3f} s (tensor maps {eng['fused']['runtime'].get('tensor_maps', 0):.3f} s, "
+              f"reductions {eng['fused']['runtime'].get('reductions', 0):.3f} s) vs the set library's "
+              f"`tensor_map` + exact sum + `reduce_pz` {eng['library']['t']:.3f} s (tensor maps "
+              f"{eng['library']['runtime'].get('tensor_maps', 0):.3f} s, reductions "
+              f"{eng['library']['runtime'].get('reductions', 0):.3f} s) = "
+              f"{eng['library']['t'] / eng['fused']['t']:.1f}x; final sets agree to "
+              f"{eng['support_diff']:.1e} (relative support, 8 axis directions).", "",
+              "Where the time goes: the set propagation, not the STTs.  One order-3 step of vdp forms",
+              "C(H+2, 3) ~ 1.4 M products of the H ~ 200 generators of dZ (Foss Eq. 22); the fused",
+              "step evaluates them with one BLAS product (all pairs x all generators) and a gather,",
+              "skips merging for products whose norm bound is < 1e-3 of the h_max-th largest",
+              "generator (they go straight to the reduction's box; ~95 % of them on vdp), sorts",
+              "the rest by a 64-bit monomial hash, and forms exponent rows only for the kept",
+              "generators.  Remaining cost: the 1.4 M-column gather and bound, the sort of the kept",
+              "products, and the PCA box of the removed ones.  STT generation is < 5 % of the total",
+              "on every problem, so directional STTs (Boone & McMahon) would not pay off and are",
+              "not implemented.  The machine is shared with other jobs (2 cores); timings move by",
+              "tens of percent between runs.", ""]
+    return "\n".join(lines)
+
+
+def write_section(text: str) -> None:
+    old = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
+    pattern = re.compile(r"^## STT\n.*?(?=^## |\Z)", re.S | re.M)
+    new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip() + "\n\n" + text
+    tmp = DOCS.with_suffix(".md.tmp")
+    tmp.write_text(new)
+    tmp.replace(DOCS)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--write", action="store_true", help="update the STT section of docs/benchmarks.md")
+    ap.add_argument("--repeat", type=int, default=3, help="warm runs per timing (median)")
+    args = ap.parse_args(argv)
+    rows = []
+    for pid in ("vdp", "dro", "nrho-flyby"):
+        try:
+            r = bench_problem(pid, args.repeat)
+        except Exception as exc:  # a missing problem (e.g. no ephemeris model) is reported, not hidden
+            print(f"{pid}: failed: {type(exc).__name__}: {exc}")
+            continue
+        rows.append(r)
+        print(f"{pid}: {r['t']:.3f} s (first {r['first']:.2f} s) {r['runtime']} {r['evals']}")
+    ratio = bench_ratio(args.repeat)
+    print(f"dro stt/ode(100): {ratio['stt']:.3f} / {ratio['ode']:.3f} = {ratio['ratio']:.2f} (paper 1.43)")
+    eng = bench_engines(args.repeat)
+    print(f"dro engines: fused {eng['fused']['t']:.3f} s, library {eng['library']['t']:.3f} s, "
+          f"support diff {eng['support_diff']:.1e}")
+    text = markdown(rows, ratio, eng)
+    if args.write:
+        write_section(text)
+        print(f"wrote the STT section of {DOCS}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
