@@ -6,8 +6,9 @@ fallback without a C compiler; both give the same numbers to round-off):
 
 per step ``k``: square root ``L`` of ``P_k`` (semidefinite Cholesky, dependency states first),
 state points ``x_i = m_k + L[:, :n_y] xi_i``, one call of the CasADi-generated point function
-``(x, t, dt, p, E[h]) -> (mu(x) = x + dt f0 + dt G E[h], G_d = dt G)`` per point, and the weighted
-sums ``m_{k+1} = sum w_i mu_i``, ``P_{k+1} = sum w_i (y_i y_i^T + G_d,i C_h G_d,i^T) + R`` with
+``(x, t, dt, p, E[h], C_h) -> (mu(x) = x + dt f0 + dt G E[h], q(x) = G_d C_h G_d^T)`` per point
+(``G_d = dt G``), and the weighted
+sums ``m_{k+1} = sum w_i mu_i``, ``P_{k+1} = sum w_i (y_i y_i^T + q_i) + R`` with
 ``y_i = mu_i - m_{k+1}`` and ``R`` the covariance of the states the step does not depend on, given
 the ones it does (see ``reduce`` in :mod:`ocreach.reach.cut`).  The control moments ``E[h]``,
 ``C_h`` of every step are computed beforehand in one batched call.  No Python work per step.
@@ -59,19 +60,19 @@ CASADI_SYMBOL_EXPORT int ocr_cut_run(long K, long n, long r, long M, long ny, co
                                      double* mean, double* cov, long* fail) {
   casadi_int sa, sr, si, sw;
   OCR_FUN_work(&sa, &sr, &si, &sw);
-  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + 6));
+  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + 7));
   casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + 3));
   casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
   casadi_real* wk = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
   double* Pp = (double*)malloc(sizeof(double) * n * n);
   double* L = (double*)malloc(sizeof(double) * n * n);
   double* X = (double*)malloc(sizeof(double) * n);
+  long nq = n * (n + 1) / 2;
   double* MU = (double*)malloc(sizeof(double) * M * n);
-  double* GD = (double*)malloc(sizeof(double) * M * n * r);
-  double* GC = (double*)malloc(sizeof(double) * n * r);
+  double* QQ = (double*)malloc(sizeof(double) * M * nq);
   double* Y = (double*)malloc(sizeof(double) * n);
   int flag = 0;
-  if (!arg || !res || !iw || !wk || !Pp || !L || !X || !MU || !GD || !GC || !Y) { flag = -1; goto done; }
+  if (!arg || !res || !iw || !wk || !Pp || !L || !X || !MU || !QQ || !Y) { flag = -1; goto done; }
   for (long k = 0; k < K && !flag; ++k) {
     const double* m = mean + k * n;
     const double* P = cov + k * n * n;
@@ -89,8 +90,8 @@ CASADI_SYMBOL_EXPORT int ocr_cut_run(long K, long n, long r, long M, long ny, co
         for (long j = 0; j < top; ++j) s += L[a * n + j] * z[j];
         X[perm[a]] = s;
       }
-      arg[0] = X; arg[1] = &t; arg[2] = &dt; arg[3] = p; arg[4] = eh;
-      res[0] = MU + i * n; res[1] = GD + i * n * r;
+      arg[0] = X; arg[1] = &t; arg[2] = &dt; arg[3] = p; arg[4] = eh; arg[5] = ch;
+      res[0] = MU + i * n; res[1] = QQ + i * nq;
       if (OCR_FUN(arg, res, iw, wk, 0)) { flag = 3; fail[0] = k; break; }
     }
     if (flag) break;
@@ -102,20 +103,11 @@ CASADI_SYMBOL_EXPORT int ocr_cut_run(long K, long n, long r, long M, long ny, co
       for (long a = 0; a < n; ++a) mn[a] += w[i] * MU[i * n + a];
     for (long i = 0; i < M; ++i) {
       const double* mu = MU + i * n;
-      const double* gd = GD + i * n * r;
+      const double* qq = QQ + i * nq;
+      double wi = w[i];
       for (long a = 0; a < n; ++a) Y[a] = mu[a] - mn[a];
-      for (long a = 0; a < n; ++a)
-        for (long q = 0; q < r; ++q) {
-          double s = 0.0;
-          for (long c = 0; c < r; ++c) s += gd[a * r + c] * ch[c * r + q];
-          GC[a * r + q] = s;
-        }
-      for (long a = 0; a < n; ++a)
-        for (long b = 0; b <= a; ++b) {
-          double s = Y[a] * Y[b];
-          for (long q = 0; q < r; ++q) s += GC[a * r + q] * gd[b * r + q];
-          Pn[a * n + b] += w[i] * s;
-        }
+      for (long a = 0, e = 0; a < n; ++a)
+        for (long b = 0; b <= a; ++b, ++e) Pn[a * n + b] += wi * (Y[a] * Y[b] + qq[e]);
     }
     /* covariance of the states the step does not depend on, given those it does (identity map) */
     for (long a = ny; a < n; ++a)
@@ -131,27 +123,33 @@ CASADI_SYMBOL_EXPORT int ocr_cut_run(long K, long n, long r, long M, long ny, co
       if (!isfinite(Pn[a]) || (a < n && !isfinite(mn[a]))) { flag = 2; fail[0] = k + 1; }
   }
 done:
-  free(arg); free(res); free(iw); free(wk); free(Pp); free(L); free(X); free(MU); free(GD);
-  free(GC); free(Y);
+  free(arg); free(res); free(iw); free(wk); free(Pp); free(L); free(X); free(MU); free(QQ);
+  free(Y);
   return flag;
 }
 """
 
 
 def point_function(sm) -> ca.Function:
-    """``(x, t, dt, p, Eh) -> (mu, G_d)``: the conditional mean ``x + dt f0 + dt G E[h]`` of the
-    Euler step (Jain et al. Eq. 1, 6) and ``G_d = dt G`` (row-major), for a SplitStepMap ``sm``."""
+    """``(x, t, dt, p, E[h], C_h) -> (mu, q)``: the conditional mean ``x + dt f0 + dt G E[h]`` of
+    the Euler step (Jain et al. Eq. 1, 6) and the lower triangle (row by row) of the conditional
+    covariance ``G_d C_h G_d^T`` with ``G_d = dt G`` (Eq. 9, 14-15), for a SplitStepMap ``sm``.
+    Built symbolically, so the structural zeros of ``G`` cost nothing."""
     n, r = sm.n_x, sm.n_h
     x = ca.SX.sym("x", n)
     t, dt = ca.SX.sym("t"), ca.SX.sym("dt")
     p = ca.SX.sym("p", sm.f0.size1_in(2))
     eh = ca.SX.sym("eh", r)
+    ch = ca.SX.sym("ch", r, r)
     G = sm.G(x, t, p)
     mu = x + dt * (sm.f0(x, t, p) + ca.mtimes(G, eh))
+    Gd = dt * G
+    Q = ca.mtimes(ca.mtimes(Gd, ch.T), Gd.T)  # ch is row-major in the kernel: pass its transpose
+    q = ca.vertcat(*[Q[a, b] for a in range(n) for b in range(a + 1)])
     from ocreach.stochastic_mc import _cname
 
-    return ca.Function(f"cut_pt_{_cname(sm.name)}", [x, t, dt, p, eh],
-                       [ca.densify(mu), ca.densify(ca.reshape((dt * G).T, -1, 1))])
+    return ca.Function(f"cut_pt_{_cname(sm.name)}", [x, t, dt, p, eh, ch],
+                       [ca.densify(mu), ca.densify(q)])
 
 
 class CUTKernel:
