@@ -176,7 +176,7 @@ the points (option `reduce`, default on).  The MC peer got the same treatment (o
 of steps, including the per-step mean/std; 7.5-10 s before, same random stream, bit-identical
 results), so the ratio is not bought by a slow peer; its remaining Python cost is NumPy's normal
 draws.  One-off setup: on an empty cache the CUT8 rule solves (n = 5, 6, 2) take a few seconds and
-each kernel compile about 0.5 s, so a first-ever call is *slower* than the MC (0.5-0.7x); both are
+each kernel compile about 0.5 s, so a first-ever call can be *slower* than the MC (0.4-1.2x measured); both are
 then cached on disk (rules re-verified on load), and every later process sees the warm ratio.
 At equal cost (an MC with as many samples as the rule has points) every rule is 7-80x more
 accurate than the MC; CUT4-CUT8 sit at the truth's own noise floor on the glider.

@@ -2,7 +2,8 @@
 
 For the shuttle (first maneuver) and the glider (second maneuver) this script
 
-* propagates mean and covariance with ``cut`` (CUT8: 745 state points, 21 control points),
+* propagates mean and covariance with ``cut`` (CUT8 over the 5 states the step depends on: 355
+  state points, 21 control points; the paper's 6-D rule has 745),
 * runs the stochastic Monte Carlo of the paper (10,000 initial states, fresh controls every step),
 * writes figures like the paper's into docs/figures/:  ``jain_<vehicle>_controls.png`` (Figs. 3, 8),
   ``jain_<vehicle>_states.png`` (mean with 3-sigma bands and MC samples, Figs. 4, 9) and
@@ -49,8 +50,16 @@ Where the bands are not met:
   -0.33) and the closure, which discards the third moment at every step, overestimates the spread;
   the means still agree (|z| < 1.8) and the 3-sigma bounds still contain 99.5-99.9 % of the
   samples.  Propagating the third moment (option `third_moments=True`, Appendix Eq. 30) measures
-  it, but the closure back to a Gaussian (the paper's polynomial-chaos step, Eq. 16-18) is not
-  implemented (stretch goal).
+  it.  A non-Gaussian closure was tried (NumPy experiment, not in `cut`): next step's points
+  ``m + L z(xi)`` with a quadratic Hermite chaos ``z = xi + (1/2) C (xi xi^T - I)`` (Eq. 16 to
+  second order) whose coefficients are fitted so ``z`` has zero mean, identity covariance and the
+  full propagated third-moment tensor (whitened).  It carries the skew the Gaussian closure throws
+  away (t = 500 s skewness of v, gamma: -0.25, +0.41 vs MC -0.30, +0.41; Gaussian closure 0.00)
+  and improves gamma's std at 500 s (-1.2 % vs -2.2 %), but it diverges in the steep final descent:
+  at t = 2000 s the std errors of h, v, gamma become +22 %, -10 %, +32 % (Gaussian: +8.6 %, +3.2 %,
+  +10.6 %) with skewness ~ -1.7 against the MC's -0.15..+0.36.  A diagonal-only variant (per
+  whitened coordinate) fails earlier (v std +14 % at 2000 s).  So no closure beats the Gaussian one
+  over the whole horizon here; the Gaussian closure stays.
 * **shuttle, t = 500 s, std of gamma** (-2.2 %, z = -3.1): gamma has excess kurtosis 0.49 there,
   which widens the std's standard error by sqrt(1 + 0.49/2) = 1.12; with it z = -2.8.
 
