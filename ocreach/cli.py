@@ -59,7 +59,9 @@ def cmd_run(args) -> int:
     out = Path(args.out or f"out/{problem.id}_{args.method}")
     out.mkdir(parents=True, exist_ok=True)
     result.save(out / "result.npz")
-    planes = [d for d in (problem.position_dims[:2], problem.velocity_dims[:2]) if len(d) == 2]
+    planes = list(problem.planes().values())
+    if len(problem.position_dims) >= 3:  # spatial: the x-z view too (halo orbits live in it)
+        planes.insert(1, (problem.position_dims[0], problem.position_dims[2]))
     for dims in planes:
         plot_projections_over_time(result, problem, out / f"projection_{dims[0]}_{dims[1]}.png",
                                    dims=dims)

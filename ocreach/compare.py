@@ -43,7 +43,7 @@ class Comparison:
 
     def table(self) -> str:
         """Markdown table of the metrics."""
-        planes = [("pos", self.problem.position_dims[:2]), ("vel", self.problem.velocity_dims[:2])]
+        planes = list(self.problem.planes().items())
         head = ["method", "runtime [s]", "samples/sets"]
         for tag, _ in planes:
             head += [f"support err ({tag})", f"area ({tag})", f"MC covered ({tag})"]
@@ -110,7 +110,7 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
     truth = np.vstack(real)
 
     metrics: dict[str, dict[str, Any]] = {}
-    planes = {"pos": problem.position_dims[:2], "vel": problem.velocity_dims[:2]}
+    planes = problem.planes()
     dirs = circle_directions(64)
     for name, res in results.items():
         entry: dict[str, Any] = {"runtime_s": runtimes[name],
@@ -118,8 +118,6 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
                                  int(np.asarray(res.points[-1]).shape[0]),
                                  "planes": {}}
         for tag, dims in planes.items():
-            if len(dims) < 2:
-                continue
             support, area, contains = _projected_estimate(res, dims)
             tp = truth[:, list(dims)]
             h_true = np.max(tp @ dirs.T, axis=0)
@@ -149,7 +147,7 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
     for name, res in cmp.results.items():
         paths[f"result_{name}"] = res.save(out / f"{cmp.problem.id}_{name}.npz")
     p = cmp.problem
-    planes = [d for d in (p.position_dims[:2], p.velocity_dims[:2]) if len(d) == 2]
+    planes = list(p.planes().values())
     fig, axes = plt.subplots(1, len(planes), figsize=(6 * len(planes), 5), squeeze=False)
     colors = plt.get_cmap("tab10")
     mc_end = cmp.results["mc"].points[-1] if "mc" in cmp.results else None
@@ -178,3 +176,4 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
     paths["metrics"] = atomic_write_text(out / "metrics.json",
                                          json.dumps(_jsonable(cmp.metrics), indent=2))
     return paths
+

@@ -203,6 +203,23 @@ class Problem:
     def param(self, name: str) -> float:
         return self.model.param(name, self.params)
 
+    def planes(self) -> dict[str, tuple[int, int]]:
+        """Named 2-D projection planes used by metrics and figures.
+
+        ``"pos"``: the first two position dims, ``"vel"``: the first two velocity dims; a plane
+        equal to an earlier one is dropped (e.g. Van der Pol, whose position and velocity dims are
+        both ``(0, 1)``), and ``{"x": (0, 1)}`` is used when neither has two dims (e.g. a user
+        problem with a 2-state model and default dims).
+        """
+        out: dict[str, tuple[int, int]] = {}
+        for tag, dims in (("pos", self.position_dims), ("vel", self.velocity_dims)):
+            d = tuple(int(i) for i in dims[:2])
+            if len(d) == 2 and d not in out.values():
+                out[tag] = d  # type: ignore[assignment]
+        if not out and self.model.n_x >= 2:
+            out["x"] = (0, 1)
+        return out
+
     def options_for(self, method: str) -> dict[str, Any]:
         return dict(self.method_options.get(method, {}))
 
