@@ -103,3 +103,40 @@ def test_console_script_entry_point():
     proc = subprocess.run([sys.executable, "-m", "ocreach.cli", "list"], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0 and "vdp" in proc.stdout
+
+
+def test_planes_fallback_and_dedup():
+    assert _vdp().planes() == {"x": (0, 1)}  # 2-state model, default dims (0,) and (1,)
+    assert ocreach.get_problem("vdp").planes() == {"pos": (0, 1)}
+    assert ocreach.get_problem("dro").planes() == {"pos": (0, 1), "vel": (2, 3)}
+
+
+def test_compare_backward_two_state_problem_has_finite_metrics():
+    """A 2-state user problem on a backward grid: every metric finite (was silent NaN)."""
+    import ocreach.compare  # noqa: F401  (rebinding ocreach.compare must not break the call below)
+
+    p = _vdp(grid=np.linspace(1.0, 0.0, 11))
+    cmp = ocreach.compare(p, ["mc", "ode"], options={"mc": {"samples": 60}, "ode": {"samples": 20}},
+                          progress=False)
+    for name in ("mc", "ode"):
+        plane = cmp.metrics[name]["planes"]["x"]
+        assert np.isfinite([plane["support_err"], plane["area"], plane["mc_covered"]]).all()
+        assert cmp.results[name].times[-1] == 0.0
+    assert "nan" not in cmp.table()
+    # independent check of the backward endpoints: reverse-time scipy integration of one sample
+    from scipy.integrate import solve_ivp
+    r = cmp.results["mc"]
+    u = r.controls[0]
+    x = p.x0.copy()
+    for k in range(p.n_segments):
+        sol = solve_ivp(lambda t, y: [y[1], (1 - y[0] ** 2) * y[1] - y[0] + 0.05 * u[k, 0]],
+                        (p.grid[k], p.grid[k + 1]), x, rtol=1e-12, atol=1e-13, method="DOP853")
+        x = sol.y[:, -1]
+    assert np.abs(x - r.points[-1][0]).max() < 1e-8
+
+
+def test_cli_run_vdp_writes_one_figure_per_distinct_plane(tmp_path, capsys):
+    out = tmp_path / "vdp"
+    assert main(["run", "vdp", "--method", "mc", "--out", str(out), "--set", "samples=20"]) == 0
+    assert [f.name for f in out.glob("projection_*.png")] == ["projection_0_1.png"]
+    assert "and 1 figure(s)" in capsys.readouterr().out
