@@ -83,8 +83,13 @@ def cmd_compare(args) -> int:
     prob_over, opts = _split_options(args.problem, _parse_sets(args.set))
     problem = get_problem(args.problem, **prob_over)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    per_method = {m: {k.split(".", 1)[1]: v for k, v in opts.items() if k.startswith(m + ".")}
-                  for m in methods}
+    per_method: dict[str, dict] = {m: {} for m in methods}
+    for key, value in opts.items():
+        name, _, opt = key.partition(".")
+        if name not in per_method or not opt:
+            raise OcreachError(f"--set {key}={value!r}: compare options are METHOD.KEY=VALUE with "
+                               f"METHOD one of {methods}, or problem.KEY=VALUE")
+        per_method[name][opt] = value
     cmp = compare(problem, methods, options=per_method, truth_samples=args.truth_samples)
     print(problem.summary())
     print()

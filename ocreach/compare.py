@@ -29,7 +29,8 @@ import numpy as np
 from ocreach.geometry import (circle_directions, convex_hull_polygon, in_convex_hull, outline_area,
                               polygon_area)
 from ocreach.problem import Problem, get_problem
-from ocreach.reach.base import reach
+from ocreach.errors import ProblemError
+from ocreach.reach.base import method_class, reach
 from ocreach.reach.result import ReachResult, _jsonable, atomic_write_bytes, atomic_write_text
 
 
@@ -90,6 +91,12 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
 
     problem = problem if isinstance(problem, Problem) else get_problem(problem)
     options = options or {}
+    for name in methods:  # unknown names fail before any work is done
+        method_class(name)
+    unused = sorted(set(options) - set(methods))
+    if unused:
+        raise ProblemError(f"options given for method(s) {unused} that are not compared; "
+                           f"methods: {list(methods)}")
     results: dict[str, ReachResult] = {}
     runtimes: dict[str, float] = {}
     errors: dict[str, str] = {}

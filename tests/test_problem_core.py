@@ -140,3 +140,13 @@ def test_cli_run_vdp_writes_one_figure_per_distinct_plane(tmp_path, capsys):
     assert main(["run", "vdp", "--method", "mc", "--out", str(out), "--set", "samples=20"]) == 0
     assert [f.name for f in out.glob("projection_*.png")] == ["projection_0_1.png"]
     assert "and 1 figure(s)" in capsys.readouterr().out
+
+
+def test_compare_rejects_bad_names_and_stray_options(capsys):
+    assert main(["compare", "dro", "--methods", "mc,ode", "--set", "samples=50"]) == 2
+    assert "METHOD.KEY=VALUE" in capsys.readouterr().err
+    assert main(["compare", "dro", "--methods", "mc,ode", "--set", "stt.h_max=3"]) == 2
+    with pytest.raises(UnknownNameError, match="unknown method 'magic'"):
+        ocreach.compare("vdp", ["mc", "magic"], progress=False)
+    with pytest.raises(ProblemError, match="not compared"):
+        ocreach.compare("vdp", ["mc"], options={"ode": {"samples": 3}}, progress=False)
