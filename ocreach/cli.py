@@ -90,12 +90,17 @@ def cmd_compare(args) -> int:
             raise OcreachError(f"--set {key}={value!r}: compare options are METHOD.KEY=VALUE with "
                                f"METHOD one of {methods}, or problem.KEY=VALUE")
         per_method[name][opt] = value
-    cmp = compare(problem, methods, options=per_method, truth_samples=args.truth_samples)
+    out = args.out or f"out/compare_{problem.id}"
+    cmp = compare(problem, methods, options=per_method, truth_samples=args.truth_samples,
+                  out_dir=out)
     print(problem.summary())
     print()
     print(cmp.table())
-    paths = write_comparison(cmp, args.out or f"out/compare_{problem.id}")
+    paths = write_comparison(cmp, out)
     print(f"\nwrote {paths['table']}, {paths['metrics']} and {paths['figure']}")
+    if cmp.interrupted:
+        print("interrupted; the finished methods are in the table and files above", file=sys.stderr)
+        return 130
     return 1 if cmp.errors else 0
 
 

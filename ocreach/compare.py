@@ -43,6 +43,7 @@ class Comparison:
     metrics: dict[str, dict[str, Any]]
     truth: np.ndarray
     errors: dict[str, str] = field(default_factory=dict)
+    interrupted: bool = False
 
     def table(self) -> str:
         """Markdown table of the metrics."""
@@ -80,12 +81,16 @@ def _projected_estimate(result: ReachResult, dims: Sequence[int]):
 
 
 def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str, dict] | None = None,
-            truth_samples: int = 2000, seed: int = 0, progress: bool = True) -> Comparison:
+            truth_samples: int = 2000, seed: int = 0, progress: bool = True,
+            out_dir: str | Path | None = None) -> Comparison:
     """Run ``methods`` on ``problem`` and compute the metrics of the module docstring.
 
     ``options`` maps a method name to its options.  Monte Carlo truth (``mc`` with
     ``truth_samples``) is run as well unless ``mc`` is among the methods.  A method that fails is
-    reported in ``Comparison.errors`` with its message, not swallowed silently.
+    reported in ``Comparison.errors`` with its message, not swallowed silently.  With ``out_dir``
+    each method's result is saved there (atomically) as soon as it finishes.  Ctrl-C stops the
+    remaining work; the methods that finished are kept, metrics are computed from them and
+    ``Comparison.interrupted`` is set.
     """
     from tqdm import tqdm
 
@@ -100,23 +105,37 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
     results: dict[str, ReachResult] = {}
     runtimes: dict[str, float] = {}
     errors: dict[str, str] = {}
+    interrupted = False
     for name in tqdm(list(methods), desc=f"compare {problem.id}", disable=not progress):
         t0 = time.perf_counter()
         try:
-            results[name] = reach(problem, name, **options.get(name, {}))
+            res = reach(problem, name, **options.get(name, {}))
         except KeyboardInterrupt:
+            errors[name] = "interrupted (Ctrl-C)"
+            interrupted = True
             break
         except Exception as exc:  # reported in the table and the return value, never silent
             errors[name] = f"{type(exc).__name__}: {exc}"
             continue
         runtimes[name] = time.perf_counter() - t0
+        results[name] = res
+        if out_dir is not None:
+            res.save(Path(out_dir) / _result_name(problem, name))
+    mc_end = None
     if "mc" in results:
-        truth_result = results["mc"]
-    else:
-        truth_result = reach(problem, "mc", samples=truth_samples, seed=seed + 1)
-    mc_end = np.asarray(truth_result.points[-1])
-    real = [mc_end] + [np.asarray(r.points[-1]) for r in results.values() if r.points is not None]
-    truth = np.vstack(real)
+        mc_end = np.asarray(results["mc"].points[-1])
+    elif not interrupted:
+        try:
+            mc_end = np.asarray(reach(problem, "mc", samples=truth_samples,
+                                      seed=seed + 1).points[-1])
+        except KeyboardInterrupt:
+            errors["mc (truth)"] = "interrupted (Ctrl-C)"
+            interrupted = True
+    real = ([] if mc_end is None else [mc_end]) + [
+        np.asarray(r.points[-1]) for r in results.values() if r.points is not None]
+    truth = np.vstack(real) if real else np.empty((0, problem.model.n_x))
+    if mc_end is None:
+        mc_end = np.empty((0, problem.model.n_x))
 
     metrics: dict[str, dict[str, Any]] = {}
     planes = problem.planes()
@@ -127,18 +146,25 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
                                  int(np.asarray(res.points[-1]).shape[0]),
                                  "planes": {}}
         for tag, dims in planes.items():
+            if truth.shape[0] == 0:  # interrupted before any sample existed: nothing to measure
+                continue
             support, area, contains = _projected_estimate(res, dims)
             tp = truth[:, list(dims)]
             h_true = np.max(tp @ dirs.T, axis=0)
             width = h_true + np.max(tp @ (-dirs).T, axis=0)
             err = (support(dirs) - h_true) / np.where(width > 0, width, 1.0)
-            covered = contains(mc_end[:, list(dims)])
+            covered = contains(mc_end[:, list(dims)]) if mc_end.shape[0] else np.array([np.nan])
             entry["planes"][tag] = {"support_err": float(np.mean(err)),
                                     "support_err_max": float(np.max(np.abs(err))),
                                     "area": float(area), "mc_covered": float(np.mean(covered)),
                                     "dims": list(dims)}
         metrics[name] = entry
-    return Comparison(problem=problem, results=results, metrics=metrics, truth=truth, errors=errors)
+    return Comparison(problem=problem, results=results, metrics=metrics, truth=truth, errors=errors,
+                      interrupted=interrupted)
+
+
+def _result_name(problem: Problem, method: str) -> str:
+    return f"{problem.id}_{method}.npz"
 
 
 def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
@@ -154,7 +180,7 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
     for name, res in cmp.results.items():
-        paths[f"result_{name}"] = res.save(out / f"{cmp.problem.id}_{name}.npz")
+        paths[f"result_{name}"] = res.save(out / _result_name(cmp.problem, name))
     p = cmp.problem
     planes = list(p.planes().values())
     fig, axes = plt.subplots(1, len(planes), figsize=(6 * len(planes), 5), squeeze=False)

@@ -150,3 +150,26 @@ def test_compare_rejects_bad_names_and_stray_options(capsys):
         ocreach.compare("vdp", ["mc", "magic"], progress=False)
     with pytest.raises(ProblemError, match="not compared"):
         ocreach.compare("vdp", ["mc"], options={"ode": {"samples": 3}}, progress=False)
+
+
+def test_compare_ctrl_c_keeps_finished_work(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during the second method: the first result, the table and the figure are written."""
+    cmp_mod = sys.modules["ocreach.compare"] if "ocreach.compare" in sys.modules else None
+    if cmp_mod is None:
+        import importlib
+        cmp_mod = importlib.import_module("ocreach.compare")
+    real_reach = cmp_mod.reach
+
+    def fake_reach(problem, method, **kw):
+        if method == "ode":
+            raise KeyboardInterrupt
+        return real_reach(problem, method, **kw)
+
+    monkeypatch.setattr(cmp_mod, "reach", fake_reach)
+    out = tmp_path / "cmp"
+    rc = main(["compare", "vdp", "--methods", "mc,ode", "--out", str(out), "--set", "mc.samples=40"])
+    assert rc == 130
+    assert (out / "vdp_mc.npz").is_file() and not (out / "vdp_ode.npz").exists()
+    assert (out / "comparison.md").is_file() and (out / "overlay.png").is_file()
+    assert "interrupted" in (out / "comparison.md").read_text()
+    assert "interrupted" in capsys.readouterr().err
