@@ -130,3 +130,17 @@ def test_method_errors(dro):
         ocreach.reach(dro, "mc", samples=0)
     with pytest.raises(ocreach.ProblemError, match="no option"):
         ocreach.reach(dro, "mc", samplez=10)
+
+
+@pytest.mark.parametrize("method", ["mc", "ode"])
+@pytest.mark.parametrize("bad,match", [
+    ({"samples": 2.5}, "samples must be an integer >= 1; got 2.5"),
+    ({"samples": True}, "samples must be an integer"),
+    ({"seed": -1}, "seed must be an integer >= 0"),
+    ({"rtol": 0.1}, r"rtol must be in \(0, 1e-3\)"),
+    ({"atol": float("nan")}, "atol must be a finite number >= 0"),
+])
+def test_sampling_options_are_validated(method, bad, match):
+    from ocreach.reach.base import method_class
+    with pytest.raises(ocreach.ProblemError, match=match):
+        method_class(method)(**bad)

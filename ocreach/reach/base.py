@@ -66,6 +66,41 @@ class Method:
         }
 
 
+def _as_count(name: str, value: Any, minimum: int) -> int:
+    """``value`` as an int ``>= minimum`` (integral floats such as ``1e3`` from the CLI accepted)."""
+    ok = not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+    if ok and np.isfinite(value) and float(value) == int(value) and int(value) >= minimum:
+        return int(value)
+    raise ProblemError(f"{name} must be an integer >= {minimum}; got {value!r}")
+
+
+@dataclasses.dataclass
+class SamplingOptions:
+    """Options every sample-based method shares (``mc``, ``ode``; ``ffoe``/``ole`` can adopt it).
+
+    ``samples``: number of trajectories (integer >= 1); ``seed``: RNG seed (integer >= 0, or
+    None for fresh entropy); ``rtol``: relative integrator tolerance in (0, 1e-3); ``atol``:
+    absolute tolerance (finite, >= 0).  Subclasses add fields and call ``super().__post_init__()``.
+    """
+
+    samples: int = 100
+    seed: int | None = 0
+    rtol: float = 1e-10
+    atol: float = 1e-12
+
+    def __post_init__(self) -> None:
+        self.samples = _as_count("samples", self.samples, 1)
+        if self.seed is not None:
+            self.seed = _as_count("seed", self.seed, 0)
+        rtol = float(self.rtol)
+        if not 0 < rtol < 1e-3:
+            raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
+        atol = float(self.atol)
+        if not (np.isfinite(atol) and atol >= 0):
+            raise ProblemError(f"atol must be a finite number >= 0; got {self.atol!r}")
+        self.rtol, self.atol = rtol, atol
+
+
 def _version() -> str:
     from ocreach import __version__
 

@@ -26,7 +26,7 @@ import numpy as np
 from ocreach.errors import ProblemError
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, Timer
+from ocreach.reach.base import Method, SamplingOptions, Timer
 from ocreach.reach.result import ReachResult
 
 
@@ -72,20 +72,9 @@ class ExtremalODE(Method):
     description = "extremal state-costate ODE with random initial costates (Foss Eq. 4, Lew et al.)"
 
     @dataclass
-    class Options:
-        """``samples``: number of extremals; ``seed``: RNG seed; ``rtol``, ``atol``: tolerances."""
-
-        samples: int = 100
-        seed: int = 0
-        rtol: float = 1e-10
-        atol: float = 1e-12
-
-        def __post_init__(self) -> None:
-            if int(self.samples) < 1:
-                raise ProblemError(f"samples must be >= 1; got {self.samples!r}")
-            self.samples = int(self.samples)
-            if not 0 < self.rtol < 1e-3:
-                raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
+    class Options(SamplingOptions):
+        """:class:`~ocreach.reach.base.SamplingOptions`: ``samples`` (extremals, default 100),
+        ``seed``, ``rtol``, ``atol``."""
 
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import integrate_batch

@@ -19,7 +19,7 @@ import numpy as np
 
 from ocreach.errors import ProblemError
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, Timer
+from ocreach.reach.base import Method, SamplingOptions, Timer
 from ocreach.reach.result import ReachResult
 
 LAWS = ("random", "constant", "bang")
@@ -59,26 +59,20 @@ class MonteCarlo(Method):
     description = "Monte Carlo: random admissible piecewise-constant controls (inner samples)"
 
     @dataclass
-    class Options:
-        """``samples``: number of trajectories; ``seed``: RNG seed; ``mix``: fractions of the
-        random / constant / bang-bang control laws; ``rtol``, ``atol``: integrator tolerances."""
+    class Options(SamplingOptions):
+        """:class:`~ocreach.reach.base.SamplingOptions` (``samples`` default 1000, ``seed``,
+        ``rtol``, ``atol``) plus ``mix``: fractions of the random / constant / bang-bang laws."""
 
         samples: int = 1000
-        seed: int = 0
         mix: tuple = (0.4, 0.2, 0.4)
-        rtol: float = 1e-10
-        atol: float = 1e-12
 
         def __post_init__(self) -> None:
-            if int(self.samples) < 1:
-                raise ProblemError(f"samples must be >= 1; got {self.samples!r}")
-            self.samples = int(self.samples)
+            super().__post_init__()
             mix = np.asarray(self.mix, dtype=float)
-            if mix.shape != (3,) or np.any(mix < 0) or mix.sum() <= 0:
-                raise ProblemError(f"mix must be three non-negative fractions {LAWS}; got {self.mix!r}")
+            if mix.shape != (3,) or not np.all(np.isfinite(mix)) or np.any(mix < 0) or mix.sum() <= 0:
+                raise ProblemError(f"mix must be three finite non-negative fractions for the laws "
+                                   f"{LAWS}, not all zero; got {self.mix!r}")
             self.mix = tuple(float(v) for v in mix)
-            if not 0 < self.rtol < 1e-3:
-                raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
 
     def solve(self, problem: Problem) -> ReachResult:
         if problem.stochastic is not None:
