@@ -249,19 +249,25 @@ class Model:
         """True if ``f = f0(x, t) + G(x, t) u`` (``df/du`` does not depend on ``u``)."""
         return not ca.depends_on(ca.jacobian(self.f, self.u), self.u)
 
-    def optimal_control_expression(self, lam: ca.SX, smooth: float = 0.0) -> ca.SX:
+    def optimal_control_expression(self, lam: ca.SX, smooth: float = 0.0,
+                                   kind: str | None = None) -> ca.SX:
         """``u* = argmin_{u in U} lam^T f(x, u, t)`` for control-affine models (Foss et al. Eq. 4).
 
-        Ball: ``u* = -G^T lam / ||G^T lam||``; box: ``u* = -sign(G^T lam)``.  ``smooth > 0``
+        ``kind`` is the admissible set (default: the model's ``control_set``).  Ball:
+        ``u* = -G^T lam / ||G^T lam||``; box: ``u* = -sign(G^T lam)``.  ``smooth > 0``
         regularises the switching (``sqrt(s^2 + smooth^2)`` / ``tanh(s/smooth)``) for Newton-type
-        solvers; ``smooth = 0`` is the exact law.
+        solvers; ``smooth = 0`` is the exact law.  A ``"free"`` (unbounded) set has no minimiser.
         """
+        kind = self.control_set if kind is None else kind
+        if kind not in ("ball", "box"):
+            raise ProblemError(f"the optimal control needs a bounded control set 'ball' or 'box'; "
+                               f"got {kind!r} (model {self.name})")
         if not self.control_affine:
             raise ProblemError(f"model {self.name} is not control-affine; the closed-form optimal "
                                "control needs f = f0(x, t) + G(x, t) u")
         G = ca.jacobian(self.f, self.u)
         s = ca.mtimes(G.T, lam)
-        if self.control_set == "ball":
+        if kind == "ball":
             norm = ca.sqrt(ca.sumsqr(s) + smooth**2)
             return -s / ca.fmax(norm, 1e-300)
         if smooth > 0:

@@ -64,8 +64,9 @@ def test_result_points_support_and_roundtrip(tmp_path, mc_result):
     assert back.meta["method"] == "mc"
 
 
-def _direct_support(problem, direction, n_seg=60, substeps=8):
-    """max d^T x(t_f) over piecewise-constant controls, ||u|| <= 1: multiple shooting, RK4, IPOPT."""
+def _direct_support(problem, direction, n_seg=60, substeps=8, box=False):
+    """max d^T x(t_f) over piecewise-constant controls, ||u|| <= 1 (or |u_i| <= 1 with ``box``):
+    multiple shooting, RK4, IPOPT."""
     m = problem.model
     t0, tf = problem.grid[0], problem.grid[-1]
     h = (tf - t0) / n_seg / substeps
@@ -82,7 +83,10 @@ def _direct_support(problem, direction, n_seg=60, substeps=8):
     opti.subject_to(X[:, 0] == problem.x0)
     for k in range(n_seg):
         opti.subject_to(X[:, k + 1] == step(X[:, k], U[:, k]))
-        opti.subject_to(ca.sumsqr(U[:, k]) <= 1)
+        if box:
+            opti.subject_to(opti.bounded(-1, U[:, k], 1))
+        else:
+            opti.subject_to(ca.sumsqr(U[:, k]) <= 1)
     opti.minimize(-ca.dot(direction, X[:, -1]))
     # warm start on the unforced trajectory pushed along the direction's velocity part
     opti.set_initial(U, 0.0)
@@ -144,3 +148,27 @@ def test_sampling_options_are_validated(method, bad, match):
     from ocreach.reach.base import method_class
     with pytest.raises(ocreach.ProblemError, match=match):
         method_class(method)(**bad)
+
+
+def test_ode_box_control_set_on_ball_model(dro):
+    """Problem with a box control set on the (ball) CR3BP model: bang-bang extremals that reach
+    the box-constrained direct optimum and exceed the ball's reach (corners have norm sqrt 2)."""
+    box = ocreach.Problem(id="dro-box", model=dro.model, x0=dro.x0, grid=dro.grid,
+                          control_set=ocreach.ControlSet("box", 2))
+    r = ocreach.reach(box, "ode", samples=2, seed=4)
+    assert r.meta["control_set"] == "box"
+    assert np.allclose(np.abs(r.controls), 1.0)
+    lam_f = np.asarray(r.meta["costate_final"])
+    for i in range(2):
+        d = -lam_f[i] / np.linalg.norm(lam_f[i])
+        best = _direct_support(box, d, box=True)
+        val = float(d @ r.points[-1][i])
+        assert best - 2.5e-3 <= val <= best + 2.5e-5, (i, val, best)
+        assert val > _direct_support(dro, d) + 1e-3  # more than the ball allows
+
+
+def test_ode_rejects_free_controls(dro):
+    free = ocreach.Problem(id="dro-free", model=dro.model, x0=dro.x0, grid=dro.grid,
+                           control_set=ocreach.ControlSet("free", 2))
+    with pytest.raises(ocreach.ProblemError, match="bounded control set"):
+        ocreach.reach(free, "ode", samples=2)

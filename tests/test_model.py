@@ -72,6 +72,10 @@ def test_optimal_control_law():
     assert float(fv([0, 0], [0.1, 0.5], v.p_default)) == -1.0
     assert float(fv([0, 0], [0.1, -0.5], v.p_default)) == 1.0
     assert m.control_affine and v.control_affine
+    fb = ca.Function("ub", [m.x, lam, m.p], [m.optimal_control_expression(lam, kind="box")])
+    assert np.array_equal(np.asarray(fb(np.zeros(4), l, m.p_default)).ravel(), [-1.0, -1.0])
+    with pytest.raises(ProblemError, match="bounded control set"):
+        m.optimal_control_expression(lam, kind="free")
 
 
 def test_variable_mass_model_consumes_mass():

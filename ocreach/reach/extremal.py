@@ -30,33 +30,40 @@ from ocreach.reach.base import Method, SamplingOptions, Timer
 from ocreach.reach.result import ReachResult
 
 
-def extremal_rhs(model: Model) -> ca.Function:
-    """``(y = [x; lam], t, p) -> dy/dt`` of Foss et al. Eq. 4, cached on the model."""
+def extremal_rhs(model: Model, kind: str | None = None) -> ca.Function:
+    """``(y = [x; lam], t, p) -> dy/dt`` of Foss et al. Eq. 4, cached on the model.
+
+    ``kind``: admissible control set ``"ball"`` or ``"box"`` (default: the model's).
+    """
+    kind = model.control_set if kind is None else kind
 
     def build():
         lam = ca.SX.sym("lam", model.n_x)
-        u_star = model.optimal_control_expression(lam)
+        u_star = model.optimal_control_expression(lam, kind=kind)
         f_fun = model.f_fun
         fx = f_fun(model.x, u_star, model.t, model.p)
         jac = ca.Function("fx", [model.x, model.u, model.t, model.p],
                           [ca.jacobian(model.f, model.x)])
         lam_dot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
         y = ca.vertcat(model.x, lam)
-        return ca.Function("extremal_rhs", [y, model.t, model.p], [ca.vertcat(fx, lam_dot)],
-                           ["y", "t", "a"], ["ydot"])
+        return ca.Function(f"extremal_rhs_{kind}", [y, model.t, model.p],
+                           [ca.vertcat(fx, lam_dot)], ["y", "t", "a"], ["ydot"])
 
-    return model._cached("extremal_rhs", build)
+    key = "extremal_rhs" if kind == model.control_set else ("extremal_rhs", kind)
+    return model._cached(key, build)
 
 
-def optimal_control_fun(model: Model) -> ca.Function:
-    """``(x, lam, t, p) -> u*`` (the Hamiltonian minimiser), cached on the model."""
+def optimal_control_fun(model: Model, kind: str | None = None) -> ca.Function:
+    """``(x, lam, t, p) -> u*`` (the Hamiltonian minimiser over ``kind``), cached on the model."""
+    kind = model.control_set if kind is None else kind
 
     def build():
         lam = ca.SX.sym("lam", model.n_x)
         return ca.Function("u_star", [model.x, lam, model.t, model.p],
-                           [model.optimal_control_expression(lam)])
+                           [model.optimal_control_expression(lam, kind=kind)])
 
-    return model._cached("u_star_fun", build)
+    key = "u_star_fun" if kind == model.control_set else ("u_star_fun", kind)
+    return model._cached(key, build)
 
 
 def unit_sphere(rng: np.random.Generator, samples: int, dim: int) -> np.ndarray:
@@ -81,15 +88,16 @@ class ExtremalODE(Method):
         from ocreach.reach.mc import initial_states
 
         model = problem.model
-        if problem.control_set.kind != model.control_set:
-            raise ProblemError(f"method 'ode' uses the model's control set {model.control_set!r}; "
-                               f"the problem asks for {problem.control_set.kind!r}")
+        kind = problem.control_set.kind
+        if kind not in ("ball", "box"):
+            raise ProblemError(f"method 'ode' needs a bounded control set ('ball' or 'box'); "
+                               f"problem {problem.id} has {kind!r} controls")
         opt = self.options
         rng = np.random.default_rng(opt.seed)
         timer = Timer()
         with timer("setup"):
-            rhs = extremal_rhs(model)
-            ufun = optimal_control_fun(model).map(opt.samples)
+            rhs = extremal_rhs(model, kind)
+            ufun = optimal_control_fun(model, kind).map(opt.samples)
             lam0 = unit_sphere(rng, opt.samples, model.n_x)
             x0 = initial_states(problem, opt.samples, rng)
         grid = problem.grid
@@ -107,6 +115,7 @@ class ExtremalODE(Method):
                                     rtol=opt.rtol, atol=opt.atol)
                 traj[:, k + 1], costates[:, k + 1] = y[:, :model.n_x], y[:, model.n_x:]
         meta = self.base_meta(problem, timer.times)
+        meta["control_set"] = kind
         meta["costate0"] = lam0
         meta["costate_final"] = costates[:, -1]
         meta["controls_note"] = ("continuous optimal control u*(lambda(t)); controls holds its "
