@@ -172,3 +172,17 @@ def test_ode_rejects_free_controls(dro):
                            control_set=ocreach.ControlSet("free", 2))
     with pytest.raises(ocreach.ProblemError, match="bounded control set"):
         ocreach.reach(free, "ode", samples=2)
+
+
+@pytest.mark.parametrize("mix,samples,expected", [
+    ((0.0, 0.5, 0.5), 3, None), ((0.0, 1.0, 0.0), 7, (0, 7, 0)), ((1, 1, 1), 10, None),
+])
+def test_mc_mix_counts_respect_zero_fractions(dro, mix, samples, expected):
+    from ocreach.reach.mc import sample_controls
+    _, law = sample_controls(dro, samples, np.random.default_rng(0), mix)
+    counts = np.bincount(law, minlength=3)
+    assert counts.sum() == samples
+    assert np.all(counts[np.asarray(mix) == 0] == 0)
+    assert np.all(np.abs(counts - np.asarray(mix) / np.sum(mix) * samples) < 1)
+    if expected is not None:
+        assert tuple(counts) == expected

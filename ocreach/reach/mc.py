@@ -30,8 +30,11 @@ def sample_controls(problem: Problem, samples: int, rng: np.random.Generator,
     """Admissible normalised controls ``(samples, K, n_u)`` and the law index of each sample."""
     K = problem.n_segments
     cs = problem.control_set
-    counts = np.floor(np.asarray(mix) / np.sum(mix) * samples).astype(int)
-    counts[0] += samples - counts.sum()
+    share = np.asarray(mix, dtype=float) / np.sum(mix) * samples
+    counts = np.floor(share).astype(int)
+    # the remainder goes to the largest fractional parts, never to a law whose fraction is 0
+    order = np.argsort(-(share - counts) - (share > 0))
+    counts[order[:samples - counts.sum()]] += 1
     law = np.repeat(np.arange(3), counts)
     u = np.empty((samples, K, cs.dim))
     n_r, n_c, n_b = counts
