@@ -442,16 +442,18 @@ def _cname(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name)
 
 
-def _check_grid(grid) -> np.ndarray:
+def check_grid(grid, name: str = "grid") -> np.ndarray:
+    """``grid`` as a finite, strictly monotone 1-D float array of >= 2 times, or a clear
+    :class:`ProblemError` (decreasing grids mean backward time)."""
     g = np.asarray(grid, dtype=float)
     if g.ndim != 1 or g.size < 2:
-        raise ProblemError(f"grid must be a 1-D array of at least 2 times; got shape {g.shape}")
+        raise ProblemError(f"{name} must be a 1-D array of at least 2 times; got shape {g.shape}")
     if not np.all(np.isfinite(g)):
-        raise ProblemError(f"grid must be finite; got {g!r}")
+        raise ProblemError(f"{name} must be finite; got {g!r}")
     d = np.diff(g)
     if not (np.all(d > 0) or np.all(d < 0)):
-        raise ProblemError("grid must be strictly increasing (or strictly decreasing for backward "
-                           f"time); got {g!r}")
+        raise ProblemError(f"{name} must be strictly increasing (or strictly decreasing for "
+                           f"backward time); got {g!r}")
     return g
 
 
@@ -500,7 +502,7 @@ def propagate(model: Model, x0, controls, grid, *, p=None, rtol: float = 1e-10,
     controls; with ``substeps > 0`` returns ``(states, dense_times (K*substeps+1,),
     dense_states (N, K*substeps+1, n_x))`` (leading ``N`` dropped likewise).
     """
-    g = _check_grid(grid)
+    g = check_grid(grid)
     k = g.size - 1
     x0a = model.validate_state(x0, "x0")
     single = x0a.ndim == 1
@@ -696,7 +698,7 @@ def stt(model: Model, x0, controls, grid, order: int, *, p=None, rtol: float = 1
     """
     if order not in (1, 2, 3):
         raise ProblemError(f"order must be 1, 2 or 3; got {order!r}")
-    g = _check_grid(grid)
+    g = check_grid(grid)
     x0a = model.validate_state(x0, "x0")
     if x0a.ndim != 1:
         raise ProblemError(f"stt takes one reference state x0 of shape ({model.n_x},); got {x0a.shape}")

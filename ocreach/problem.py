@@ -17,6 +17,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ocreach.errors import ProblemError, UnknownNameError
+from ocreach.flow import check_grid
 from ocreach.model import CONTROL_SETS, Model
 from ocreach.units import Units
 
@@ -164,15 +165,7 @@ class Problem:
         if self.x0.ndim != 1:
             raise ProblemError(f"x0 must be one state vector of length {self.model.n_x}; "
                                f"got shape {self.x0.shape}")
-        g = self.grid
-        if g.ndim != 1 or g.size < 2:
-            raise ProblemError(f"grid must be a 1-D array of at least 2 times; got shape {g.shape}")
-        if not np.all(np.isfinite(g)):
-            raise ProblemError(f"grid must be finite; got {g!r}")
-        dg = np.diff(g)
-        if not (np.all(dg > 0) or np.all(dg < 0)):
-            raise ProblemError("grid must be strictly increasing (or strictly decreasing for "
-                               f"backward time); got {g!r}")
+        check_grid(self.grid)
         if self.params.shape != (self.model.n_p,):
             raise ProblemError(f"params must have {self.model.n_p} entries "
                                f"{list(self.model.param_names)}; got shape {self.params.shape}")

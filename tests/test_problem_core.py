@@ -29,6 +29,12 @@ def test_problem_validation_errors():
         _vdp(grid=[0.0])
     with pytest.raises(ProblemError, match="params must have 2"):
         _vdp(params=[1.0])
+    with pytest.raises(ProblemError, match="grid must be finite"):
+        _vdp(grid=[0.0, np.inf])
+    with pytest.raises(ProblemError, match="strictly increasing"):
+        _vdp(grid=[0.0, 0.0, 1.0])
+    with pytest.raises(ProblemError, match="params must be finite"):
+        _vdp(params=[1.0, np.nan])
 
 
 def test_thrust_must_be_positive():
