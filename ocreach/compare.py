@@ -174,7 +174,7 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from ocreach.plot import axis_label, plot_result
+    from ocreach.plot import axis_label, plot_result, time_label
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -197,7 +197,7 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
         ax.set_ylabel(axis_label(p, dims[1]))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"{p.id}: final reachable-set estimates at t = {p.grid[-1]:g}")
+    fig.suptitle(f"{p.id}: final reachable-set estimates at {time_label(p, p.grid[-1])}")
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120)

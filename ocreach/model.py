@@ -61,6 +61,7 @@ class Model:
     control_set: str = "ball"
     units: Units | None = None
     description: str = ""
+    state_units: tuple[str, ...] = ()
     cache: dict = field(default_factory=dict, repr=False)
 
     # ------------------------------------------------------------------ construction
@@ -81,8 +82,12 @@ class Model:
         control_set: str = "ball",
         units: Units | None = None,
         description: str = "",
+        state_units: Sequence[str] | None = None,
     ) -> "Model":
-        """Validate shapes and build a model (the usual constructor)."""
+        """Validate shapes and build a model (the usual constructor).
+
+        ``state_units``: optional unit label per state (e.g. ``"DU"``, ``"DU/TU"``) for plots.
+        """
         t = ca.SX.sym("t") if t is None else t
         p = ca.SX.sym("p", 0) if p is None else p
         f = ca.SX(f)
@@ -99,6 +104,8 @@ class Model:
             control_names=_names("u", u.numel(), control_names, "control_names"),
             param_names=_names("p", p.numel(), param_names, "param_names"),
             control_set=control_set, units=units, description=description,
+            state_units=_names("", x.numel(), state_units, "state_units") if state_units is not None
+            else ("",) * x.numel(),
         )
 
     # ------------------------------------------------------------------ sizes

@@ -20,13 +20,18 @@ def _axes(ax):
 
 
 def axis_label(problem, dim: int) -> str:
-    """``"x [DU]"``-style label from the model's state names and the problem's units."""
-    name = problem.model.state_names[dim] if problem is not None else f"x{dim}"
-    units = getattr(problem, "units", None) if problem is not None else None
-    if units is None:
-        return name
-    unit = "DU" if dim in problem.position_dims else ("DU/TU" if dim in problem.velocity_dims else "")
-    return f"{name} [{unit}]" if unit else name
+    """``"x [DU]"``-style label from the model's state names and unit labels (``state_units``)."""
+    if problem is None:
+        return f"x{dim}"
+    model = problem.model
+    unit = model.state_units[dim] if dim < len(model.state_units) else ""
+    return f"{model.state_names[dim]} [{unit}]" if unit else model.state_names[dim]
+
+
+def time_label(problem, t: float) -> str:
+    """``"t = 3 TU"`` (the unit from the problem's units, if any)."""
+    units = getattr(problem, "units", None)
+    return f"t = {t:.3g}" + (f" {units.time_label}" if units is not None else "")
 
 
 def plot_result(result, ax=None, dims: Sequence[int] = (0, 1), k: int | Sequence[int] = -1,
@@ -72,10 +77,12 @@ def plot_projections_over_time(result, problem, path, dims: Sequence[int] = (0, 
     from ocreach.reach.result import atomic_write_bytes
 
     n = result.times.size
-    every = every or max(1, (n - 1) // 6)
-    ks = list(range(every, n, every))
-    if ks[-1] != n - 1:
-        ks.append(n - 1)
+    if every:
+        ks = list(range(every, n, every))
+        if not ks or ks[-1] != n - 1:
+            ks.append(n - 1)
+    else:  # about six evenly spaced times ending at the last one (no near-duplicate last pair)
+        ks = sorted(set(np.linspace(0, n - 1, min(n, 7)).round().astype(int).tolist()) - {0})
     fig, ax = plt.subplots(figsize=(6.5, 5.5))
     cmap = plt.get_cmap("viridis")
     if result.trajectories is not None:
@@ -84,7 +91,7 @@ def plot_projections_over_time(result, problem, path, dims: Sequence[int] = (0, 
             ax.plot(tr[j, :, 0], tr[j, :, 1], "-", lw=0.3, color="0.6", alpha=0.5)
     for i, k in enumerate(ks):
         plot_result(result, ax=ax, dims=dims, k=k, color=cmap(i / max(1, len(ks) - 1)),
-                    label=f"t = {result.times[k]:.3g}", show_points=result.points is not None)
+                    label=time_label(problem, result.times[k]), show_points=result.points is not None)
     ax.plot(*problem.x0[list(dims)], "k*", ms=9, label="x0")
     ax.set_xlabel(axis_label(problem, dims[0]))
     ax.set_ylabel(axis_label(problem, dims[1]))

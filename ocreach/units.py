@@ -14,13 +14,21 @@ class Units:
 
     ``length`` in metres per distance unit (DU), ``time`` in seconds per time unit (TU), ``mass``
     in kilograms per mass unit.  Foss et al. Table (Sec. 4): DU = 3.825e8 m, TU = 3.724e5 s;
-    Patel & Subbarao: l* = 3.844e5 km, t* = 375200 s.
+    Patel & Subbarao: l* = 3.844e5 km, t* = 375200 s.  ``length_label``/``time_label`` name
+    the model units in plots (``"DU"``/``"TU"``; ``"AU"`` for the heliocentric units).
     """
+
+    def state_labels(self, n_pos: int, extra: tuple[str, ...] = ()) -> tuple[str, ...]:
+        """Unit labels of a ``[position (n_pos); velocity (n_pos); extra]`` state."""
+        vel = f"{self.length_label}/{self.time_label}"
+        return (self.length_label,) * n_pos + (vel,) * n_pos + tuple(extra)
 
     length: float
     time: float
     mass: float = 1.0
     name: str = ""
+    length_label: str = "DU"
+    time_label: str = "TU"
 
     def __post_init__(self) -> None:
         check_positive("Units.length", self.length)
@@ -60,4 +68,5 @@ EARTH_MOON_PATEL = Units(length=3.844e8, time=375200.0, name="Earth-Moon (Patel 
 #: Heliocentric: 1 AU and the time unit that makes mu_sun = 1.
 AU = 1.495978707e11
 MU_SUN = 1.32712440018e20  # m^3/s^2
-SUN_AU = Units(length=AU, time=(AU**3 / MU_SUN) ** 0.5, name="heliocentric (AU, mu_sun = 1)")
+SUN_AU = Units(length=AU, time=(AU**3 / MU_SUN) ** 0.5, name="heliocentric (AU, mu_sun = 1)",
+               length_label="AU")

@@ -179,3 +179,12 @@ def test_compare_ctrl_c_keeps_finished_work(tmp_path, monkeypatch, capsys):
     assert (out / "comparison.md").is_file() and (out / "overlay.png").is_file()
     assert "interrupted" in (out / "comparison.md").read_text()
     assert "interrupted" in capsys.readouterr().err
+
+
+def test_axis_and_time_labels_carry_units():
+    from ocreach.plot import axis_label, time_label
+    em = ocreach.get_problem("earth-mars")
+    assert axis_label(em, 0) == "x [AU]" and axis_label(em, 4) == "vy [AU/TU]"
+    dro = ocreach.get_problem("dro")
+    assert axis_label(dro, 3) == "vy [DU/TU]" and time_label(dro, 3.0) == "t = 3 TU"
+    assert axis_label(ocreach.get_problem("vdp"), 1) == "x2"  # no units: no invented label

@@ -7,6 +7,8 @@ from ocreach.errors import ProblemError, check_positive
 from ocreach.model import Model
 from ocreach.units import G0, Units
 
+_ND = Units(length=1.0, time=1.0, name="non-dimensional")  # labels DU, DU/TU without units
+
 
 def cr3bp(
     mu: float,
@@ -54,7 +56,8 @@ def cr3bp(
             f"cr3bp-{kind}", ca.vertcat(pos, vel), u, f, p=ca.vertcat(mu_s, a_s),
             p_default=[mu, a_max], state_names=names, control_names=cnames,
             param_names=["mu", "a_max"], control_set=control_set, units=units,
-            description=f"{kind} CR3BP, mu = {mu}, thrust acceleration a_max * u")
+            description=f"{kind} CR3BP, mu = {mu}, thrust acceleration a_max * u",
+            state_units=(units or _ND).state_labels(d))
     if units is None or thrust is None or isp is None:
         raise ProblemError("variable_mass=True needs units, thrust (N) and isp (s)")
     check_positive("thrust", thrust)
@@ -70,4 +73,5 @@ def cr3bp(
         f"cr3bp-{kind}-mass", ca.vertcat(pos, vel, n), u, f, p=ca.vertcat(mu_s, T_s, c_s),
         p_default=[mu, T_nd, c_nd], state_names=names + ["n"], control_names=cnames,
         param_names=["mu", "T_max", "c_ex"], control_set=control_set, units=units,
-        description=f"{kind} CR3BP with inverse mass n = 1/m (1/kg), mu = {mu}")
+        description=f"{kind} CR3BP with inverse mass n = 1/m (1/kg), mu = {mu}",
+        state_units=units.state_labels(d, ("1/kg",)))

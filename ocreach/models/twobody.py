@@ -20,4 +20,5 @@ def twobody(*, mu: float = 1.0, a_max: float = 0.0, control_set: str = "ball",
         "twobody", ca.vertcat(r, v), u, f, p=ca.vertcat(mu_s, a_s), p_default=[mu, a_max],
         state_names=["x", "y", "z", "vx", "vy", "vz"], control_names=["ux", "uy", "uz"],
         param_names=["mu", "a_max"], control_set=control_set, units=units,
-        description="two-body problem with thrust acceleration a_max * u")
+        description="two-body problem with thrust acceleration a_max * u",
+        state_units=(units or Units(length=1.0, time=1.0)).state_labels(3))
