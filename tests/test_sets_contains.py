@@ -99,3 +99,14 @@ def test_casadi_containment_zonotope_qp():
     I = Interval([0, 0], [1, 2])
     ci = I.casadi_containment(ca.SX.sym("y", 2))
     assert np.allclose(ci.ubg, [1, 2]) and ci.xi is None
+
+
+def test_thin_zonotope_acute_vertex_not_inside_by_tolerance():
+    """Near an acute vertex a point far outside violates every facet by less than the tolerance;
+    membership must still follow the distance to the set (independent LP)."""
+    Z = Zonotope([0.0, 0.0], [[1.0, 1.0], [0.0, 1e-6]])  # vertex (2, 1e-6) with angle ~1e-6
+    pts = np.array([[2.05, 1e-6], [2.3, 1e-6], [2.0, 1e-6], [1.0, 0.5e-6], [-2.05, -1e-6]])
+    want = np.array([lp_in_zonotope(Z.c, Z.G, x) for x in pts])
+    assert want.tolist() == [False, False, True, True, False]
+    for method in ("auto", "halfspace", "lp"):
+        assert points_in_zonotope(Z, pts, method=method).tolist() == want.tolist()

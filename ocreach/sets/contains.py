@@ -139,7 +139,11 @@ def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto") 
 
     ``method``: ``'auto'`` (halfspaces when there are at most ``MAX_FACET_SUBSETS`` facet subsets,
     else certificates + batched LP), ``'halfspace'``, ``'lp'`` (batched LP for every point).
-    ``tol`` is an absolute tolerance in the set's units (relative to max(1, sum|G|, |c|)).
+    ``tol`` is an absolute distance tolerance (l1 distance to the set) relative to
+    ``max(1, sum|G|, |c|)``: a point is reported inside iff it lies within that distance.  The
+    halfspace test alone cannot give this meaning (near an acute vertex a point far outside violates
+    every facet by little), so points that pass the facets only thanks to the tolerance are
+    re-decided by the certificate/LP path.
     """
     n = Z.dim
     P, single = as_points("points", points, n)
@@ -148,33 +152,44 @@ def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto") 
     G = np.asarray(Z.G)
     G = G[:, np.any(G != 0, axis=0)]
     R = P - Z.c
-    scale = max(1.0, float(np.abs(G).sum()), float(np.abs(Z.c).max(initial=0.0)))
+    atol = tol * max(1.0, float(np.abs(G).sum()), float(np.abs(Z.c).max(initial=0.0)))
     if G.shape[1] == 0:
-        out = np.all(np.abs(R) <= tol * scale, axis=1)
+        out = np.all(np.abs(R) <= atol, axis=1)
         return bool(out[0]) if single else out
     hs = zonotope_halfspaces(Z) if method in ("auto", "halfspace") else None
     if method == "halfspace" and hs is None:
         raise SetError("points_in_zonotope: method='halfspace' needs a full-dimensional zonotope with few facets")
     if hs is not None:
         H, b = hs
-        out = np.all(P @ H.T <= b + tol * scale, axis=1)
+        viol = (P @ H.T - b).max(axis=1)
+        out = viol <= 0.0
+        band = np.flatnonzero((viol > 0.0) & (viol <= atol))
+        if band.size:
+            out[band] = _points_in_range_lp(G, R[band], atol, certify=True)
         return bool(out[0]) if single else out
-    # range of G: points off the range are outside
+    out = _points_in_range_lp(G, R, atol, certify=method == "auto")
+    return bool(out[0]) if single else out
+
+
+def _points_in_range_lp(G: np.ndarray, R: np.ndarray, atol: float, certify: bool) -> np.ndarray:
+    """Membership of the offsets ``R`` (N, n) in ``{G xi : |xi| <= 1}`` up to the l1 distance
+    ``atol``: off-range points are outside; then (optionally) exact certificates; the rest by the
+    batched LP of :func:`_lp_residual`."""
     U, s, _ = np.linalg.svd(G, full_matrices=False)
     rank = int(np.sum(s > 1e-12 * s[0]))
     Ur = U[:, :rank]
-    off = np.linalg.norm(R - (R @ Ur) @ Ur.T, axis=1) > tol * scale
-    out = np.zeros(P.shape[0], dtype=bool)
+    off = np.linalg.norm(R - (R @ Ur) @ Ur.T, axis=1) > atol
+    out = np.zeros(R.shape[0], dtype=bool)
     undecided = ~off
     Gr = Ur.T @ G  # (rank, h)
     Rr = R @ Ur  # (N, rank)
-    if method == "auto":
-        _certify(Gr, Rr, out, undecided, tol * scale)
+    if certify:
+        _certify(Gr, Rr, out, undecided, atol)
     idx = np.flatnonzero(undecided)
     for s0 in range(0, idx.size, LP_CHUNK):
         blk = idx[s0: s0 + LP_CHUNK]
-        out[blk] = _lp_residual(Gr, Rr[blk].T) <= tol * scale
-    return bool(out[0]) if single else out
+        out[blk] = _lp_residual(Gr, Rr[blk].T) <= atol
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
