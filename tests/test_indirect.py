@@ -233,3 +233,17 @@ def test_lunar_flyby_short_resimulates():
             x = sol.y[:, -1]
         assert np.max(np.abs(x - res.trajectories[j, -1])) < 1e-8
     assert np.all(np.abs(np.linalg.norm(res.controls, axis=-1) - 1) < 1e-12)  # T_mag = T_max (Eq. 18)
+
+
+def test_ole_initial_states_stay_on_uncertainty_sphere():
+    """Case 5 shortened (100 segments): OLE's backtracking blends laws; the blended initial state
+    must still lie on the 5000 km sphere (Eq. 21-23: C^0 = 0), not on a chord inside it, and a
+    direction only counts as converged when its plain (undamped) update changes the cost < tol."""
+    prob = get_problem("lunar-flyby-backward-uncertain", segments=100)
+    res = reach(prob, "ole", samples=12, max_iter=15)
+    off_km = np.linalg.norm(res.trajectories[:, 0, :3] - prob.x0[:3], axis=1) * prob.units.length / 1e3
+    assert np.allclose(off_km, 5000.0, rtol=1e-12), off_km
+    assert np.allclose(res.trajectories[:, 0, 3:], prob.x0[3:])
+    gap = res.meta["first_order_gap"]
+    assert np.all(gap >= -1e-12)   # Eq. 18 / 23 minimise the linearised cost: predicted gain >= 0
+    assert np.all(res.meta["iterations"][res.meta["converged"]] < 15)

@@ -102,6 +102,14 @@ def backward_sensitivities(Fx: np.ndarray, Fu: np.ndarray) -> tuple[np.ndarray, 
     return B, M
 
 
+def control_gradient(B: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """``F_u^{k T} lam^{k+1} = B_k^T lam^N`` with ``lam^N = -z-hat`` (Eq. 12, 14): the gradient of
+    the cost ``-z-hat . x^N`` w.r.t. each segment's control, ``(N, K, n_u)``."""
+    if B.ndim == 3:
+        return np.einsum("kiu,ni->nku", B, -directions, optimize=True)
+    return np.einsum("nkiu,ni->nku", B, -directions, optimize=True)
+
+
 def control_law(B: np.ndarray, lam_final: np.ndarray, control_set) -> np.ndarray:
     """Patel & Scheeres Eq. 18 for all directions and segments at once.
 
@@ -110,11 +118,7 @@ def control_law(B: np.ndarray, lam_final: np.ndarray, control_set) -> np.ndarray
     vector ``F_u^{k T} lam^{k+1} = B_k^T lam^N`` is minimised over the control set (full thrust
     along ``-F_T^T lam``).  Returns normalised controls ``(N, K, n_u)``.
     """
-    if B.ndim == 3:
-        G = np.einsum("kiu,ni->nku", B, lam_final, optimize=True)
-    else:
-        G = np.einsum("nkiu,ni->nku", B, lam_final, optimize=True)
-    return control_set.argmin(G)
+    return control_set.argmin(control_gradient(B, -lam_final))
 
 
 # ------------------------------------------------------------------------------ initial manifolds
@@ -385,9 +389,11 @@ class OLE(FFOE):
 
     @dataclass
     class Options(FFOE.Options):
-        """FFOE options plus ``tol`` (cost change, model units, at which a direction stops),
-        ``max_iter`` and ``backtrack`` (halvings of a blended control step when an update lowers
-        the cost; 0 gives the paper's plain iteration)."""
+        """FFOE options plus ``tol`` (change of the cost under the plain, undamped update, model
+        units, at which a direction counts as converged: the paper's criterion), ``max_iter`` and
+        ``backtrack`` (halvings of a blended control step when an update lowers the cost; 0 gives
+        the paper's plain iteration).  ``meta["first_order_gap"]`` is the gain the last plain
+        update predicted on its linearisation (zero at a multi-stage PMP extremal)."""
 
         tol: float = 1e-9
         max_iter: int = 50
@@ -424,6 +430,7 @@ class OLE(FFOE):
         iters = np.zeros(N, dtype=int)
         active = np.ones(N, dtype=bool)
         stalled = np.zeros(N, dtype=bool)
+        gap = np.full(N, np.nan)
         history = [J.copy()]
         for _ in range(opt.max_iter):
             idx = np.flatnonzero(active)
@@ -438,12 +445,19 @@ class OLE(FFOE):
             with timer("powered_propagation"):
                 traj_new = propagate(model, X_new, U_new, grid, p=p, rtol=opt.rtol, atol=opt.atol)
             J_new = _costs(dirs[idx], traj_new[:, -1])
+            # first-order gain the plain update predicts on the current linearisation (>= 0; zero
+            # exactly at a fixed point of Eq. 18 / 23 / 26, i.e. a multi-stage PMP extremal)
+            gap[idx] = (np.einsum("nku,nku->n", control_gradient(B_a, dirs[idx]), U[idx] - U_new)
+                        + np.einsum("ni,ni->n", lam_new, traj[idx, 0] - X_new))
+            # convergence is judged on the plain (undamped) update, the paper's criterion: a tiny
+            # damped step from the backtracking below must not count as convergence
+            change = np.abs(J_new - J[idx])
             if opt.backtrack > 0:
                 with timer("backtracking"):
-                    U_new, traj_new, J_new = self._backtrack(problem, p, dirs[idx], U[idx], traj[idx],
-                                                             J[idx], U_new, traj_new, J_new)
+                    U_new, traj_new, J_new, lam_new = self._backtrack(
+                        problem, p, manifold, dirs[idx], U[idx], traj[idx], J[idx], lam0[idx],
+                        U_new, traj_new, J_new, lam_new)
             keep = J_new >= J[idx] - opt.tol if opt.backtrack > 0 else np.ones(idx.size, bool)
-            change = np.abs(J_new - J[idx])
             upd = idx[keep]
             U[upd], traj[upd], lam0[upd], J[upd] = U_new[keep], traj_new[keep], lam_new[keep], J_new[keep]
             iters[idx] += 1
@@ -453,6 +467,7 @@ class OLE(FFOE):
         meta = self.base_meta(problem, timer.times)
         meta.update(directions=dirs, costate0=lam0, cost=J, cost_ffoe=J_ffoe, iterations=iters,
                     converged=~active & ~stalled, stalled=stalled, cost_history=np.array(history), params=p,
+                    first_order_gap=gap,
                     reference_final=ref.states[-1],
                     controls_note="piecewise-constant normalised controls; re-simulate with "
                                   "flow.propagate(model, traj[:, 0], controls, grid, p=meta['params'])")
@@ -460,9 +475,11 @@ class OLE(FFOE):
                            controls=U, trajectories=traj, meta=meta)
 
 
-    def _backtrack(self, problem, p, dirs, U, traj, J, U_new, traj_new, J_new):
+    def _backtrack(self, problem, p, manifold, dirs, U, traj, J, lam0, U_new, traj_new, J_new, lam_new):
         """Where an update lowered the cost, try blended laws ``normalise((1-a) U + a U_new)``
-        with ``a = 1/2, 1/4, ...`` (a line search on the control sphere; not in the paper)."""
+        with ``a = 1/2, 1/4, ...`` (a line search on the control sphere; not in the paper).  The
+        initial state of a blended step comes from the blended initial costate through the
+        manifold (Eq. 23 / 26), so it stays on the ellipsoid / Delta-V sphere."""
         from ocreach.flow import propagate
 
         opt = self.options
@@ -473,11 +490,12 @@ class OLE(FFOE):
                 break
             alpha *= 0.5
             Ub = problem.control_set.argmin(-((1 - alpha) * U[worse] + alpha * U_new[worse]))
-            x0b = (1 - alpha) * traj[worse, 0] + alpha * traj_new[worse, 0]
+            lb = (1 - alpha) * lam0[worse] + alpha * lam_new[worse]
+            x0b = manifold.apply(problem.x0, lb) if manifold.active else traj[worse, 0]
             tb = propagate(problem.model, x0b, Ub, problem.grid, p=p, rtol=opt.rtol, atol=opt.atol)
             Jb = _costs(dirs[worse], tb[:, -1])
             better = Jb > J_new[worse]
             w = worse[better]
-            U_new[w], traj_new[w], J_new[w] = Ub[better], tb[better], Jb[better]
+            U_new[w], traj_new[w], J_new[w], lam_new[w] = Ub[better], tb[better], Jb[better], lb[better]
             worse = worse[Jb < J[worse] - opt.tol]
-        return U_new, traj_new, J_new
+        return U_new, traj_new, J_new, lam_new
