@@ -118,6 +118,11 @@ class ExtremalODE(Method):
         meta["control_set"] = kind
         meta["costate0"] = lam0
         meta["costate_final"] = costates[:, -1]
+        # outward normal of the endpoint: -lam(t_f) forward; in backward time (t_f < t_0) the
+        # same equations describe the extremals with costate -lam, so the normal is +lam(t_f)
+        lam_f = costates[:, -1]
+        normal = lam_f if problem.backward else -lam_f
+        meta["outward_normal"] = normal / np.linalg.norm(normal, axis=1, keepdims=True)
         meta["controls_note"] = ("continuous optimal control u*(lambda(t)); controls holds its "
                                  "value at each segment start; re-simulate with extremal_rhs")
         return ReachResult(times=grid, points=[traj[:, k] for k in range(K + 1)],
