@@ -13,16 +13,10 @@ from ocreach.flow import integrate_batch, propagate, stm, stt
 from ocreach.model import Model
 from ocreach.problem import ControlSet, Problem, Reference, get_problem, list_problems, load_problem_file
 from ocreach.reach import ReachResult, available_methods, load, reach
+from ocreach.compare import compare  # noqa: E402  (the function, not the module)
 from ocreach.units import Units
 
 __version__ = "0.1.0"
-
-
-def compare(problem, methods, **kwargs):
-    """Run several methods on one problem and tabulate them (see :mod:`ocreach.compare`)."""
-    from ocreach.compare import compare as _compare
-
-    return _compare(problem, methods, **kwargs)
 
 
 __all__ = [

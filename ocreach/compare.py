@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import io
 import json
-import sys
 import time
-import types
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -212,15 +210,3 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
                                          json.dumps(_jsonable(cmp.metrics), indent=2))
     return paths
 
-
-class _CallableModule(types.ModuleType):
-    """Importing ``ocreach.compare`` (the CLI does) rebinds the package attribute
-    ``ocreach.compare`` from the lazy wrapper function to this module; calling the module keeps
-    the documented ``ocreach.compare(problem, methods)`` working either way.  (The clean fix is an
-    eager ``from ocreach.compare import compare`` in ``ocreach/__init__.py``.)"""
-
-    def __call__(self, problem, methods, **kwargs):
-        return compare(problem, methods, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

@@ -188,3 +188,11 @@ def test_axis_and_time_labels_carry_units():
     dro = ocreach.get_problem("dro")
     assert axis_label(dro, 3) == "vy [DU/TU]" and time_label(dro, 3.0) == "t = 3 TU"
     assert axis_label(ocreach.get_problem("vdp"), 1) == "x2"  # no units: no invented label
+
+
+def test_package_compare_is_the_function_after_submodule_import():
+    import importlib
+
+    importlib.import_module("ocreach.compare")
+    importlib.import_module("ocreach.cli")
+    assert callable(ocreach.compare) and ocreach.compare.__module__ == "ocreach.compare"
