@@ -226,3 +226,25 @@ def test_outline_pieces_cover_samples():
     for P in polys:
         inside |= Path(P).contains_points(pts, radius=1e-9) | Path(P[::-1]).contains_points(pts, radius=1e-9)
     assert inside.all()
+
+
+def test_merge_is_exact_under_hash_collisions(monkeypatch):
+    """With a deliberately colliding hash (key = total degree) the exact re-check must still keep
+    different monomials apart: sum, compact and tensor map agree with direct evaluation."""
+    import ocreach.sets.polyzonotope as pzmod
+
+    monkeypatch.setattr(pzmod, "_hash_weights", lambda p: np.ones((2, p), dtype=np.int64))
+    rng = np.random.default_rng(11)
+    ids = new_ids(3)
+    a = PolyZonotope(rng.normal(size=2), rng.normal(size=(2, 6)), None, rng.integers(0, 3, size=(3, 6)), ids)
+    b = PolyZonotope(rng.normal(size=2), rng.normal(size=(2, 5)), None, rng.integers(0, 3, size=(3, 5)), ids[::-1])
+    vals = factor_dict(rng, ids, 25)
+    s = a + b
+    assert np.unique(s.E, axis=1).shape[1] == s.n_dependent
+    assert np.allclose(pointwise(s, vals), pointwise(a, vals) + pointwise(b, vals))
+    for order in (2, 3):
+        T = rng.normal(size=(2,) + (2,) * order)
+        out = tensor_map(T, a)
+        sa = pointwise(a, vals)
+        want = np.einsum("iab,na,nb->ni", T, sa, sa) if order == 2 else np.einsum("iabc,na,nb,nc->ni", T, sa, sa, sa)
+        assert np.allclose(pointwise(out, vals), want)

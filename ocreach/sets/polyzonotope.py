@@ -13,7 +13,7 @@ from __future__ import annotations
 import heapq
 import itertools
 from math import comb
-from typing import Any
+from typing import Any, Callable, Union
 
 import numpy as np
 
@@ -42,11 +42,28 @@ def monomial_keys(E: np.ndarray) -> np.ndarray:
     return E.T @ _hash_weights(E.shape[0]).T
 
 
-def merge_monomials(G: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sum the generator columns with equal monomial keys.
+Exponents = Union[np.ndarray, Callable[[np.ndarray], np.ndarray], None]
+
+#: sorted positions compared per block by the exact re-check of :func:`merge_monomials`
+_CHECK_BLOCK = 1 << 18
+
+
+def _exponent_columns(exponents: Exponents, cols: np.ndarray) -> np.ndarray:
+    if callable(exponents):
+        return np.asarray(exponents(cols), dtype=np.int64)
+    return np.asarray(exponents, dtype=np.int64)[:, cols]
+
+
+def merge_monomials(G: np.ndarray, keys: np.ndarray, exponents: Exponents = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sum the generator columns with equal monomial keys (Kochdumper & Althoff's merge of equal
+    exponent columns, used by the exact sum and the tensor map, Foss et al. Eq. 22).
 
     Returns ``(G_merged, rep)`` where ``rep`` indexes one original column per merged group.
-    Sorting based: O(h log h), no Python loop.
+    Sorting based: O(h log h), no Python loop over generators.  ``exponents`` (the (p, h) exponent
+    matrix, or a callable giving the exponent columns of given column indices) makes the grouping
+    exact: every column is compared with its group's representative (in blocks), and if the hash
+    ever put two different monomials together the grouping is redone by ``np.unique`` on the
+    exponent columns.  Without it the result relies on the 128-bit hash alone.
     """
     h = keys.shape[0]
     if h == 0:
@@ -56,8 +73,27 @@ def merge_monomials(G: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, np.nda
     new = np.ones(h, dtype=bool)
     new[1:] = np.any(ks[1:] != ks[:-1], axis=1)
     starts = np.flatnonzero(new)
+    rep = order[starts]
+    if exponents is not None and starts.size < h and not _groups_exact(exponents, order, new, rep):
+        full = _exponent_columns(exponents, np.arange(h))
+        _, inv = np.unique(full, axis=1, return_inverse=True)
+        order = np.argsort(inv.ravel(), kind="stable")
+        new[1:] = np.diff(inv.ravel()[order]) != 0
+        starts = np.flatnonzero(new)
+        rep = order[starts]
     Gm = np.add.reduceat(G[:, order], starts, axis=1) if G.shape[0] else np.zeros((0, starts.size))
-    return Gm, order[starts]
+    return Gm, rep
+
+
+def _groups_exact(exponents: Exponents, order: np.ndarray, new: np.ndarray, rep: np.ndarray) -> bool:
+    """Do all columns of each hash group have the exponents of the group's representative?"""
+    gid = np.cumsum(new) - 1
+    dup = np.flatnonzero(~new)  # sorted positions that were merged into an earlier column
+    for s0 in range(0, dup.size, _CHECK_BLOCK):
+        blk = dup[s0: s0 + _CHECK_BLOCK]
+        if not np.array_equal(_exponent_columns(exponents, order[blk]), _exponent_columns(exponents, rep[gid[blk]])):
+            return False
+    return True
 
 
 class PolyZonotope(SetBase):
@@ -179,7 +215,7 @@ class PolyZonotope(SetBase):
         G, E = np.asarray(self.G), np.asarray(self.E)
         c = self.c.copy()
         if G.shape[1]:
-            Gm, rep = merge_monomials(G, monomial_keys(E))
+            Gm, rep = merge_monomials(G, monomial_keys(E), E)
             Em = E[:, rep]
             const = ~np.any(Em, axis=0)
             c = c + Gm[:, const].sum(axis=1)
@@ -457,7 +493,7 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
         Gt *= np.where(distinct == 2, 6.0, np.where(distinct == 1, 3.0, 1.0))
         idx = (iu, ju, ku)
     keys = sum(keys_aug[i] for i in idx)
-    Gm, rep = merge_monomials(Gt, keys)
+    Gm, rep = merge_monomials(Gt, keys, lambda cols: sum(Eaug[:, i[cols]] for i in idx))
     Em = sum(Eaug[:, i[rep]] for i in idx)
     const = ~np.any(Em, axis=0)
     c = Gm[:, const].sum(axis=1)
