@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 from ocreach.sets import (Ellipsoid, Interval, PolyZonotope, Zonotope, points_in_zonotope, zonotope_in_interval,
                           zonotope_in_zonotope)
 
-from _sets_truth import lp_in_zonotope
+from _sets_truth import lp_in_zonotope, lp_support
 
 SET = settings(max_examples=30, deadline=None)
 
@@ -72,15 +72,18 @@ def test_containment_constraints_cvxpy():
     rng = np.random.default_rng(0)
     Z = Zonotope(rng.normal(size=3), rng.normal(size=(3, 5)))
     d = rng.normal(size=3)
-    for S, want in [(Z, Z.support(d)), (Z.interval_hull(), Z.interval_hull().support(d)),
-                    (Ellipsoid([0, 1, 0], np.diag([1.0, 2.0, 3.0])), None),
-                    (PolyZonotope([0, 0, 0], np.eye(3), None, [[2, 0, 0], [0, 1, 0], [0, 0, 1]], None), None)]:
+    lo, hi = Z.c - np.abs(Z.G).sum(axis=1), Z.c + np.abs(Z.G).sum(axis=1)
+    # truths written here: LP over the factors, box corner, ellipsoid closed form, and the PZ
+    # {(a1^2, a2, a3)} whose zonotope enclosure is the box [0, 1] x [-1, 1]^2
+    for S, want in [(Z, lp_support(Z.c, Z.G, d)), (Z.interval_hull(), d @ np.where(d > 0, hi, lo)),
+                    (Ellipsoid([0, 1, 0], np.diag([1.0, 2.0, 3.0])), d[1] + np.sqrt(d @ np.diag([1.0, 2.0, 3.0]) @ d)),
+                    (PolyZonotope([0, 0, 0], np.eye(3), None, [[2, 0, 0], [0, 1, 0], [0, 0, 1]], None),
+                     max(d[0], 0.0) + abs(d[1]) + abs(d[2]))]:
         x = cp.Variable(3)
         cons, _ = S.containment_constraints(x)
         prob = cp.Problem(cp.Maximize(d @ x), cons)
         prob.solve(solver=cp.CLARABEL)
-        ref = S.support(d) if want is None else want
-        assert np.isclose(prob.value, ref, rtol=1e-6, atol=1e-6)
+        assert np.isclose(prob.value, want, rtol=1e-6, atol=1e-6)
 
 
 def test_casadi_containment_zonotope_qp():
