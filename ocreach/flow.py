@@ -138,6 +138,17 @@ def compile_function(fun: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.
 
 
 # --------------------------------------------------------------------------- step functions
+def _dense_rhs(rhs: ca.Function) -> ca.Function:
+    """``rhs`` with a dense output.  A structurally zero derivative (e.g. ``dlam_p/dt = 0`` of a
+    double integrator) makes CasADi's generated C write only the non-zeros, which the native
+    driver would read as a dense vector of length ``n_y``."""
+    if rhs.sparsity_out(0).is_dense():
+        return rhs
+    y, t, a = (ca.MX.sym(rhs.name_in(i), rhs.sparsity_in(i)) for i in range(3))
+    return ca.Function(rhs.name(), [y, t, a], [ca.densify(rhs(y, t, a))],
+                       rhs.name_in(), rhs.name_out())
+
+
 def _build_step(rhs: ca.Function) -> ca.Function:
     """One DOP853 step ``(y, f0, t, h, a, rtol, atol) -> (y_new, f_new, err)``.
 
@@ -167,6 +178,7 @@ def _build_step(rhs: ca.Function) -> ca.Function:
     n3 = ca.sumsqr(e3)
     denom = ca.fmax(n5 + 0.01 * n3, 1e-300)
     err = ca.fabs(h) * n5 / ca.sqrt(denom * n_y)
+    y_new, f_new = ca.densify(y_new), ca.densify(f_new)
     return ca.Function(f"dop853_{rhs.name()}", [y, f0, t, h, a, rtol, atol], [y_new, f_new, err],
                        ["y", "f0", "t", "h", "a", "rtol", "atol"], ["y_new", "f_new", "err"])
 
@@ -186,6 +198,8 @@ class _Stepper:
     CasADi step Function with its mapped versions for the NumPy fallback loop."""
 
     def __init__(self, rhs: ca.Function):
+        self.source = rhs  # keeps the caller's Function alive (ids in _STEPPERS stay unique)
+        rhs = _dense_rhs(rhs)
         self.rhs = rhs
         self.step = _build_step(rhs)
         self.native = None
@@ -231,7 +245,7 @@ _STEPPERS: dict[int, _Stepper] = {}
 
 def _stepper(rhs: ca.Function) -> _Stepper:
     st = _STEPPERS.get(id(rhs))
-    if st is None or st.rhs is not rhs:  # the stepper keeps rhs alive, so ids stay unique
+    if st is None or st.source is not rhs:  # the stepper keeps rhs alive, so ids stay unique
         st = _STEPPERS[id(rhs)] = _Stepper(rhs)
     return st
 

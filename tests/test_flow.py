@@ -309,3 +309,13 @@ def test_solver_failures_raise_solver_error(dro_model):
     y0[1] = [-MU, 0.0, 0.0, 0.0]  # exactly at the primary: singular rhs
     with pytest.raises(SolverError, match=r"samples \[1\]"):
         integrate_batch(rhs, y0, 0.0, 1.0, args)
+
+
+def test_rhs_with_structurally_zero_derivative():
+    """dlam_p/dt = 0 is a structural zero of the rhs output; the compiled driver must still see a
+    dense derivative (regression: it read the sparse output as dense and never converged)."""
+    y, t, a = ca.SX.sym("y", 3), ca.SX.sym("t"), ca.SX.sym("a", 0)
+    rhs = ca.Function("sparse_out", [y, t, a], [ca.vertcat(y[1], ca.SX(1, 1), -y[0])])
+    assert not rhs.sparsity_out(0).is_dense()
+    out = integrate_batch(rhs, np.array([[1.0, 0.5, 0.0]]), 0.0, 1.0)
+    assert np.allclose(out, [[1.5, 0.5, -1.25]], atol=1e-12)

@@ -200,3 +200,29 @@ def test_ode_outward_normal_beats_monte_carlo(backward):
     n = np.asarray(r.meta["outward_normal"])
     own = np.einsum("ij,ij->i", n, r.points[-1])
     assert np.all(own >= np.max(mc @ n.T, axis=0) - 1e-9)
+
+
+def test_ode_with_ellipsoid_initial_set_reaches_exact_linear_support():
+    """Double integrator, |u| <= 1, ellipsoidal X0: endpoints attain the closed-form support
+    h(nu) = nu^T Phi q + sqrt(nu^T Phi Q Phi^T nu) + int_0^T |nu^T Phi(T, t) B| dt."""
+    import casadi as ca
+
+    from ocreach.sets import Ellipsoid
+
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
+    model = ocreach.Model.build("dint", x, u, ca.vertcat(x[1], u), control_set="box")
+    T = 2.0
+    q, Q = np.array([0.3, -0.2]), np.array([[0.05, 0.01], [0.01, 0.02]])
+    prob = ocreach.Problem(id="dint", model=model, x0=q, grid=np.linspace(0, T, 5),
+                           initial_set=Ellipsoid(q, Q))
+    r = ocreach.reach(prob, "ode", samples=8, seed=2)
+    Phi = np.array([[1.0, T], [0.0, 1.0]])
+    s = np.linspace(0, T, 200001)
+    for end, nu in zip(r.points[-1], r.meta["outward_normal"]):
+        integrand = np.abs(nu[0] * (T - s) + nu[1])
+        h = nu @ Phi @ q + np.sqrt(nu @ Phi @ Q @ Phi.T @ nu) + np.trapezoid(integrand, s)
+        assert nu @ end == pytest.approx(h, abs=1e-6)
+        # the start lies on the ellipsoid boundary
+    starts = r.trajectories[:, 0]
+    m = np.einsum("ij,jk,ik->i", starts - q, np.linalg.inv(Q), starts - q)
+    assert np.allclose(m, 1.0)

@@ -66,6 +66,29 @@ def optimal_control_fun(model: Model, kind: str | None = None) -> ca.Function:
     return model._cached(key, build)
 
 
+def support_point(initial_set, d: np.ndarray) -> np.ndarray:
+    """Row-wise ``argmax_{x in X0} d^T x`` for an ellipsoid, zonotope or interval initial set.
+
+    PMP transversality for a free initial state on ``X0`` (Holzinger & Scheeres; Patel & Scheeres
+    Eq. 21-23 for the ellipsoid): the extremal starts where ``X0`` has outward normal ``d``.
+    """
+    from ocreach.sets import Ellipsoid, Interval, Zonotope
+
+    d = np.atleast_2d(d)
+    if isinstance(initial_set, Ellipsoid):
+        Qd = d @ np.asarray(initial_set.Q).T
+        norm = np.sqrt(np.maximum(np.einsum("ij,ij->i", d, Qd), 1e-300))
+        return np.asarray(initial_set.q) + Qd / norm[:, None]
+    if isinstance(initial_set, Zonotope):
+        G = np.asarray(initial_set.G)
+        return np.asarray(initial_set.c) + np.sign(d @ G) @ G.T
+    if isinstance(initial_set, Interval):
+        return np.where(d >= 0, np.asarray(initial_set.hi), np.asarray(initial_set.lo))
+    raise ProblemError("method 'ode' needs an Ellipsoid, Zonotope or Interval initial_set "
+                       f"(to place each extremal's start by transversality); got "
+                       f"{type(initial_set).__name__}")
+
+
 def unit_sphere(rng: np.random.Generator, samples: int, dim: int) -> np.ndarray:
     """Uniform samples on the unit sphere in ``R^dim``."""
     g = rng.standard_normal((samples, dim))
@@ -85,7 +108,6 @@ class ExtremalODE(Method):
 
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import integrate_batch
-        from ocreach.reach.mc import initial_states
 
         model = problem.model
         kind = problem.control_set.kind
@@ -99,7 +121,11 @@ class ExtremalODE(Method):
             rhs = extremal_rhs(model, kind)
             ufun = optimal_control_fun(model, kind).map(opt.samples)
             lam0 = unit_sphere(rng, opt.samples, model.n_x)
-            x0 = initial_states(problem, opt.samples, rng)
+            if problem.initial_set is None:
+                x0 = np.tile(problem.x0, (opt.samples, 1))
+            else:
+                # extremal start on the initial set: outward normal -lam0 forward, +lam0 backward
+                x0 = support_point(problem.initial_set, lam0 if problem.backward else -lam0)
         grid = problem.grid
         K = grid.size - 1
         traj = np.empty((opt.samples, K + 1, model.n_x))
