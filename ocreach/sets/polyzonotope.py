@@ -96,6 +96,21 @@ def _groups_exact(exponents: Exponents, order: np.ndarray, new: np.ndarray, rep:
     return True
 
 
+def enclose_monomials(G: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Zonotope enclosure of ``sum_i (prod_k a_k^E[k, i]) G[:, i]`` over ``a in [-1, 1]^p``
+    (Kochdumper & Althoff's zonotope enclosure of a sparse polynomial zonotope).
+
+    A constant monomial (zero exponent column) is the vector ``G_i``; an all-even monomial ranges
+    over [0, 1], i.e. ``G_i / 2 + (G_i / 2) b``; any other ranges over [-1, 1].  Returns the centre
+    shift (n,) and the generators ``[G_even / 2, G_other]`` (n, k), each with its own factor.
+    """
+    E = np.asarray(E)
+    const = ~np.any(E, axis=0)
+    even = np.all(E % 2 == 0, axis=0) & ~const
+    shift = G[:, const].sum(axis=1) + 0.5 * G[:, even].sum(axis=1)
+    return shift, np.hstack([0.5 * G[:, even], G[:, ~(even | const)]])
+
+
 class PolyZonotope(SetBase):
     """Sparse polynomial zonotope ``<c, G, GI, E, id>`` (immutable, numpy-backed).
 
@@ -211,7 +226,11 @@ class PolyZonotope(SetBase):
     # -- structural clean-up --------------------------------------------------------------------
     def compact(self, tol: float = 0.0) -> "PolyZonotope":
         """Remove redundant exponents: merge equal columns of E, fold constant monomials into the
-        centre, drop zero generators and unused factors (Kochdumper & Althoff, compactGen)."""
+        centre, drop zero generators and unused factors (Kochdumper & Althoff, compactGen).
+
+        Exact for ``tol = 0``.  ``tol > 0`` also drops generators whose entries are all at most
+        ``tol`` in magnitude: the result is then NOT an over-approximation (use it only to clean
+        numerical zeros; :func:`ocreach.sets.reduce.reduce_pz` is the sound way to shrink a set)."""
         G, E = np.asarray(self.G), np.asarray(self.E)
         c = self.c.copy()
         if G.shape[1]:
@@ -313,12 +332,8 @@ class PolyZonotope(SetBase):
         [0, 1], so they shift the centre by half the generator and keep half as generator."""
         from ocreach.sets.zonotope import Zonotope
 
-        E = self.E
-        const = ~np.any(E, axis=0)
-        even = np.all(E % 2 == 0, axis=0) & ~const
-        c = self.c + self.G[:, const].sum(axis=1) + 0.5 * self.G[:, even].sum(axis=1)
-        G = np.hstack([0.5 * self.G[:, even], self.G[:, ~(even | const)], self.GI])
-        return Zonotope(c, G)
+        shift, Gz = enclose_monomials(self.G, self.E)
+        return Zonotope(self.c + shift, np.hstack([Gz, self.GI]))
 
     def interval_hull(self):
         """Interval enclosure (interval hull of the zonotope enclosure)."""
@@ -358,9 +373,16 @@ class PolyZonotope(SetBase):
         return float(val[0]) if single else val
 
     def contains(self, points: Any, splits: int = 0, tol: float = 1e-7) -> np.ndarray:
-        """Over-approximate membership: True if a point lies in the zonotope enclosure of one of the
-        pieces after ``splits`` splits.  ``False`` means the point is certainly outside; ``True`` is
-        exact only up to the enclosure error (exact membership in a PZ is a non-convex problem)."""
+        """Membership in an OUTER approximation of the set (not exact membership).
+
+        A point is reported inside if it lies (within ``tol``, see
+        :func:`ocreach.sets.contains.points_in_zonotope`) in the zonotope enclosure of one of the
+        pieces left after ``splits`` best-first splits (:meth:`split`, :meth:`to_zonotope`).
+        Guarantee: every point of the set gives ``True`` (no false negatives), so ``False`` proves
+        the point is outside.  ``True`` does not prove it is inside: it can be wrong by the
+        enclosure error, which shrinks as ``splits`` grows (exact membership in a polynomial
+        zonotope is a non-convex problem).  Used as a coverage test (e.g. Monte Carlo samples in a
+        reachable set), the coverage can therefore be overstated, never understated."""
         pieces = [pc for _, pc in self._split_pieces(splits, _size_score)] if splits > 0 else [self]
         from ocreach.sets._base import as_points
 
@@ -498,12 +520,9 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
     const = ~np.any(Em, axis=0)
     c = Gm[:, const].sum(axis=1)
     has_b = np.any(Em[p:] > 0, axis=0) & ~const
-    even = np.all(Em % 2 == 0, axis=0)
     dep = ~(const | has_b)
-    b_even = has_b & even
-    b_odd = has_b & ~even
-    c = c + 0.5 * Gm[:, b_even].sum(axis=1)
-    GI = np.hstack([0.5 * Gm[:, b_even], Gm[:, b_odd]])
+    shift, GI = enclose_monomials(Gm[:, has_b], Em[:, has_b])
+    c = c + shift
     dep &= np.any(Gm != 0, axis=0)
     GI = GI[:, np.any(GI != 0, axis=0)]
     Ed = Em[:p][:, dep]

@@ -66,7 +66,7 @@ def reduce_pz(pz, h_max: int, method: str = "pca"):
     replaced by its zonotope enclosure (all-even monomials: centre shift + half generator) and,
     with the remaining independent generators, boxed into <= n new independent generators.
     """
-    from ocreach.sets.polyzonotope import PolyZonotope
+    from ocreach.sets.polyzonotope import PolyZonotope, enclose_monomials
 
     _check_method(method)
     n = pz.dim
@@ -87,12 +87,9 @@ def reduce_pz(pz, h_max: int, method: str = "pca"):
     keep[keep_idx] = True
     kd, ki = keep[:h], keep[h:]
     # enclose the removed dependent part
-    Ed = pz.E[:, ~kd]
-    Gd = pz.G[:, ~kd]
-    const = ~np.any(Ed, axis=0)
-    even = np.all(Ed % 2 == 0, axis=0) & ~const
-    c = pz.c + Gd[:, const].sum(axis=1) + 0.5 * Gd[:, even].sum(axis=1)
-    Grem = np.hstack([0.5 * Gd[:, even], Gd[:, ~(even | const)], pz.GI[:, ~ki]])
+    shift, Gz = enclose_monomials(pz.G[:, ~kd], pz.E[:, ~kd])
+    c = pz.c + shift
+    Grem = np.hstack([Gz, pz.GI[:, ~ki]])
     GI = np.hstack([pz.GI[:, ki], box_generators(Grem, method)])
     E = pz.E[:, kd]
     used = np.any(E > 0, axis=1) if E.shape[1] else np.zeros(E.shape[0], dtype=bool)
