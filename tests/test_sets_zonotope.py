@@ -146,3 +146,8 @@ def test_degenerate_and_errors():
         Z0.c[0] = 3.0
     with pytest.raises(SetError):
         np.ones((2, 3)) @ Zonotope([0, 0], np.eye(2))
+    MZ = MatrixZonotope(np.eye(2), [np.ones((2, 2))])
+    with pytest.raises(AttributeError):
+        MZ.C = np.zeros((2, 2))
+    with pytest.raises(SetError):
+        MatrixZonotope(np.eye(2), np.ones((1, 3, 2)))

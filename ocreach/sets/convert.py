@@ -109,6 +109,16 @@ def unit_ball_pz(n: int, ids: Any = None):
       ``t = a2^2/2 + a3^2/2 - a2^2 a3^2/3`` in [0, 2/3] (same outward argument as n = 2; points
       reach radius ~1.025 near the cube corners).
     * n > 3: the outer zonotope :func:`unit_ball_zonotope` (2n generators) as a PZ.
+
+    Why n = 2, 3 contain the ball.  Write the map as ``F(a)_i = a_i s_i(a)`` and the exact
+    square/cube-to-ball map as ``F0(a)_i = a_i r_i(a)`` with ``r_i = sqrt(1 - t_i)``.  Every dropped
+    term of the series of ``sqrt(1 - t)`` is negative for ``t`` in [0, 1], so ``s_i >= r_i >= 0``.
+    On the boundary of the box ``|F0| = 1``, hence ``|F_l|^2 = sum_i a_i^2 s_{l,i}^2 >= 1`` for every
+    ``F_l = (1 - l) F0 + l F``, ``l`` in [0, 1]: the straight-line homotopy never meets the open
+    ball on the boundary.  ``F0`` maps the box homeomorphically onto the ball (degree 1 about every
+    interior point), so ``F`` has degree 1 about every point of the open ball too, and a point
+    with non-zero degree lies in the image; the image is closed, so it holds the closed ball.
+    The tests check the two facts numerically (``|F| >= 1`` on the box boundary, support >= 1).
     """
     from ocreach.sets.polyzonotope import PolyZonotope
 

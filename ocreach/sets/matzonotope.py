@@ -26,6 +26,12 @@ class MatrixZonotope:
             raise SetError("MatrixZonotope entries must be finite")
         self.C = ro(C_a)
         self.G = ro(G_a)
+        object.__setattr__(self, "_frozen", True)
+
+    def __setattr__(self, key, value):  # immutable after construction, like the sets
+        if getattr(self, "_frozen", False):
+            raise AttributeError("MatrixZonotope is immutable")
+        object.__setattr__(self, key, value)
 
     @property
     def shape(self) -> tuple[int, int]:
