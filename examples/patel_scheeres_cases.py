@@ -11,7 +11,6 @@ drawn (Moon at the final time, with its path over the span).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -186,14 +185,32 @@ def run_case(case: int, samples: int, out: Path) -> dict:
 
 
 # ----------------------------------------------------------------------------- DRO validation
+def resimulate(prob, x0, controls, p) -> np.ndarray:
+    """Piecewise-constant controls, SciPy DOP853 (rtol 1e-12) one segment at a time."""
+    from scipy.integrate import solve_ivp
+
+    f = prob.model.f_fun
+    x, out = np.array(x0, float), [np.array(x0, float)]
+    for k in range(prob.n_segments):
+        u = controls[k]
+        sol = solve_ivp(lambda t, y, u=u: np.asarray(f(y, u, t, p)).ravel(), (prob.grid[k], prob.grid[k + 1]),
+                        x, method="DOP853", rtol=1e-12, atol=1e-13)
+        x = sol.y[:, -1]
+        out.append(x)
+    return np.array(out)
+
+
 def dro_validation(samples: int, out: Path) -> dict:
-    """ffoe / ole / bvp on dro with ``samples`` position directions against the transcription of
-    tests/test_indirect.py (30 segments; 300 segments and a Richardson bound for bvp)."""
-    sys.path.insert(0, str(ROOT / "tests"))
-    from test_indirect import dt_optimum, resimulate
+    """ffoe / ole / bvp on dro with ``samples`` position directions against the direct transcription
+    :func:`ocreach.reach.direct.transcription_support` (30 segments; 300 segments and a Richardson
+    bound for bvp).  The tests check that function against their own hand-written transcription."""
+    from ocreach.reach.direct import transcription_support
 
     prob = get_problem("dro")
-    mu, a = prob.param("mu"), prob.param("a_max")
+
+    def dt_optimum(z, refine=1, n_sub=20):
+        return transcription_support(prob, z, refine=refine, n_sub=n_sub)
+
     res, times = {}, {}
     for m in ("ffoe", "ole", "bvp"):
         reach(prob, m, samples=4)
@@ -202,8 +219,8 @@ def dro_validation(samples: int, out: Path) -> dict:
         times[m] = time.perf_counter() - t0
     dirs = res["ffoe"].meta["directions"]
     t0 = time.perf_counter()
-    coarse = np.array([dt_optimum(prob.x0, prob.grid, z, mu, a) for z in dirs])
-    fine = np.array([dt_optimum(prob.x0, prob.grid, z, mu, a, refine=10, n_sub=4) for z in dirs])
+    coarse = np.array([dt_optimum(z) for z in dirs])
+    fine = np.array([dt_optimum(z, refine=10, n_sub=4) for z in dirs])
     times["transcription"] = time.perf_counter() - t0
     cont = fine + (fine - coarse) / 99.0
     half = samples // 2
@@ -218,7 +235,7 @@ def dro_validation(samples: int, out: Path) -> dict:
                     "max_excess": float(np.max(J - (cont if m == "bvp" else truth)))}
     for m in ("ffoe", "ole"):
         r = res[m]
-        err = max(np.max(np.abs(resimulate(r.trajectories[j, 0], r.controls[j], prob.grid, mu, a)
+        err = max(np.max(np.abs(resimulate(prob, r.trajectories[j, 0], r.controls[j], r.meta["params"])
                                 - r.trajectories[j])) for j in range(samples))
         out_d[m]["resim_err"] = float(err)
     out_d["ole"]["iterations_max"] = int(res["ole"].meta["iterations"].max())

@@ -44,7 +44,7 @@ def resimulate(x0, controls, grid, mu, a):
     x = np.array(x0, float)
     out = [x]
     for k in range(len(grid) - 1):
-        sol = solve_ivp(lambda t, y: cr3bp_np(y, controls[k], mu, a), (grid[k], grid[k + 1]), x,
+        sol = solve_ivp(lambda t, y, k=k: cr3bp_np(y, controls[k], mu, a), (grid[k], grid[k + 1]), x,
                         method="DOP853", rtol=1e-12, atol=1e-13)
         x = sol.y[:, -1]
         out.append(x)
@@ -110,7 +110,7 @@ def _width(truth):
 
 # ----------------------------------------------------------------------------- tests
 def test_ole_matches_direct_transcription(runs):
-    ffoe, ole, truth = runs
+    _ffoe, ole, truth = runs
     width = _width(truth)
     err = ole.meta["cost"] - truth
     assert np.all(np.abs(err) <= 0.01 * width), err / width
@@ -164,6 +164,10 @@ def test_initial_ellipsoid_uncertainty(dro):
     width = truth + np.roll(truth, 2)
     assert np.all(np.abs(res.meta["cost"] - truth) <= 0.01 * width)
     assert np.all(res.meta["cost"] <= truth + 1e-7)
+    from ocreach.reach.direct import transcription_support
+
+    z = res.meta["directions"][1]
+    assert abs(transcription_support(dro, z, x0_radius=d) - truth[1]) < 1e-9
 
 
 def test_initial_delta_v(dro):
@@ -228,7 +232,7 @@ def test_lunar_flyby_short_resimulates():
         x = res.trajectories[j, 0]
         for k in range(prob.n_segments):
             u = res.controls[j, k]
-            sol = solve_ivp(lambda t, y: np.asarray(m.f_fun(y, u, t, p)).ravel(),
+            sol = solve_ivp(lambda t, y, u=u: np.asarray(m.f_fun(y, u, t, p)).ravel(),
                             (prob.grid[k], prob.grid[k + 1]), x, method="DOP853", rtol=1e-12, atol=1e-14)
             x = sol.y[:, -1]
         assert np.max(np.abs(x - res.trajectories[j, -1])) < 1e-8
@@ -247,3 +251,15 @@ def test_ole_initial_states_stay_on_uncertainty_sphere():
     gap = res.meta["first_order_gap"]
     assert np.all(gap >= -1e-12)   # Eq. 18 / 23 minimise the linearised cost: predicted gain >= 0
     assert np.all(res.meta["iterations"][res.meta["converged"]] < 15)
+
+
+def test_library_transcription_matches_handwritten(dro):
+    """ocreach.reach.direct (used by the example's validation table) against this file's own
+    transcription with the hand-written CR3BP (the ball variant: test_initial_ellipsoid_uncertainty)."""
+    from ocreach.reach.direct import transcription_support
+
+    mu, a = dro.param("mu"), dro.param("a_max")
+    z = np.array([np.cos(0.3), np.sin(0.3), 0.0, 0.0])
+    assert abs(transcription_support(dro, z) - dt_optimum(dro.x0, dro.grid, z, mu, a)) < 1e-9
+    with pytest.raises(ProblemError):
+        transcription_support(dro, np.ones(3))
