@@ -270,3 +270,30 @@ def test_merge_is_exact_under_hash_collisions(monkeypatch):
         sa = pointwise(a, vals)
         want = np.einsum("iab,na,nb->ni", T, sa, sa) if order == 2 else np.einsum("iabc,na,nb,nc->ni", T, sa, sa, sa)
         assert np.allclose(pointwise(out, vals), want)
+
+
+def test_outline_union_is_one_nonconvex_ring_covering_samples():
+    """Foss Eq. 15: the merged outline is one ring (no overlaps), non-convex (its area is below its
+    convex hull's), contains every sample, and its area equals the union area of the pieces."""
+    from matplotlib.path import Path
+    from scipy.spatial import ConvexHull
+
+    pz = PolyZonotope([2, 0], [[3, 0, 1], [2, 4, 2]], None, [[1, 0, 2], [0, 2, 1]], [1, 2])
+    rings = pz.outline_union((0, 1), pieces=64)
+    assert len(rings) == 1
+    R = rings[0]
+    x, y = R[:, 0], R[:, 1]
+    signed = 0.5 * (np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+    assert signed > 0  # counter-clockwise exterior
+    assert signed < 0.97 * ConvexHull(R).volume
+    assert np.isclose(signed, pz.area((0, 1), pieces=64), rtol=1e-9)
+    pts = pz.sample(500, 1)
+    assert Path(R).contains_points(pts, radius=1e-9).all() or Path(R).contains_points(pts, radius=-1e-9).all()
+    # degenerate projection (a segment): no area, no rings; plotting falls back to the pieces
+    seg = PolyZonotope([0.0, 0.0], [[1.0], [1.0]], None, [[2]], None)
+    assert seg.outline_union() == []
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    seg.plot(ax)
+    pz.plot(ax, pieces=16)
+    plt.close(fig)

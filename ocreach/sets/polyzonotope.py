@@ -409,6 +409,25 @@ class PolyZonotope(SetBase):
             raise SetError(f"outline needs two dims; got {dims!r}")
         return [p.to_zonotope().outline((0, 1)) for _, p in P._split_pieces(max(int(pieces) - 1, 0), _size_score)]
 
+    def outline_union(self, dims: Any = (0, 1), pieces: int = 64) -> list[np.ndarray]:
+        """The union of :meth:`outline`'s convex pieces as closed rings (shapely): one
+        counter-clockwise exterior ring (k, 2) per connected component and one clockwise ring per
+        hole.  The same outer approximation as :meth:`outline`, as a (possibly non-convex) boundary
+        for drawing; empty if the projection has no area (then use :meth:`outline`)."""
+        from shapely.geometry.polygon import orient
+
+        from ocreach.geometry import union_of_polygons
+
+        geom = union_of_polygons(self.outline(dims, pieces))
+        rings = []
+        for poly in getattr(geom, "geoms", [geom]):
+            if poly.is_empty or poly.geom_type != "Polygon":
+                continue
+            poly = orient(poly, 1.0)
+            rings.append(np.asarray(poly.exterior.coords)[:-1])
+            rings.extend(np.asarray(r.coords)[:-1] for r in poly.interiors)
+        return rings
+
     def area(self, dims: Any = (0, 1), pieces: int = 64) -> float:
         """Area of the union of :meth:`outline`'s pieces: an upper bound of the projection's area
         that tightens as ``pieces`` grows (exact union by shapely, not the sum of the pieces)."""
