@@ -26,7 +26,8 @@ corrector fails.  In a 2-D direction subspace ``s`` is the angle ``theta`` of
 The control is continuous in time (not piecewise constant).  ``controls`` holds ``u*`` at the start
 of each segment (for inspection), ``meta["costate0"]`` the initial costates and
 ``trajectories[:, 0]`` the initial states: :func:`ocreach.reach.extremal.extremal_rhs`
-integrated from ``[x_0, lam_0]`` reproduces every trajectory.  Needs a control-affine model.
+integrated from ``[x_0, lam_0]`` reproduces every trajectory.  Needs a control-affine model or an
+inverse-mass model of Patel & Scheeres Eq. 11 (:func:`thrust_law_expression`).
 """
 from __future__ import annotations
 
@@ -46,6 +47,43 @@ from ocreach.reach.result import ReachResult
 COSTS = ("linear", "quadratic")
 
 
+def thrust_law_expression(model: Model, lam: ca.SX, smooth: float = 0.0) -> ca.SX:
+    """``u*(x, lam)``: the Hamiltonian minimiser of Foss Eq. 4 / Patel & Scheeres Eq. 18.
+
+    Control-affine models: :meth:`Model.optimal_control_expression`.  Variable-mass models whose
+    ``f = f0 + G(x) u + h(x) ||u||`` (the inverse-mass equation of Patel & Scheeres Eq. 11) with a
+    ball control set: full thrust along ``-G^T lam`` (Eq. 18, ``T_mag = T_max``); ``G = df/du`` at
+    ``u = 0``, where the smoothed ``||u||`` has zero gradient, so the mass rate does not enter the
+    direction (the paper's ``F_T`` columns).  Full thrust is the exact minimiser over the ball when
+    ``h^T lam <= |G^T lam|``, i.e. whenever thrusting pays for its fuel, as in reachability.
+    """
+    if model.control_affine:
+        return model.optimal_control_expression(lam, smooth=smooth)
+    if model.control_set != "ball" or "n" not in model.state_names:
+        raise ProblemError(f"method 'bvp' needs a control-affine model or an inverse-mass model "
+                           f"(Patel & Scheeres Eq. 11) with a ball control set; {model.name} is neither")
+    zero = ca.DM.zeros(model.n_u)
+    G = ca.substitute(ca.jacobian(model.f, model.u), model.u, zero)
+    rest = model.f - ca.substitute(model.f, model.u, zero) - ca.mtimes(G, model.u)
+    i_n = model.state_names.index("n")
+    if ca.depends_on(ca.vertcat(*[rest[i] for i in range(model.n_x) if i != i_n]), model.u):
+        raise ProblemError(f"method 'bvp': model {model.name} is not control-affine outside its mass "
+                           "equation; the closed-form law of Patel & Scheeres Eq. 18 does not apply")
+    sw = ca.mtimes(G.T, lam)
+    return -sw / ca.fmax(ca.sqrt(ca.sumsqr(sw) + smooth**2), 1e-300)
+
+
+def thrust_law_fun(model: Model) -> ca.Function:
+    """``(x, lam, t, p) -> u*`` of :func:`thrust_law_expression` (exact law), cached on the model."""
+
+    def build():
+        lam = ca.SX.sym("lam", model.n_x)
+        return ca.Function("u_star_bvp", [model.x, lam, model.t, model.p],
+                           [thrust_law_expression(model, lam)])
+
+    return model._cached("u_star_bvp_fun", build)
+
+
 def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
     """``(y = [x; lam; vec Phi], t, p) -> dy/dt``: Foss Eq. 4 with its ``2n x 2n`` STM (row-major).
 
@@ -55,7 +93,7 @@ def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
     def build():
         n = model.n_x
         lam = ca.SX.sym("lam", n)
-        u_star = model.optimal_control_expression(lam, smooth=smooth)
+        u_star = thrust_law_expression(model, lam, smooth)
         jac = ca.Function("fx", [model.x, model.u, model.t, model.p], [ca.jacobian(model.f, model.x)])
         xdot = model.f_fun(model.x, u_star, model.t, model.p)
         ldot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
@@ -77,7 +115,7 @@ def costate_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
 
     def build():
         lam = ca.SX.sym("lam", model.n_x)
-        u_star = model.optimal_control_expression(lam, smooth=smooth)
+        u_star = thrust_law_expression(model, lam, smooth)
         jac = ca.Function("fx", [model.x, model.u, model.t, model.p], [ca.jacobian(model.f, model.x)])
         xdot = model.f_fun(model.x, u_star, model.t, model.p)
         ldot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
@@ -187,13 +225,10 @@ class BVPContinuation(FFOE):
 
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import integrate_batch
-        from ocreach.reach.extremal import optimal_control_fun
 
         opt = self.options
         model = problem.model
-        if not model.control_affine:
-            raise ProblemError(f"method 'bvp' needs a control-affine model (closed-form u* of Foss Eq. 4); "
-                               f"{model.name} is not (use ffoe or ole)")
+        thrust_law_expression(model, ca.SX.sym("lam", model.n_x))  # ProblemError if no closed-form law
         if problem.control_set.kind != model.control_set:
             raise ProblemError(f"method 'bvp' uses the model's control set {model.control_set!r}; "
                                f"the problem asks for {problem.control_set.kind!r}")
@@ -232,7 +267,7 @@ class BVPContinuation(FFOE):
             traj = np.empty((N, K + 1, n))
             lams = np.empty((N, K + 1, n))
             controls = np.empty((N, K, model.n_u))
-            ufun = optimal_control_fun(model).map(N)
+            ufun = thrust_law_fun(model).map(N)
             rhs = costate_rhs(model, opt.smooth)
             y = np.hstack([x0, lam_sol])
             traj[:, 0], lams[:, 0] = x0, lam_sol
