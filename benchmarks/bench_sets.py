@@ -120,7 +120,8 @@ def section(tm: dict, ct: dict) -> str:
 Tensor map: both results have {tm['h_out']} generators and the same enclosure (support functions agree
 to {tm['support_rel_diff']:.1e} relative).  ocreach contracts the symmetrised tensor once over the pairs
 i <= j and merges equal monomials with a linear 128-bit hash of the exponent columns instead of
-`np.unique(axis=1)`.  Containment: exact certificates (least-norm factors / separating directions from a
+`np.unique(axis=1)`; every merged column is then compared exactly with its group's representative
+(a collision would fall back to `np.unique`), at a cost within timing noise.  Containment: exact certificates (least-norm factors / separating directions from a
 vectorised Frank-Wolfe run) decide about half of these near-boundary points; the rest go to block-diagonal LPs (HiGHS, 100 points
 per LP); the answers agree with the per-point cvxpy loop on {ct['agree']}/{ct['n_loop']} points.
 """
