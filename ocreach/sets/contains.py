@@ -158,7 +158,9 @@ def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto") 
         return bool(out[0]) if single else out
     hs = zonotope_halfspaces(Z) if method in ("auto", "halfspace") else None
     if method == "halfspace" and hs is None:
-        raise SetError("points_in_zonotope: method='halfspace' needs a full-dimensional zonotope with few facets")
+        raise SetError(f"points_in_zonotope: method='halfspace' needs a full-dimensional zonotope with at most "
+                       f"{MAX_FACET_SUBSETS} facet subsets; got n={n}, h={G.shape[1]} (rank "
+                       f"{np.linalg.matrix_rank(G)}); use method='auto' or 'lp'")
     if hs is not None:
         H, b = hs
         viol = (P @ H.T - b).max(axis=1)

@@ -19,7 +19,8 @@ class Ellipsoid(SetBase):
         Q_a = as_matrix("Ellipsoid shape matrix Q", np.atleast_2d(np.asarray(Q, float)), rows=n, cols=n)
         scale = max(1.0, float(np.abs(Q_a).max(initial=0.0)))
         if not np.allclose(Q_a, Q_a.T, atol=1e-12 * scale, rtol=1e-10):
-            raise SetError("Ellipsoid shape matrix Q must be symmetric")
+            raise SetError("Ellipsoid shape matrix Q must be symmetric; got max |Q - Q^T| = "
+                           f"{float(np.abs(Q_a - Q_a.T).max()):.3g}")
         Q_a = 0.5 * (Q_a + Q_a.T)
         w, V = np.linalg.eigh(Q_a)
         if w.min(initial=0.0) < -1e-10 * scale:

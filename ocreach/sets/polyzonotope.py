@@ -134,10 +134,10 @@ class PolyZonotope(SetBase):
                 E_f = E_f.reshape(0, h)
             if E_f.ndim != 2 or E_f.shape[1] != h:
                 raise SetError(f"PolyZonotope exponent matrix E must have shape (p, {h}); got {E_f.shape}")
-            if E_f.dtype.kind == "f" and (not np.all(np.isfinite(E_f)) or np.any(E_f != np.round(E_f))):
-                raise SetError("PolyZonotope exponent matrix E must hold non-negative integers")
-            if np.any(E_f < 0):
-                raise SetError("PolyZonotope exponent matrix E must hold non-negative integers")
+            bad = ~np.isfinite(E_f) | (E_f != np.round(E_f)) | (E_f < 0) if E_f.dtype.kind == "f" else E_f < 0
+            if np.any(bad):
+                raise SetError("PolyZonotope exponent matrix E must hold non-negative integers; got "
+                               f"{E_f[bad].ravel()[:5].tolist()} at (row, column) {np.argwhere(bad)[:5].tolist()}")
             E_a = E_f.astype(np.int64)
         p = E_a.shape[0]
         if id is None:
@@ -288,9 +288,12 @@ class PolyZonotope(SetBase):
         return NotImplemented
 
     def cartesian(self, other) -> "PolyZonotope":
+        """Cartesian product ``self x other`` (Foss et al. Sec. 2.4); see :func:`cartesian_product`."""
         return cartesian_product(self, other)
 
     def project(self, dims: Any) -> "PolyZonotope":
+        """Exact projection onto the coordinates ``dims`` (the linear map of Foss et al. Sec. 2.4 with
+        rows of the identity); factors and exponents are kept."""
         idx = as_dims(dims, self.dim)
         return PolyZonotope(self.c[idx], self.G[idx], self.GI[idx], self.E, self.id)
 
@@ -396,6 +399,8 @@ class PolyZonotope(SetBase):
         return bool(ok[0]) if single else ok
 
     def reduce(self, h_max: int, method: str = "pca") -> "PolyZonotope":
+        """Sound order reduction to at most ``h_max`` generators (Foss et al. Sec. 2.4 Reduce(PZ,
+        h_des)); see :func:`ocreach.sets.reduce.reduce_pz`."""
         from ocreach.sets.reduce import reduce_pz
 
         return reduce_pz(self, h_max, method)
@@ -501,7 +506,7 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
     if T.ndim < 2 or T.ndim > 4 or any(s != n for s in T.shape[1:]):
         raise SetError(f"tensor_map: T must have shape (m, n), (m, n, n) or (m, n, n, n) with n={n}; got {T.shape}")
     if not np.all(np.isfinite(T)):
-        raise SetError("tensor_map: T must be finite")
+        raise SetError(f"tensor_map: T must be finite; got {int(np.sum(~np.isfinite(T)))} non-finite entries")
     N = T.ndim - 1
     if N == 1:
         return T @ pz

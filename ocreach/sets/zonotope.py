@@ -89,6 +89,7 @@ class Zonotope(SetBase):
         return Zonotope(np.concatenate([self.c, other.c]), G)
 
     def project(self, dims: Any) -> "Zonotope":
+        """Exact projection onto the coordinates ``dims`` (rows of ``c`` and ``G``)."""
         idx = as_dims(dims, self.dim)
         return Zonotope(self.c[idx], self.G[idx])
 
@@ -98,6 +99,7 @@ class Zonotope(SetBase):
 
     # -- enclosures / queries ---------------------------------------------------------------
     def interval_hull(self):
+        """Tightest enclosing box: ``c -+ sum_i |g_i|`` (the support function along the axes)."""
         from ocreach.sets.interval import Interval
 
         r = np.abs(self.G).sum(axis=1)
@@ -128,6 +130,8 @@ class Zonotope(SetBase):
         return points_in_zonotope(self, points, tol=tol)
 
     def reduce(self, order: float = 1.0, method: str = "girard") -> "Zonotope":
+        """Sound order reduction (Girard 2005 or PCA, Kopetzki et al. 2017); see
+        :func:`ocreach.sets.reduce.reduce_zonotope`."""
         from ocreach.sets.reduce import reduce_zonotope
 
         return reduce_zonotope(self, order, method)
