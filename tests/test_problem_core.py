@@ -196,3 +196,17 @@ def test_package_compare_is_the_function_after_submodule_import():
     importlib.import_module("ocreach.compare")
     importlib.import_module("ocreach.cli")
     assert callable(ocreach.compare) and ocreach.compare.__module__ == "ocreach.compare"
+
+
+def test_body_tracks_for_figures():
+    from ocreach.plot import body_tracks
+
+    dro = ocreach.get_problem("dro")
+    tr = body_tracks(dro)
+    assert np.allclose(tr["earth"][0], [-0.0122, 0, 0]) and np.allclose(tr["moon"][-1], [0.9878, 0, 0])
+    lf = ocreach.get_problem("lunar-flyby", segments=4)
+    tr = body_tracks(lf)
+    moon_km = np.linalg.norm(tr["moon"], axis=1) * lf.units.length / 1e3
+    assert np.all((moon_km > 356_000) & (moon_km < 407_000))  # lunar perigee..apogee
+    assert np.allclose(tr["earth"], 0.0)
+    assert body_tracks(ocreach.get_problem("vdp")) == {}
