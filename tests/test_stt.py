@@ -202,3 +202,14 @@ def test_tube_contains_dense_true_trajectories():
 def test_bad_options(opts):
     with pytest.raises(ProblemError):
         STTReach(**opts)
+
+
+def test_divergence_is_reported_not_silent():
+    """A large initial box on Van der Pol drives the order-3 STT image to overflow; the method
+    must raise a SolverError naming the step instead of returning NaN/inf sets."""
+    from ocreach.errors import SolverError
+
+    base = get_problem("vdp")
+    p = dataclasses.replace(base, initial_set=Interval(base.x0 - 0.8, base.x0 + 0.8))
+    with pytest.raises(SolverError, match="step"):
+        ocreach.reach(p, "stt", order=3, h_max=100)

@@ -39,7 +39,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ocreach.errors import ProblemError, SetError
+from ocreach.errors import ProblemError, SetError, SolverError
 from ocreach.problem import Problem
 from ocreach.reach.base import Method, Timer
 from ocreach.reach.result import ReachResult
@@ -321,10 +321,16 @@ def fused_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str = "pca",
     ``timer`` gets the phases ``tensor_maps`` (generation and merging) and ``reductions``.
     """
     timer = timer or Timer()
-    with timer("tensor_maps"):
-        out = _fused_generate(phi, dZ, h_max, prune)
-    with timer("reductions"):
-        res = _fused_reduce(dZ, h_max, method, *out)
+    with np.errstate(over="ignore", invalid="ignore"):
+        with timer("tensor_maps"):
+            out = _fused_generate(phi, dZ, h_max, prune)
+        if not np.all(np.isfinite(out[0])):
+            raise SolverError("STT set propagation diverged: the image of the set under the STT "
+                              "polynomial overflowed (the set is far outside the region where the "
+                              "truncated expansion is valid); use a smaller set or horizon, a lower "
+                              "order, or splitting")
+        with timer("reductions"):
+            res = _fused_reduce(dZ, h_max, method, *out)
     if counts is not None:
         counts["tensor_maps"] += 1
         counts["reductions"] += int(res[1])
@@ -492,6 +498,11 @@ class STTReach(Method):
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
         library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.
+        ``lift_independent`` [False]: before each step turn the independent generators left by
+        earlier reductions into dependent generators with fresh factors (exact), so that their
+        products in the tensor maps keep their dependence (``b^2`` in [0, 1], ``b`` and ``b c``
+        tied) instead of becoming new independent generators; False = the paper's plain
+        Cartesian product.
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """
 
@@ -502,6 +513,7 @@ class STTReach(Method):
         split: tuple | None = None
         tube_substeps: int = 0
         engine: str = "fused"
+        lift_independent: bool = False
         rtol: float = 1e-10
         atol: float = 1e-12
 
@@ -574,7 +586,8 @@ class STTReach(Method):
                 part, Uk = stack.pop()
                 phi, x1 = self._segment_phi(part, k, problem, timer, counts)
                 with timer("other"):
-                    dZ = part.dR.cartesian(Uk)
+                    dR = make_dependent(part.dR) if opt.lift_independent else part.dR
+                    dZ = dR.cartesian(Uk)
                 if opt.split is not None and opt.order >= 2:
                     with timer("splitting"):
                         eta = nonlinearity_index(phi, dZ)
@@ -585,7 +598,10 @@ class STTReach(Method):
                             for child in self._split(part):
                                 stack.append((child, Uk))
                             continue
-                dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts)
+                try:
+                    dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts)
+                except (SolverError, SetError) as exc:
+                    raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
                 new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
                 part.dZ = dZ  # kept for the tube
                 done.append(part)
