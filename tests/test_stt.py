@@ -166,21 +166,23 @@ def test_dro_box_covers_mc_endpoints():
 
 
 def test_initial_set_and_splitting_cover_mc():
-    """An uncertain initial box (converted to a PZ) and splitting with per-part references."""
-    base = get_problem("vdp", t_final=1.0)
-    box = Interval(base.x0 - [0.3, 0.3], base.x0 + [0.3, 0.3])
+    """An uncertain initial box (converted to a PZ) on Van der Pol: both the plain run and the
+    split run (per-part references) cover the MC endpoints; splitting shrinks the area
+    (measured 5.9x -> 3.1x the MC hull, docs/validation.md)."""
+    base = get_problem("vdp")
+    box = Interval(base.x0 - 0.1, base.x0 + 0.1)
     p = dataclasses.replace(base, initial_set=box)
-    plain = ocreach.reach(p, "stt", order=2, h_max=60)
-    split = ocreach.reach(p, "stt", order=2, h_max=60, split=(4, 0.01))
+    plain = ocreach.reach(p, "stt", order=2, h_max=100)
+    split = ocreach.reach(p, "stt", order=2, h_max=100, split=(4, 0.01))
     assert isinstance(split.sets[-1], PZUnion) and split.meta["evaluations"]["splits"] >= 1
     np.testing.assert_allclose(plain.sets[0].interval_hull().lo, box.lo, atol=1e-12)
     end = MonteCarlo(samples=1500, seed=3).solve(p).points[-1]
-    cov = {}
+    area = {}
     for name, r in (("plain", plain), ("split", split)):
         polys = r.sets[-1].outline((0, 1), pieces=64)
-        cov[name] = points_in_polygons(end, polys).mean()
-    assert cov["split"] >= 0.995
-    assert cov["split"] >= cov["plain"] - 1e-12
+        assert points_in_polygons(end, polys).mean() >= 0.995
+        area[name] = polygons_union_area(polys)
+    assert area["split"] < 0.75 * area["plain"]
 
 
 def test_tube_contains_dense_true_trajectories():
