@@ -40,7 +40,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ocreach.errors import ProblemError, SetError, SolverError
-from ocreach.problem import Problem
+from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer
 from ocreach.reach.result import ReachResult
 
@@ -527,6 +527,8 @@ class STTReach(Method):
                 raise ProblemError(f"input_set must be one of {INPUT_SETS} or None; got {self.input_set!r}")
             if self.reduction not in REDUCTIONS:
                 raise ProblemError(f"reduction must be one of {REDUCTIONS}; got {self.reduction!r}")
+            if isinstance(self.split, str):  # CLI: --set split=4,0.01
+                self.split = tuple(v for v in self.split.strip("()[] ").split(",") if v.strip())
             if self.split is not None:
                 try:
                     parts, thr = self.split
@@ -682,8 +684,8 @@ class STTReach(Method):
         # speed bound on extreme samples of all pieces (x, and the input set's extreme controls)
         rng = np.random.default_rng(k)
         X = np.vstack([p.sample(200, rng, mode="extreme") for p in pieces])
-        Uc = problem.control_set.sample_boundary(rng, (X.shape[0],)) if problem.control_set.kind != "free" \
-            else np.zeros((X.shape[0], model.n_u))
+        kind = opt.input_set or problem.control_set.kind
+        Uc = ControlSet(kind, model.n_u).sample_boundary(rng, (X.shape[0],))
         F = np.asarray(model.f_fun.map(X.shape[0])(X.T, Uc.T, t0, problem.params)).T
         half = 1.5 * (t1 - t0) / (2 * s) * np.max(np.abs(F), axis=0)
         box = Zonotope(np.zeros(model.n_x), np.diag(half))
