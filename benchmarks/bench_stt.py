@@ -49,7 +49,7 @@ def bench_problem(pid: str, repeat: int, **opts) -> dict:
     from ocreach.problem import get_problem
 
     p = get_problem(pid)
-    first, t, meta, res = _median_runs(lambda: ocreach.reach(p, "stt", **opts), repeat)
+    first, t, meta, _ = _median_runs(lambda: ocreach.reach(p, "stt", **opts), repeat)
     return {"pid": pid, "first": first, "t": t, "runtime": meta["runtime"], "evals": meta["evaluations"],
             "options": meta["options"], "generators": int(meta["generators"][-1]), "problem": p}
 
@@ -81,7 +81,8 @@ def bench_engines(repeat: int) -> dict:
     p = get_problem("dro")
     out = {}
     for eng in ("fused", "library"):
-        _, t, meta, res = _median_runs(lambda e=eng: ocreach.reach(p, "stt", engine=e), max(1, repeat // 2))
+        _, t, meta, res = _median_runs(lambda e=eng: ocreach.reach(p, "stt", engine=e),
+                                       max(1, repeat // 2))
         out[eng] = {"t": t, "runtime": meta["runtime"], "set": res.sets[-1]}
     d = np.vstack([np.eye(4), -np.eye(4)])
     a, b = out["fused"]["set"].support(d), out["library"]["set"].support(d)

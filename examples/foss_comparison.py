@@ -226,7 +226,6 @@ def nrho_figure(out: Path) -> dict:
     t_stt = time.perf_counter() - t0
     r1 = ocreach.reach(p, "stt", order=1)
     ode = ocreach.reach(p, "ode", samples=100)
-    moon = 1.0 - float(p.model.param("mu")) if "mu" in p.model.param_names else None
     ref = r.meta["reference"]
     spread = np.array([np.ptp(ode.trajectories[:, k, :3], axis=0).max() for k in range(len(r.sets))])
     radius = np.array([0.5 * np.max(np.asarray(s.interval_hull().hi - s.interval_hull().lo)[:3]) for s in r.sets])

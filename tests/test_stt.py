@@ -32,9 +32,12 @@ def direct_support(problem, dirs, dims, sub=4):
     for k in range(K):
         h = (g[k + 1] - g[k]) / sub
         for _ in range(sub):
-            def f(xx):
+            def f(xx, k=k):
                 return m.f_fun(xx, U[:, k], g[k], problem.params)
-            k1 = f(x); k2 = f(x + h / 2 * k1); k3 = f(x + h / 2 * k2); k4 = f(x + h * k3)  # noqa: E702
+            k1 = f(x)
+            k2 = f(x + h / 2 * k1)
+            k3 = f(x + h / 2 * k2)
+            k4 = f(x + h * k3)
             x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     d = ca.SX.sym("d", len(dims))
     if problem.control_set.kind == "box":
@@ -191,7 +194,7 @@ def test_tube_contains_dense_true_trajectories():
     assert len(r.tube) == p.n_segments
     rng = np.random.default_rng(0)
     u = p.control_set.sample_boundary(rng, (200, p.n_segments))
-    _, times, dense = propagate(p.model, np.tile(p.x0, (200, 1)), u, p.grid, p=p.params, substeps=10)
+    _, _, dense = propagate(p.model, np.tile(p.x0, (200, 1)), u, p.grid, p=p.params, substeps=10)
     for k in range(p.n_segments):
         pts = dense[:, 10 * k:10 * k + 11].reshape(-1, 2)
         polys = r.tube[k].outline((0, 1), pieces=64)

@@ -34,7 +34,7 @@ Beyond the paper (documented in docs/stt.md):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
