@@ -59,6 +59,9 @@ def _final_cloud(ax, prob, res, label, color, dims=(0, 1), k=-1):
 
 def _save(fig, out: Path, name: str) -> None:
     out.mkdir(parents=True, exist_ok=True)
+    for ax in fig.axes:  # km-scale ticks: scientific offsets instead of overlapping 6-digit labels
+        if ax.name == "rectilinear":
+            ax.ticklabel_format(style="sci", scilimits=(-3, 4), useMathText=True)
     fig.tight_layout()
     fig.savefig(out / name, dpi=130)
     plt.close(fig)
