@@ -46,6 +46,10 @@ def plot_set(S, ax, dims: Any = (0, 1), pieces: int = 64, **kw):
         verts.append(np.vstack([P, P[:1]]))
         codes.append([Path.MOVETO] + [Path.LINETO] * (P.shape[0] - 1) + [Path.CLOSEPOLY])
     path = Path(np.vstack(verts), np.concatenate(codes))
+    color = kw.pop("color", None)  # one colour for face and edge (PathPatch warns on `color`)
+    if color is not None:
+        kw.setdefault("facecolor", color)
+        kw.setdefault("edgecolor", color)
     kw.setdefault("facecolor", "tab:blue")
     kw.setdefault("alpha", 0.5)
     if isinstance(S, PolyZonotope) and not oriented:
