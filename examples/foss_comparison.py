@@ -36,7 +36,7 @@ from ocreach.problem import ControlSet, get_problem
 from ocreach.reach.base import available_methods
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.result import atomic_write_bytes, atomic_write_text
-from ocreach.reach.stt import points_in_polygons, polygons_union_area
+from ocreach.geometry import outline_area, points_in_polygons
 
 TRAJ_METHODS = {"ode": {"samples": 100}, "ffoe": {"samples": 100, "dims": "position"},
                 "bvp": {"samples": 100, "dims": "position"}}
@@ -65,7 +65,7 @@ def estimate_2d(res, dims):
     if res.sets is not None:
         S = res.sets[-1].project(dims)
         polys = S.outline((0, 1), pieces=PIECES)
-        return (lambda D: np.asarray(S.support(D)), polygons_union_area(polys),
+        return (lambda D: np.asarray(S.support(D)), outline_area(polys),
                 lambda P: points_in_polygons(P, polys))
     pts = np.asarray(res.points[-1])[:, dims]
     return (lambda D: (pts @ D.T).max(axis=0), hull_area(pts), lambda P: in_convex_hull(P, pts))

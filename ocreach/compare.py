@@ -10,8 +10,17 @@ planes):
   width ``h_true(d) + h_true(-d)``.  Positive values are over-approximation (or points the other
   methods missed), negative values under-approximation;
 * ``area``: area of the projection (convex hull of samples, or the set's outline);
-* ``mc_covered``: fraction of the Monte Carlo endpoints inside the method's estimate (the set, or
-  the convex hull of the method's samples in the projection).
+* ``mc_covered``: fraction of the Monte Carlo endpoints inside the method's estimate, tested as:
+  convex sets (interval, zonotope, ellipsoid): exact membership of the projection (within the
+  set's ``tol``); polynomial zonotopes and unions of them (``stt``): membership in the union of
+  the 64 convex outline pieces (:meth:`PolyZonotope.outline`) -- an outer approximation of the
+  non-convex projection, so it can overstate coverage by the pieces' enclosure error but is far
+  tighter than ``PolyZonotope.contains`` without splits (one zonotope enclosure); sample-based
+  methods: the convex hull of the method's samples.
+
+Methods that used a different input set than the problem's control set (``meta["input_set"]``,
+e.g. ``stt`` with the paper's box on ``dro``) are named in the table's notes: their estimate is of
+a different (larger) reachable set than the Monte Carlo truth, which uses the problem's set.
 """
 from __future__ import annotations
 
@@ -25,7 +34,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ocreach.geometry import (circle_directions, convex_hull_polygon, in_convex_hull, outline_area,
-                              polygon_area)
+                              points_in_polygons, polygon_area)
 from ocreach.problem import Problem, get_problem
 from ocreach.errors import ProblemError
 from ocreach.reach.base import method_class, reach
@@ -60,7 +69,22 @@ class Comparison:
             lines.append("| " + " | ".join(row) + " |")
         for name, err in self.errors.items():
             lines.append(f"| {name} | failed: {err} |" + " |" * (len(head) - 2))
+        notes = self.notes()
+        if notes:
+            lines += [""] + [f"Note: {n}" for n in notes]
         return "\n".join(lines)
+
+    def notes(self) -> list[str]:
+        """Methods whose input set differs from the problem's control set (see module docstring)."""
+        kind = self.problem.control_set.kind
+        out = []
+        for name, res in self.results.items():
+            used = res.meta.get("input_set")
+            if used is not None and used != kind:
+                out.append(f"{name} used the {used!r} input set, the problem (and the Monte Carlo "
+                           f"truth) the {kind!r} control set: {name} estimates a different reachable "
+                           f"set, so its support error and area include that difference.")
+        return out
 
 
 def _projected_estimate(result: ReachResult, dims: Sequence[int]):
@@ -70,8 +94,11 @@ def _projected_estimate(result: ReachResult, dims: Sequence[int]):
         s = result.sets[-1].project(dims)
         outline = s.outline() if hasattr(s, "outline") else convex_hull_polygon(
             s.sample(4000, np.random.default_rng(0), mode="extreme"))
-        return (lambda d: np.array([s.support(di) for di in d]), outline_area(outline),
-                lambda pts: np.asarray(s.contains(pts), dtype=bool))
+        if isinstance(outline, (list, tuple)):  # PZ / union of PZs: pieces of the non-convex outline
+            contains = lambda pts: points_in_polygons(pts, outline)  # noqa: E731
+        else:
+            contains = lambda pts: np.asarray(s.contains(pts), dtype=bool)  # noqa: E731
+        return (lambda d: np.array([s.support(di) for di in d]), outline_area(outline), contains)
     pts = np.asarray(result.points[-1])[:, dims]
     poly = convex_hull_polygon(pts)
     return (lambda d: np.max(pts @ d.T, axis=0), polygon_area(poly),

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ocreach.errors import SetError
+
 
 def convex_hull_polygon(points: np.ndarray) -> np.ndarray | None:
     """Counter-clockwise vertices of the convex hull of 2-D ``points`` (None if degenerate)."""
@@ -46,6 +48,33 @@ def outline_area(outline) -> float:
     if isinstance(outline, (list, tuple)):
         return float(union_of_polygons(outline).area)
     return polygon_area(outline)
+
+
+def points_in_polygons(points: np.ndarray, polygons, tol: float = 1e-9) -> np.ndarray:
+    """Mask of 2-D ``points`` inside the union of polygons (list of (k, 2) vertex arrays, any
+    orientation), with a boundary tolerance of ``tol`` times each polygon's extent.
+
+    Used for coverage tests against a polynomial zonotope's :meth:`outline` pieces, which are a
+    much tighter outer approximation than the single zonotope enclosure ``contains`` tests.
+    """
+    from matplotlib.path import Path
+
+    P = np.asarray(points, dtype=float)
+    if P.ndim != 2 or P.shape[1] != 2:
+        raise SetError(f"points must have shape (m, 2); got {P.shape}")
+    ok = np.zeros(P.shape[0], dtype=bool)
+    for poly in polygons:
+        poly = np.asarray(poly, dtype=float)
+        if poly.shape[0] < 3:
+            continue
+        todo = ~ok
+        if not np.any(todo):
+            break
+        path = Path(poly)
+        r = tol * max(1.0, float(np.ptp(poly, axis=0).max()))
+        # matplotlib's radius sign depends on the orientation: accept either
+        ok[todo] = path.contains_points(P[todo], radius=r) | path.contains_points(P[todo], radius=-r)
+    return ok
 
 
 def hull_area(points: np.ndarray) -> float:

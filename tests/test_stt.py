@@ -12,11 +12,10 @@ import pytest
 import ocreach
 from ocreach.errors import ProblemError
 from ocreach.flow import propagate
-from ocreach.geometry import hull_area
+from ocreach.geometry import hull_area, outline_area, points_in_polygons
 from ocreach.problem import ControlSet, get_problem
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.stt import (PZUnion, STTReach, fused_step, make_dependent, points_in_polygons,
-                               polygons_union_area, stt_polynomial)
+from ocreach.reach.stt import PZUnion, STTReach, fused_step, make_dependent, stt_polynomial
 from ocreach.sets import Interval, PolyZonotope, new_ids, tensor_map
 
 
@@ -151,7 +150,7 @@ def test_vdp_covers_mc_and_area_within_1p5_of_true_hull(vdp_result):
     assert np.all(end @ dirs.T <= h_true[None] + 1e-6)          # the optimiser found the max
     width = h_true + direct_support(p, -dirs[:1], (0, 1))[0][0]
     assert np.all(S.support(dirs) >= h_true - 1e-3 * width[0])  # STT support over-approximates
-    ratio = polygons_union_area(polys) / hull_area(np.vstack([opt_pts, end]))
+    ratio = outline_area(polys) / hull_area(np.vstack([opt_pts, end]))
     assert 1.0 <= ratio <= 1.5
 
 
@@ -164,7 +163,7 @@ def test_dro_box_covers_mc_endpoints():
     for dims in ((0, 1), (2, 3)):
         polys = r.sets[-1].outline(dims, pieces=32)
         assert points_in_polygons(end[:, dims], polys).mean() >= 0.995
-        ratio = polygons_union_area(polys) / hull_area(end[:, dims])
+        ratio = outline_area(polys) / hull_area(end[:, dims])
         assert 1.0 < ratio < 4.0   # MC hull is an inner estimate; measured ratios in validation.md
 
 
@@ -184,7 +183,7 @@ def test_initial_set_and_splitting_cover_mc():
     for name, r in (("plain", plain), ("split", split)):
         polys = r.sets[-1].outline((0, 1), pieces=64)
         assert points_in_polygons(end, polys).mean() >= 0.995
-        area[name] = polygons_union_area(polys)
+        area[name] = outline_area(polys)
     assert area["split"] < 0.75 * area["plain"]
 
 
@@ -218,3 +217,36 @@ def test_divergence_is_reported_not_silent():
     p = dataclasses.replace(base, initial_set=Interval(base.x0 - 0.8, base.x0 + 0.8))
     with pytest.raises(SolverError, match="step"):
         ocreach.reach(p, "stt", order=3, h_max=100)
+
+
+# ---------------------------------------------------------------------------- compare on stt sets
+def test_compare_coverage_uses_outline_pieces_not_the_zonotope_enclosure():
+    """A thin band around a parabola, {(a, a^2 + 0.1 b)}: the point (0, 0.8) is outside (exactly:
+    |y - x^2| <= 0.1), yet inside the zonotope enclosure that ``PolyZonotope.contains`` tests.
+    The comparison's coverage must use the outline pieces; its area must be the union's, near the
+    exact band area 0.4 (not the enclosure's 2 x 1.2)."""
+    from ocreach.compare import _projected_estimate
+    from ocreach.reach.result import ReachResult
+
+    pz = PolyZonotope(np.zeros(2), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.1]]), None,
+                      np.array([[1, 2, 0], [0, 0, 1]]), new_ids(2))
+    assert pz.contains(np.array([0.0, 0.8]))              # the loose test this replaces
+    res = ReachResult(times=[0.0], sets=[pz])
+    _, area, contains = _projected_estimate(res, (0, 1))
+    a = np.random.default_rng(0).uniform(-1, 1, (500, 2))
+    band = np.c_[a[:, 0], a[:, 0] ** 2 + 0.1 * a[:, 1]]
+    assert contains(band).all()
+    assert not contains(np.array([[0.0, 0.8], [0.5, 0.6], [-0.5, -0.1]])).any()
+    assert 0.4 <= area <= 0.6
+
+
+def test_compare_notes_a_different_input_set():
+    from ocreach.compare import Comparison
+    from ocreach.reach.result import ReachResult
+
+    p = get_problem("vdp", t_final=0.2)
+    res = ReachResult(times=p.grid, sets=[PolyZonotope(p.x0)] * p.grid.size, meta={"input_set": "ball"})
+    cmp = Comparison(problem=p, results={"stt": res}, metrics={}, truth=np.zeros((0, 2)))
+    assert "'ball' input set" in cmp.table()
+    res.meta["input_set"] = p.control_set.kind
+    assert cmp.notes() == []

@@ -120,58 +120,6 @@ class PZUnion:
         return out
 
 
-def polygons_union_area(polys: Sequence[np.ndarray], resolution: int = 800) -> float:
-    """Area of the union of convex 2-D polygons on a ``resolution``-square raster of their
-    bounding box (scan lines: each polygon fills one x-interval per raster row).
-
-    Used for the area of a polynomial zonotope's outline (its parts overlap, so the sum of the
-    parts' areas would over-count).  Relative error ~ perimeter * cell / area (< 1 % here).
-    """
-    polys = [np.asarray(p, float) for p in polys if len(p) >= 3]
-    if not polys:
-        return 0.0
-    allv = np.vstack(polys)
-    lo, hi = allv.min(axis=0), allv.max(axis=0)
-    span = np.where(hi - lo > 0, hi - lo, 1.0)
-    xs = lo[0] + (np.arange(resolution) + 0.5) * span[0] / resolution
-    ys = lo[1] + (np.arange(resolution) + 0.5) * span[1] / resolution
-    inside = np.zeros((resolution, resolution), dtype=bool)
-    for P in polys:
-        p0, p1 = P, np.roll(P, -1, axis=0)
-        y0, y1 = p0[:, 1], p1[:, 1]
-        ylo, yhi = np.minimum(y0, y1), np.maximum(y0, y1)
-        rows = np.flatnonzero((ys >= ylo.min()) & (ys <= yhi.max()))
-        if rows.size == 0:
-            continue
-        Y = ys[rows][:, None]
-        hit = (Y >= ylo) & (Y <= yhi) & (yhi > ylo)
-        t = np.where(hit, (Y - y0) / np.where(y1 != y0, y1 - y0, 1.0), 0.0)
-        X = p0[:, 0] + t * (p1[:, 0] - p0[:, 0])
-        xmin = np.where(hit, X, np.inf).min(axis=1)
-        xmax = np.where(hit, X, -np.inf).max(axis=1)
-        inside[rows] |= (xs[None, :] >= xmin[:, None]) & (xs[None, :] <= xmax[:, None])
-    return float(inside.sum() * span[0] * span[1] / resolution ** 2)
-
-
-def points_in_polygons(points: np.ndarray, polys: Sequence[np.ndarray], tol: float = 1e-9) -> np.ndarray:
-    """Mask of 2-D ``points`` inside the union of convex polygons (counter-clockwise or not)."""
-    from matplotlib.path import Path
-
-    P = np.asarray(points, float)
-    ok = np.zeros(P.shape[0], dtype=bool)
-    for poly in polys:
-        poly = np.asarray(poly, float)
-        if poly.shape[0] < 3:
-            continue
-        todo = ~ok
-        if not np.any(todo):
-            break
-        path = Path(poly)
-        r = tol * max(1.0, float(np.ptp(poly, axis=0).max()))
-        ok[todo] = path.contains_points(P[todo], radius=r) | path.contains_points(P[todo], radius=-r)
-    return ok
-
-
 # ============================================================================ helpers
 def input_pz(kind: str, n_u: int):
     """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
