@@ -250,3 +250,19 @@ def test_compare_notes_a_different_input_set():
     assert "'ball' input set" in cmp.table()
     res.meta["input_set"] = p.control_set.kind
     assert cmp.notes() == []
+
+
+@pytest.mark.parametrize("engine", ["fused", "library"])
+def test_overflowing_reduction_raises_solver_error(engine):
+    """Generators ~1e160 are finite, but the PCA reduction's G G^T overflows and numpy's SVD fails
+    (nrho-flyby with dt = 0.025 hit this as a bare LinAlgError): it must be the SolverError of a
+    diverged propagation."""
+    from ocreach.errors import SolverError
+    from ocreach.reach.base import Timer
+    from ocreach.reach.stt import stt_step
+
+    rng = np.random.default_rng(1)
+    pz = random_pz(rng, 3, 30, 5, 0)
+    phi = [1e160 * rng.standard_normal((3, 3)), rng.standard_normal((3, 3, 3))]
+    with pytest.raises(SolverError, match="diverged"):
+        stt_step(phi, pz, 10, "pca", engine, Timer(), {"tensor_maps": 0, "reductions": 0})

@@ -46,6 +46,9 @@ from ocreach.reach.result import ReachResult
 
 INPUT_SETS = ("box", "ball")
 REDUCTIONS = ("pca", "girard")
+DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
+            "(the set is far outside the region where the truncated expansion is valid); use a "
+            "smaller set or horizon, a lower order, or splitting")
 
 
 # ============================================================================ union of PZs
@@ -200,7 +203,10 @@ def stt_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str, engine: str
     counts["tensor_maps"] += 1
     if out.n_generators > h_max:
         with timer("reductions"):
-            out = out.reduce(h_max, method)
+            try:
+                out = out.reduce(h_max, method)
+            except np.linalg.LinAlgError as exc:
+                raise SolverError(f"{DIVERGED} ({exc})") from exc
         counts["reductions"] += 1
     return out
 
@@ -272,13 +278,14 @@ def fused_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str = "pca",
     with np.errstate(over="ignore", invalid="ignore"):
         with timer("tensor_maps"):
             out = _fused_generate(phi, dZ, h_max, prune)
-        if not np.all(np.isfinite(out[0])):
-            raise SolverError("STT set propagation diverged: the image of the set under the STT "
-                              "polynomial overflowed (the set is far outside the region where the "
-                              "truncated expansion is valid); use a smaller set or horizon, a lower "
-                              "order, or splitting")
+        # |G| > 1e150: G G^T of the PCA reduction overflows (SVD fails) -- the same divergence
+        if not np.all(np.isfinite(out[0])) or (out[0].size and np.abs(out[0]).max() > 1e150):
+            raise SolverError(DIVERGED)
         with timer("reductions"):
-            res = _fused_reduce(dZ, h_max, method, *out)
+            try:
+                res = _fused_reduce(dZ, h_max, method, *out)
+            except np.linalg.LinAlgError as exc:
+                raise SolverError(f"{DIVERGED} ({exc})") from exc
     if counts is not None:
         counts["tensor_maps"] += 1
         counts["reductions"] += int(res[1])
