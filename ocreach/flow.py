@@ -121,6 +121,30 @@ def _codegen(funs: list[ca.Function]) -> bytes:
         return Path(tmp, "gen.c").read_bytes()
 
 
+# Public names of the C-compilation helpers, for modules that generate their own kernels
+# (ocreach.stochastic_mc, ocreach.reach.cut_kernel, the CUT rule cache of ocreach.quadrature).
+def jit_enabled() -> bool:
+    """True unless C compilation is switched off (environment ``OCREACH_JIT=0``)."""
+    return _jit_enabled()
+
+
+def cache_dir() -> Path:
+    """Directory of the on-disk cache of compiled libraries (``OCREACH_CACHE_DIR`` or
+    ``~/.cache/ocreach/jit``)."""
+    return _cache_dir()
+
+
+def compile_source(name: str, sources: dict[str, bytes], main: str, flags: tuple[str, ...]) -> Path:
+    """Compile C ``sources`` (file name -> bytes; ``main`` is the translation unit) into a shared
+    library cached on disk by a hash of sources and flags; returns its path."""
+    return _compile_source(name, sources, main, flags)
+
+
+def generate_c(funs: list[ca.Function]) -> bytes:
+    """C source (no header) of the CasADi Functions ``funs``, from CasADi's code generator."""
+    return _codegen(funs)
+
+
 def compile_function(fun: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.Function:
     """Compile ``fun`` to C (cached on disk by source hash) and load it as a CasADi external.
 

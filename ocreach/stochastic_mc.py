@@ -182,14 +182,14 @@ class _BatchFunction:
     def _build(self):
         import ctypes
 
-        from ocreach.flow import _codegen, _compile_source, _jit_enabled
+        from ocreach.flow import compile_source, generate_c, jit_enabled
 
-        if not _jit_enabled():
+        if not jit_enabled():
             return None
         main = (f"#define OCR_FUN {self.fun.name()}\n#define OCR_FUN_work {self.fun.name()}_work\n"
                 "#include \"gen.c\"\n#include \"batch.c\"\n").encode()
-        lib = _compile_source(f"ocr_batch_{self.fun.name()}",
-                              {"gen.c": _codegen([self.fun]), "batch.c": _BATCH_C.encode(),
+        lib = compile_source(f"ocr_batch_{self.fun.name()}",
+                              {"gen.c": generate_c([self.fun]), "batch.c": _BATCH_C.encode(),
                                "main.c": main}, "main.c", ("-O2",))
         dll = ctypes.CDLL(str(lib))
         fn = dll.ocr_batch
@@ -297,11 +297,11 @@ class _MCKernel:
     def __init__(self, fun: ca.Function):
         import ctypes
 
-        from ocreach.flow import _codegen, _compile_source
+        from ocreach.flow import compile_source, generate_c
 
         main = (f"#define OCR_FUN {fun.name()}\n#define OCR_FUN_work {fun.name()}_work\n"
                 "#include \"gen.c\"\n#include \"mc.c\"\n").encode()
-        lib = _compile_source(f"ocr_mc_{fun.name()}", {"gen.c": _codegen([fun]), "mc.c": _MC_C.encode(),
+        lib = compile_source(f"ocr_mc_{fun.name()}", {"gen.c": generate_c([fun]), "mc.c": _MC_C.encode(),
                                                         "main.c": main}, "main.c", ("-O2",))
         self._dll = ctypes.CDLL(str(lib))
         self._fn = self._dll.ocr_mc_run
@@ -332,11 +332,11 @@ class _MCKernel:
 
 
 def _mc_kernel(sm: SplitStepMap) -> _MCKernel | None:
-    from ocreach.flow import _jit_enabled
+    from ocreach.flow import jit_enabled
 
     if "mc_kernel" not in sm._maps:
         kern = None
-        if _jit_enabled():
+        if jit_enabled():
             try:
                 kern = _MCKernel(sm._step().fun)
             except Exception as exc:  # no compiler: the per-step batched path, same numbers

@@ -171,3 +171,21 @@ def test_bad_input():
         ocreach.reach(p, "cut")
     with pytest.raises(ProblemError, match="no stochastic specification"):
         ocreach.reach("vdp", "cut")
+
+
+def test_kernels_use_public_flow_names():
+    """The C-kernel modules use ocreach.flow's public compile helpers, not its private names."""
+    import ast
+    from pathlib import Path
+
+    import ocreach.flow as flow
+
+    for name in ("jit_enabled", "cache_dir", "compile_source", "generate_c"):
+        assert callable(getattr(flow, name)) and not name.startswith("_")
+    assert flow.cache_dir() == flow._cache_dir() and flow.jit_enabled() == flow._jit_enabled()
+    root = Path(ocreach.__file__).parent
+    for rel in ("reach/cut_kernel.py", "stochastic_mc.py", "quadrature.py"):
+        tree = ast.parse((root / rel).read_text())
+        private = [a.name for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+                   and node.module == "ocreach.flow" for a in node.names if a.name.startswith("_")]
+        assert private == [], (rel, private)

@@ -157,12 +157,12 @@ class CUTKernel:
     in ``sm._maps``; the shared library is cached on disk by :mod:`ocreach.flow`)."""
 
     def __init__(self, sm):
-        from ocreach.flow import _codegen, _compile_source
+        from ocreach.flow import compile_source, generate_c
 
         fun = point_function(sm)
         main = (f"#define OCR_FUN {fun.name()}\n#define OCR_FUN_work {fun.name()}_work\n"
                 "#include \"gen.c\"\n#include \"kernel.c\"\n").encode()
-        lib = _compile_source(f"ocr_cut_{fun.name()}", {"gen.c": _codegen([fun]),
+        lib = compile_source(f"ocr_cut_{fun.name()}", {"gen.c": generate_c([fun]),
                                                          "kernel.c": _KERNEL_C.encode(),
                                                          "main.c": main}, "main.c", ("-O2",))
         self._dll = ctypes.CDLL(str(lib))
@@ -205,11 +205,11 @@ class CUTKernel:
 def cut_kernel(sm) -> CUTKernel | None:
     """The cached :class:`CUTKernel` of ``sm``, or ``None`` if C compilation is disabled or fails
     (then :func:`ocreach.reach.cut.propagate_moments` in NumPy gives the same numbers)."""
-    from ocreach.flow import _jit_enabled
+    from ocreach.flow import jit_enabled
 
     if "cut_kernel" not in sm._maps:
         kern = None
-        if _jit_enabled():
+        if jit_enabled():
             try:
                 kern = CUTKernel(sm)
             except Exception as exc:  # no compiler: NumPy path, same numbers
