@@ -42,13 +42,33 @@ def _spec(vehicle: Vehicle, mean_phys, var_phys, u_nom, sigma_u_deg: float) -> S
     )
 
 
+def _problem(pid: str, vehicle: Vehicle, spec: StochasticSpec, grid: np.ndarray,
+             report_times: tuple[float, ...], description: str, where: str,
+             units: tuple[str, str]) -> Problem:
+    """The Problem of one maneuver: re-entry model, Gaussian spec, split Euler map (Eq. 21-23)."""
+    return Problem(
+        id=pid, model=reentry(vehicle), x0=spec.x0_mean, grid=grid, stochastic=spec,
+        units=vehicle.units, description=description, citation=f"{CITATION}, {where}",
+        position_dims=(0, 3, 5), velocity_dims=(1, 2, 4),
+        method_options={"cut": {"order": 8, "rule": "cut"}},
+        extra={"vehicle": vehicle, "step_map": step_map(vehicle),
+               "report_times": [t for t in report_times if t <= grid[-1]],
+               "physical_units": (*units, "rad", "rad", "rad", "rad")},
+    )
+
+
 def shuttle_reentry(t_final: float = 2000.0, dt: float = 1.0, alpha_deg: float = 21.0,
                     bank0_deg: float = -75.0, bank1_deg: float = -5.0, psi0_deg: float = 90.0,
                     sigma_u_deg: float = 3.0) -> Problem:
     """Shuttle re-entry with Gaussian x0 and controls, 2000 s, alpha 21 deg, bank -75 -> -5 deg (Jain Eq. 24-25).
 
-    Vehicle of Tables 1-2; initial Gaussian of Eq. 24-25 except the azimuth mean ``psi0_deg``
-    (default 90 deg, Betts' value for this vehicle; Eq. 24 prints -1 deg, see docs/reentry.md).
+    Vehicle of Tables 1-2; initial Gaussian of Eq. 24-25 except the azimuth mean ``psi0_deg``:
+    default 90 deg (due east), the value of the source problem (Betts, *Practical Methods for
+    Optimal Control*, Example 6.1, via the paper's Ref. 33) and the only one that reproduces the
+    paper's own description of Fig. 4 (h, v, psi decreasing, latitude and longitude increasing);
+    Eq. 24 prints -1 deg (the gamma0 entry repeated), which with the corrected equations sends
+    the longitude negative for a left bank or turns psi upward for a right bank.
+    ``psi0_deg=-1`` gives the literal Eq. 24 (docs/reentry.md).
     Nominal controls: ``alpha = alpha_deg``, bank linear from ``bank0_deg`` at t = 0 to
     ``bank1_deg`` at ``t_final`` (evaluated at each segment's start), both with sigma
     ``sigma_u_deg``.  Forward-Euler step ``dt`` s.
@@ -60,18 +80,10 @@ def shuttle_reentry(t_final: float = 2000.0, dt: float = 1.0, alpha_deg: float =
     mean = [260000.0, 25600.0, -1.0 * DEG, 0.0, psi0_deg * DEG, 0.0]
     var = [3000.0**2, 0.0, 0.0, (0.5 * DEG) ** 2, (0.5 * DEG) ** 2, 0.0]
     spec = _spec(SHUTTLE, mean, var, u_nom, sigma_u_deg)
-    report = [tt for tt in (1.0, 500.0, 1000.0, 2000.0) if tt <= t_final]
-    return Problem(
-        id="shuttle-reentry", model=reentry(SHUTTLE), x0=spec.x0_mean, grid=grid,
-        stochastic=spec, units=SHUTTLE.units,
-        description=f"shuttle re-entry, Gaussian x0 (Eq. 24-25) and controls (sigma "
+    return _problem("shuttle-reentry", SHUTTLE, spec, grid, (1.0, 500.0, 1000.0, 2000.0),
+                    f"shuttle re-entry, Gaussian x0 (Eq. 24-25) and controls (sigma "
                     f"{sigma_u_deg:g} deg), {t_final:g} s, dt = {dt:g} s",
-        citation=f"{CITATION}, first maneuver, Tables 1-2, Eq. 24-25",
-        position_dims=(0, 3, 5), velocity_dims=(1, 2, 4),
-        method_options={"cut": {"order": 8, "rule": "cut"}},
-        extra={"vehicle": SHUTTLE, "step_map": step_map(SHUTTLE), "report_times": report,
-               "physical_units": ("ft", "ft/s", "rad", "rad", "rad", "rad")},
-    )
+                    "first maneuver, Tables 1-2, Eq. 24-25", ("ft", "ft/s"))
 
 
 def glider_reentry(t_final: float = 120.0, dt: float = 0.1, alpha_deg: float = 10.0,
@@ -95,18 +107,10 @@ def glider_reentry(t_final: float = 120.0, dt: float = 0.1, alpha_deg: float = 1
     mean = [80000.0, 5000.0, -35.0822 * DEG, 0.0, 0.0, 0.0]
     var = [1.0, 0.0, 0.0, (0.5 * DEG) ** 2, (0.5 * DEG) ** 2, 0.0]
     spec = _spec(GLIDER, mean, var, u_nom, sigma_u_deg)
-    report = [tt for tt in (1.0, 30.0, 60.0, 120.0) if tt <= t_final]
-    return Problem(
-        id="glider-reentry", model=reentry(GLIDER), x0=spec.x0_mean, grid=grid,
-        stochastic=spec, units=GLIDER.units,
-        description=f"glide vehicle, Gaussian x0 (Eq. 26-27) and controls (sigma "
+    return _problem("glider-reentry", GLIDER, spec, grid, (1.0, 30.0, 60.0, 120.0),
+                    f"glide vehicle, Gaussian x0 (Eq. 26-27) and controls (sigma "
                     f"{sigma_u_deg:g} deg), {t_final:g} s, dt = {dt:g} s",
-        citation=f"{CITATION}, second maneuver, Tables 3-4, Eq. 26-27",
-        position_dims=(0, 3, 5), velocity_dims=(1, 2, 4),
-        method_options={"cut": {"order": 8, "rule": "cut"}},
-        extra={"vehicle": GLIDER, "step_map": step_map(GLIDER), "report_times": report,
-               "physical_units": ("m", "m/s", "rad", "rad", "rad", "rad")},
-    )
+                    "second maneuver, Tables 3-4, Eq. 26-27", ("m", "m/s"))
 
 
 PROBLEMS = {"shuttle-reentry": shuttle_reentry, "glider-reentry": glider_reentry}

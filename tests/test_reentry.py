@@ -116,6 +116,33 @@ def test_problems_follow_the_paper():
         get_problem("glider-reentry", dt=0.0)
 
 
+def _nominal_path(**kw):
+    """Mean state under the nominal controls (Euler map) at t = 0, 500, 1000, 2000 s, physical."""
+    p = get_problem("shuttle-reentry", **kw)
+    sm = step_map_for(p)
+    x, out = p.x0.copy(), {0: p.x0.copy()}
+    for k in range(p.n_segments):
+        x = sm.step(x[None], p.stochastic.u_nominal[k][None], 1.0, p.grid[k])[0]
+        out[k + 1] = x
+    return p.extra["vehicle"].to_physical(np.array([out[t] for t in (0, 500, 1000, 2000)]))
+
+
+def test_shuttle_azimuth_default_reproduces_the_papers_trends():
+    """Jain et al. describe Fig. 4: 'altitude h, velocity v and azimuth psi decreasing, latitude
+    theta and longitude phi increasing'.  The default psi0 = 90 deg (Betts Ex. 6.1, the source
+    problem) gives all five; the literal Eq. 24 value psi0 = -1 deg (an option) cannot: with the
+    left bank the longitude decreases, with the mirrored right bank psi increases."""
+    x = _nominal_path()
+    assert x[0, 4] == pytest.approx(90 * D)
+    d = np.diff(x, axis=0)
+    assert np.all(d[:, [0, 1, 4]] < 0) and np.all(d[:, [3, 5]] > 0), d
+    lit = _nominal_path(psi0_deg=-1.0)
+    assert lit[0, 4] == pytest.approx(-D)
+    assert np.all(np.diff(lit[:, 5]) < 0)  # longitude decreases: contradicts the text
+    mirror = _nominal_path(psi0_deg=-1.0, bank0_deg=75.0, bank1_deg=5.0)
+    assert np.all(np.diff(mirror[:, 4]) > 0)  # azimuth increases: contradicts the text
+
+
 def _linear_problem(cov0, u_cov, K=30, dt=0.1, A=None):
     """x' = A x + B u: the exact mean/covariance recursion of its Euler map is the truth.
     A zero column of ``A`` makes that state absent from f (exercises ``cut``'s ``reduce``)."""
