@@ -187,16 +187,22 @@ def test_initial_set_and_splitting_cover_mc():
     assert area["split"] < 0.75 * area["plain"]
 
 
-def test_tube_contains_dense_true_trajectories():
+def test_tube_contains_dense_true_trajectories(tmp_path):
     p = get_problem("vdp", t_final=0.6)
     r = STTReach(order=2, h_max=60, tube_substeps=4).solve(p)
-    assert len(r.tube) == p.n_segments
+    assert len(r.tubes) == p.n_segments
+    back = ocreach.load(r.save(tmp_path / "tube.npz"))          # tubes are saved and loaded
+    np.testing.assert_allclose(back.tubes[2].support(np.eye(2)), r.tubes[2].support(np.eye(2)))
+    assert ocreach.load(STTReach(order=1, h_max=20).solve(p).save(tmp_path / "n.npz")).tubes is None
+    assert r.project([1]).tubes[0].dim == 1
+    with pytest.raises(ProblemError, match="segment"):
+        dataclasses.replace(r, tubes=r.tubes[:-1])
     rng = np.random.default_rng(0)
     u = p.control_set.sample_boundary(rng, (200, p.n_segments))
     _, _, dense = propagate(p.model, np.tile(p.x0, (200, 1)), u, p.grid, p=p.params, substeps=10)
     for k in range(p.n_segments):
         pts = dense[:, 10 * k:10 * k + 11].reshape(-1, 2)
-        polys = r.tube[k].outline((0, 1), pieces=64)
+        polys = r.tubes[k].outline((0, 1), pieces=64)
         assert points_in_polygons(pts, polys).mean() >= 0.999
 
 

@@ -67,6 +67,8 @@ class ReachResult:
     controls: np.ndarray | None = None
     trajectories: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    #: optional reachable tubes, one set per segment [t_k, t_{k+1}] (``len(times) - 1`` entries)
+    tubes: list[Any] | None = None
 
     def __post_init__(self) -> None:
         self.times = np.asarray(self.times, dtype=float)
@@ -76,6 +78,9 @@ class ReachResult:
             if seq is not None and len(seq) != self.times.size:
                 raise ProblemError(f"ReachResult.{name} must have one entry per time "
                                    f"({self.times.size}); got {len(seq)}")
+        if self.tubes is not None and len(self.tubes) != self.times.size - 1:
+            raise ProblemError(f"ReachResult.tubes must have one entry per segment "
+                               f"({self.times.size - 1}); got {len(self.tubes)}")
 
     # ------------------------------------------------------------------ queries
     @property
@@ -132,6 +137,7 @@ class ReachResult:
             controls=self.controls,
             trajectories=None if self.trajectories is None else self.trajectories[..., dims],
             meta={**self.meta, "projected_dims": dims},
+            tubes=None if self.tubes is None else [s.project(dims) for s in self.tubes],
         )
 
     # ------------------------------------------------------------------ plotting
@@ -151,6 +157,8 @@ class ReachResult:
             arrays["points"] = np.concatenate([np.asarray(p, dtype=float) for p in self.points])
         if self.sets is not None:
             arrays["sets_pickle"] = np.frombuffer(pickle.dumps(self.sets, protocol=5), dtype=np.uint8)
+        if self.tubes is not None:
+            arrays["tubes_pickle"] = np.frombuffer(pickle.dumps(self.tubes, protocol=5), dtype=np.uint8)
         if self.controls is not None:
             arrays["controls"] = self.controls
         if self.trajectories is not None:
@@ -177,4 +185,5 @@ def load(path: str | Path) -> ReachResult:
             controls=z["controls"] if "controls" in z else None,
             trajectories=z["trajectories"] if "trajectories" in z else None,
             meta=json.loads(str(z["meta_json"])),
+            tubes=pickle.loads(z["tubes_pickle"].tobytes()) if "tubes_pickle" in z else None,
         )

@@ -26,7 +26,7 @@ Beyond the paper (documented in docs/stt.md):
   are computed by second-order STTs from ``t_k`` to ``t_k + i dt / s`` applied to ``dZ_k`` (the
   control is held on the segment, so the map is exact in the same sense), and each is bloated by
   a box of half-width ``dt/(2s) * max |f|`` (the speed estimated on the extreme samples of the
-  neighbouring sets, times 1.5) to cover the motion between sampled times.  ``result.tube[k]``
+  neighbouring sets, times 1.5) to cover the motion between sampled times.  ``result.tubes[k]``
   is the union over the segment ``[t_k, t_{k+1}]``.
 * directional STTs (Boone & McMahon) are not implemented: STT generation is below 5 % of the
   runtime on all three problems (see docs/benchmarks.md), so they would not pay off.
@@ -577,10 +577,7 @@ class STTReach(Method):
         if opt.split is not None:
             meta["nonlinearity_index"] = eta_hist
         meta["reference"] = ref.states
-        res = ReachResult(times=grid, sets=sets, meta=meta)
-        if opt.tube_substeps:
-            res.tube = tube  # type: ignore[attr-defined]
-        return res
+        return ReachResult(times=grid, sets=sets, meta=meta, tubes=tube if opt.tube_substeps else None)
 
     # ------------------------------------------------------------------ pieces
     def _segment_phi(self, part: _Part, k: int, problem: Problem, timer: Timer,
