@@ -8,6 +8,8 @@ with the prediction model, so the reference is the *true* nonlinear trajectory.
 """
 from __future__ import annotations
 
+import dataclasses
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +18,13 @@ from scipy.integrate import solve_ivp
 from ocreach.control.discretize import Discretization
 from ocreach.errors import ProblemError, SolverError, check_positive
 from ocreach.model import Model
+
+log = logging.getLogger("ocreach.control.reference")
+
+#: Default bound on the prediction model's one-step error along the reference (max-norm, model
+#: units) for ``n_sub="auto"``, and the largest number of RK4 substeps tried.
+DEFECT_TOL = 1e-6
+MAX_SUBSTEPS = 64
 
 
 def propagate_natural(model: Model, x0: np.ndarray, times: np.ndarray, p: np.ndarray,
@@ -118,6 +127,23 @@ class TrackingReference:
                 self.X[:-1], self.U, self.time(ks), self.params)
         return self
 
+    def defect(self) -> np.ndarray:
+        """One-step error of the prediction model along the reference, per step (max-norm).
+
+        ``|f_d(x_ref_k, u_ref_k, t_k) - x_ref_{k+1}|_inf`` for ``k = 0..M-1``: the reference is the
+        DOP853 solution (rtol 1e-12), so this is the RK4 discretisation error of each step (plus
+        the reference's own error, ~1e-12).  Cached.
+        """
+        if "defect" not in self.cache:
+            ks = np.arange(self.n_steps)
+            xn, _, _ = self.discretization.linearize(self.X[:-1], self.U, self.time(ks), self.params)
+            self.cache["defect"] = np.max(np.abs(xn - self.X[1:]), axis=1)
+        return self.cache["defect"]
+
+    def with_substeps(self, n_sub: int) -> TrackingReference:
+        """The same reference with a prediction model of ``n_sub`` RK4 substeps (fresh caches)."""
+        return dataclasses.replace(self, n_sub=int(n_sub), A=None, B=None, cache={})
+
     def gains_index(self, k) -> np.ndarray:
         """Index into per-step arrays (``A``, ``B``, Riccati solutions) for step(s) ``k``."""
         return self._index(k, self.n_steps - 1)
@@ -146,8 +172,28 @@ def periodic_reference(model: Model, x0, period: float, steps_per_period: int, *
                              periodic=True, n_sub=n_sub, name=name)
 
 
+def verified_substeps(ref: TrackingReference, tol: float = DEFECT_TOL,
+                      max_sub: int = MAX_SUBSTEPS) -> TrackingReference:
+    """Double ``ref.n_sub`` until the prediction model's one-step error along the reference
+    (:meth:`TrackingReference.defect`) is at most ``tol``; warn if ``max_sub`` is not enough.
+
+    Why: a fixed substep count that is accurate on one orbit can be far off on another (2 RK4
+    substeps per 1 h step: 5e-12 DU on l2-halo, 5.6e-3 DU = 2150 km at the perilune of nrho-9-2),
+    and an MPC predicting with a wrong model fights its own model error with thrust.
+    """
+    check_positive("defect_tol", tol)
+    while float(ref.defect().max()) > tol and ref.n_sub < max_sub:
+        ref = ref.with_substeps(min(2 * ref.n_sub, max_sub))
+    worst = float(ref.defect().max())
+    if worst > tol:
+        log.warning("prediction model of %r: one-step error %.3g > defect_tol %.3g even with "
+                    "%d RK4 substeps per step; use a smaller dt", ref.name, worst, tol, ref.n_sub)
+    return ref
+
+
 def reference_from_problem(problem, *, dt: float | None = None, n_steps: int | None = None,
-                           n_sub: int = 2, pad: int = 0) -> TrackingReference:
+                           n_sub: int | str = "auto", pad: int = 0,
+                           defect_tol: float = DEFECT_TOL) -> TrackingReference:
     """Tracking reference of a :class:`ocreach.Problem`.
 
     With ``problem.reference`` (a corrected periodic orbit) the reference is one period on steps of
@@ -155,7 +201,16 @@ def reference_from_problem(problem, *, dt: float | None = None, n_steps: int | N
     step), periodic; ``n_default`` covers the problem's grid span (or ``n_steps``).  Otherwise it
     is the natural trajectory from ``problem.x0`` on ``n_steps`` steps of ``dt`` (defaults: the
     problem's grid).
+
+    ``n_sub`` is the number of RK4 substeps of the prediction model per step, or ``"auto"``
+    (default): start at 2 and double until the one-step error along the reference is at most
+    ``defect_tol`` (:func:`verified_substeps`).
     """
+    if isinstance(n_sub, str):
+        if n_sub != "auto":
+            raise ProblemError(f"n_sub must be 'auto' or an integer >= 1; got {n_sub!r}")
+        return verified_substeps(
+            reference_from_problem(problem, dt=dt, n_steps=n_steps, n_sub=2, pad=pad), defect_tol)
     grid = problem.grid
     step = float(dt) if dt is not None else float(abs(grid[1] - grid[0]))
     check_positive("dt", step)

@@ -149,7 +149,7 @@ def lqr_vs_mpc_report(problem, out_dir: str | Path, **options: Any) -> dict:
     Options (all keyword, defaults in brackets): ``dt`` (control step, model units [problem grid
     step]), ``n_steps`` [problem grid span], ``n_p`` [10], ``n_c`` [5], ``Q``, ``R`` [Patel &
     Subbarao Table 3], ``thrust_set`` ["plant"], ``offset_box`` ["paper"], ``x0_offset``,
-    ``disturbance`` [1e-7], ``seed`` [0], ``n_sub`` [2], ``max_cpu_time`` [1.0 s],
+    ``disturbance`` [1e-7], ``seed`` [0], ``n_sub`` ["auto"], ``max_cpu_time`` [1.0 s],
     ``weights_in`` ["acceleration"], ``progress`` [True].  See :func:`_report` for their meaning.  Unknown options raise
     :class:`ProblemError`.
     """
@@ -164,7 +164,7 @@ def _report(problem, out_dir: str | Path, *, dt: float | None = None,
                       n_steps: int | None = None, n_p: int = 10, n_c: int = 5,
                       Q: Any = PAPER_Q, R: Any = PAPER_R, thrust_set: str = "plant",
                       offset_box: Any = "paper", x0_offset: Any = None,
-                      disturbance: Any = 1e-7, seed: int = 0, n_sub: int = 2,
+                      disturbance: Any = 1e-7, seed: int = 0, n_sub: int | str = "auto",
                       max_cpu_time: float = 1.0, weights_in: str = "auto",
                       progress: bool = True) -> dict:
     """Compare the periodic LQR and the nonlinear MPC on ``problem`` and write the report.
@@ -210,7 +210,8 @@ def _report(problem, out_dir: str | Path, *, dt: float | None = None,
         "plant_control_set": problem.control_set.kind, "lqr_riccati": lqr.mode,
         "lqr_const_riccati": lqr_const.mode, "lqr_const_linearized_at": "reference step 0",
         "controllers": CONTROLLERS,
-        "terminal_weight": "LQR Riccati P_{k+N_p}", "rk4_substeps": n_sub,
+        "terminal_weight": "LQR Riccati P_{k+N_p}", "rk4_substeps": ref.n_sub,
+        "prediction_defect_max": float(ref.defect().max()),
         "offset": (results["lqr"].X[0] - results["lqr"].X_ref[0]).tolist(),
         "disturbance_W": disturbance, "seed": seed, "max_cpu_time": max_cpu_time,
         "a_max": float(problem.param("a_max")) if "a_max" in problem.model.param_names else None,
@@ -306,7 +307,9 @@ def _markdown(problem, data: dict, figs: list[str]) -> str:
     step = f"{s['dt_hours']:.4g} h" if s["dt_hours"] else f"{s['dt_TU']:.4g} TU"
     out += [(f"Step {step}, {s['n_steps']} steps; MPC N_p = {s['n_p']}, N_c = {s['n_c']}, "
              f"thrust set {s['thrust_set_mpc']} (plant: {s['plant_control_set']}); "
-             f"LQR Riccati mode {s['lqr_riccati']}; Q = {s['Q']}, R = {s['R']} on {s['R_units']}; "
+             f"LQR Riccati mode {s['lqr_riccati']}; prediction model RK4 with "
+             f"{s['rk4_substeps']} substeps per step (one-step error along the reference "
+             f"<= {s['prediction_defect_max']:.2g}); Q = {s['Q']}, R = {s['R']} on {s['R_units']}; "
              f"disturbance W = {s['disturbance_W']}, seed {s['seed']}."), ""]
     out += [f"- `{c}`: {d}" for c, d in CONTROLLERS.items()]
     out += ["", "| metric | " + " | ".join(CONTROLLERS) + " | mpc/lqr | mpc/lqr_const |",
