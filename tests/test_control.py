@@ -338,8 +338,29 @@ def test_report_writes_files(halo, tmp_path):
             assert key in data[name] and key in out[name]
     for f in ("report.md", "report.html", "tracking_error.png", "control.png", "trajectory.png"):
         assert (tmp_path / f).stat().st_size > 0
+    # the text's magnitudes are this run's numbers (recomputed here from metrics.json)
+    md = (tmp_path / "report.md").read_text()
+    lq, mp = data["lqr"], data["mpc"]
+    assert f"MPC/LQR = {mp['effort'] / lq['effort']:.4f}" in md
+    assert f"MPC/LQR = {mp['tracking_error'] / lq['tracking_error']:.4f}" in md
+    rel = max(abs(mp[k] / lq[k] - 1) for k in ("effort", "tracking_error"))
+    assert rel < 0.01 and f"agree within {100 * rel:.2g} %" in md
+    assert "Paper (Table 2)" in md and "750x" not in md and "746x heavier" in md
     with pytest.raises(ProblemError, match=r"no option\(s\) \['horizon'\]; allowed: \['dt'"):
         lqr_vs_mpc_report(halo, tmp_path, horizon=3)
+
+
+def test_report_on_another_problem_has_no_l2_halo_claims(tmp_path):
+    """dro (planar, 4 states): default weights and offset follow the paper's pattern on that
+    problem's position/velocity states; no Table 2 lines or l2-halo study text."""
+    from ocreach.control.report import lqr_vs_mpc_report
+
+    out = lqr_vs_mpc_report(ocreach.get_problem("dro"), tmp_path, n_steps=5, progress=False)
+    md = (tmp_path / "report.md").read_text()
+    assert out["settings"]["Q"] == "diag(1000, 1000, 100, 100)"
+    off = np.abs(out["settings"]["offset"])
+    assert np.all(off[:2] <= 1e-4) and np.all(off[2:] <= 5e-4) and np.all(off > 0)
+    assert "paper_table2" not in out and "Table 2" not in md and "halo" not in md.lower()
 
 
 # ----------------------------------------------------------------------------- errors
