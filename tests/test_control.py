@@ -229,6 +229,20 @@ def test_mpc_long_horizon_matches_periodic_lqr(halo_ref, halo_lqr):
     assert np.allclose(u, u_lqr, rtol=1e-4, atol=1e-6 * np.abs(u_lqr).max())
 
 
+def test_mpc_terminal_weight_uses_its_own_weights_not_the_fallbacks(halo_ref, halo_lqr):
+    """A fallback LQR with other weights must not supply the terminal weight: the long-horizon
+    MPC still reproduces the LQR law of *its* Q, R (and differs from the fallback's law)."""
+    k0 = 120
+    other = LQR(Q_PAPER, 100 * R_PAPER).setup(halo_ref, "ball")
+    mpc = MPC(Q_PAPER, R_PAPER, n_p=10, n_c=10, fallback=other).setup(halo_ref, "ball")
+    assert np.allclose(mpc.terminal_weight(k0), halo_lqr.cost_to_go(k0 + 10), rtol=1e-9)
+    x = halo_ref.state(k0) + 1e-7 * np.array([2, -1, 1, -1, 3, 1])
+    u, u_own, u_other = mpc.control(k0, x), halo_lqr.control(k0, x), other.control(k0, x)
+    # with the fallback's P the first control was 40 % off the own law
+    assert np.allclose(u, u_own, rtol=0, atol=1e-4 * np.abs(u_own).max())
+    assert not np.allclose(u_other, u_own, rtol=1e-2)
+
+
 def test_mpc_box_thrust_and_held_inputs(halo_ref, halo_lqr):
     """Large offset: the box of Eq. 28 (inscribed in the ball plant set) is active; plan is held after n_c."""
     mpc = MPC(Q_PAPER, R_PAPER, n_p=10, n_c=3, thrust_set="box", fallback=halo_lqr)

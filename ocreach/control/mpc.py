@@ -64,7 +64,8 @@ class MPC:
     Q, R : state and control weights (``R`` in the units of ``weights_in``, see
         :mod:`ocreach.control.common`).  Table 3: ``diag(1000, 1000, 1000, 100, 100, 100)``, ``I``.
     n_p, n_c : prediction and control horizon (``1 <= n_c <= n_p``); Table 3: 10 and 5.
-    P : terminal weight; ``None`` uses the LQR Riccati solution ``P_{k+n_p}``.
+    P : terminal weight; ``None`` uses the LQR Riccati solution ``P_{k+n_p}`` for this MPC's ``Q``
+        and ``R`` (from ``fallback`` when it has the same weights, else from its own LQR).
     thrust_set : ``"plant"`` (the problem's control set), ``"ball"`` (``u^T u <= 1``) or ``"box"``
         (Eq. 28; ``|u_i| <= 1``, or the inscribed box ``|u_i| <= 1/sqrt(n_u)`` when the plant's
         set is a ball, so the plant limit still holds).
@@ -127,6 +128,12 @@ class MPC:
             self.lqr = LQR(self.Q_in, self.R_in, weights_in=self.weights_in)
         if self.lqr.reference is not reference:
             self.lqr.setup(reference, control_set_kind)
+        self.terminal_lqr = self.lqr
+        if self.P_fixed is None and not (np.allclose(self.lqr.Q, self.Q, rtol=1e-12, atol=0)
+                                         and np.allclose(self.lqr.R, self.R, rtol=1e-12, atol=0)):
+            # the fallback has other weights: its Riccati P is not this cost's cost-to-go
+            self.terminal_lqr = LQR(self.Q_in, self.R_in, weights_in=self.weights_in).setup(
+                reference, control_set_kind)
         self.reference = reference
         self._build(reference)
         self.reset()
@@ -240,7 +247,9 @@ class MPC:
         self._tube_values = (c, G)
 
     def terminal_weight(self, k: int) -> np.ndarray:
-        return self.P_fixed if self.P_fixed is not None else self.lqr.cost_to_go(k + self.n_p)
+        """Terminal weight at step ``k``: ``P`` if given, else the Riccati ``P_{k+n_p}`` of an LQR
+        with this MPC's ``Q`` and ``R`` (the fallback's, when its weights are the same)."""
+        return self.P_fixed if self.P_fixed is not None else self.terminal_lqr.cost_to_go(k + self.n_p)
 
     # ------------------------------------------------------------------ solve
     def _parameters(self, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
