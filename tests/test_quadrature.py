@@ -107,12 +107,21 @@ def test_cut8_beats_ut_on_quartic_mean():
     assert abs(wu @ f(xu) - 4.0) > 0.1
 
 
-@pytest.mark.parametrize("bad", [
-    dict(n=3, order=5), dict(n=7, order=8), dict(n=0, order=4), dict(n=3, order=4, density="beta"),
-    dict(n=3, order=6, density="uniform"), dict(n=10, order=4), dict(n=2.5, order=4),
+ALLOWED = r"Supported: order 4: gaussian n=1\.\.9, uniform n=1\.\.8, order 6: .*order 8: gaussian n=1\.\.6"
+
+
+@pytest.mark.parametrize("bad,match", [
+    (dict(n=3, order=5), r"order must be one of 4, 6, 8; got 5\. " + ALLOWED),
+    (dict(n=7, order=8), r"CUT8 with density='gaussian' is supported for n = 1\.\.6; got n=7\. " + ALLOWED),
+    (dict(n=0, order=4), r"supported for n = 1\.\.9; got n=0"),
+    (dict(n=3, order=4, density="beta"), r"density must be 'gaussian' or 'uniform'; got 'beta'"),
+    (dict(n=3, order=6, density="uniform"), r"CUT6 with density='uniform' is supported for n = 1\.\.2; got n=3"),
+    (dict(n=10, order=4), r"supported for n = 1\.\.9; got n=10"),
+    (dict(n=2.5, order=4), r"n must be an int; got 2\.5"),
 ])
-def test_cut_unsupported(bad):
-    with pytest.raises(ProblemError, match="supported|must be"):
+def test_cut_unsupported(bad, match):
+    """The message names the parameter, the value and what is supported."""
+    with pytest.raises(ProblemError, match=match):
         cut_rule(**bad)
 
 
