@@ -8,8 +8,9 @@ stage cost, terminal weight ``P_{k+N}`` from the periodic Riccati solution (a ti
 parameter in do-mpc), the Euclidean thrust ball ``u^T u <= 1`` and the same IPOPT tolerances.
 One closed loop is driven by ocreach's MPC on the true dynamics (paper offset and disturbance);
 at every step do-mpc and the LQR are called on the same state, interleaved, so machine load hits
-all three alike.  do-mpc is run twice: with its default IPOPT start (it passes the previous
-solution and multipliers, unshifted) and with the same IPOPT warm-start options as ocreach.
+all alike.  do-mpc is run three times: with its default IPOPT start (it passes the previous
+solution and multipliers, unshifted), with the same IPOPT warm-start options as ocreach, and with
+those options plus ocreach's shifted-plan initial guess.
 
 Usage: ``python benchmarks/bench_mpc.py [--steps N] [--write]``.
 """
@@ -40,7 +41,8 @@ IPOPT_WARM = {"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-4,
 class DoMPCController:
     """do-mpc 5 MPC on the same discrete model, cost, horizons and thrust ball."""
 
-    def __init__(self, ref, lqr: LQR, Q, Ru, n_p: int, n_c: int, warm: bool) -> None:
+    def __init__(self, ref, lqr: LQR, Q, Ru, n_p: int, n_c: int, warm: bool,
+                 shift: bool = False) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             import do_mpc
@@ -91,8 +93,48 @@ class DoMPCController:
         mpc.set_initial_guess()
         self.mpc = mpc
         self.failures = 0
+        self.shift, self.F = shift, F
+        self.ix = np.array([mpc.opt_x.f["_x", i, 0, -1] for i in range(n_p + 1)])
+        self.iu = np.array([mpc.opt_x.f["_u", i, 0] for i in range(n_p)])
+        # do-mpc's constraint layout (checked from the Jacobian sparsity): x_0 = x (nx rows), then
+        # per stage k the nx dynamics rows (depend on stages k, k+1) and the thrust row (stage k),
+        # then our hold rows.  Shifting stage blocks k <- k+1 shifts the constraint multipliers.
+        blk = nx + 1
+        self.ig = nx + np.arange(n_p * blk).reshape(n_p, blk)
+        stage = np.zeros(mpc.opt_x.size, int)
+        for i in range(n_p + 1):
+            stage[self.ix[i]] = i
+        for i in range(n_p):
+            stage[self.iu[i]] = i
+        rows, cols = ca.jacobian(mpc._nlp_cons, mpc._opt_x).sparsity().get_triplet()
+        rows, cols = np.asarray(rows), np.asarray(cols)
+        for k in (0, n_p - 1):
+            assert set(stage[cols[rows == self.ig[k, 0]]]) == {k, k + 1}, "do-mpc layout changed"
+            assert set(stage[cols[rows == self.ig[k, -1]]]) == {k}, "do-mpc layout changed"
+
+    def _shift(self, k: int) -> None:
+        """Same warm start as ocreach: previous plan shifted one step, last state propagated with
+        the last control; dynamics/thrust and bound multipliers shifted alike."""
+        m = self.mpc
+        lg = np.asarray(m.lam_g_num).ravel().copy()
+        lg[self.ig[:-1].ravel()] = lg[self.ig[1:].ravel()]
+        m.lam_g_num = ca.DM(lg)
+        for attr in ("opt_x_num", "lam_x_num"):
+            s = getattr(m, attr)
+            v = np.asarray(s.master if hasattr(s, "master") else s).ravel()
+            w = v.copy()
+            w[self.ix[:-1]] = v[self.ix[1:]]
+            w[self.iu[:-1]] = v[self.iu[1:]]
+            if attr == "opt_x_num":
+                w[self.ix[-1]] = np.asarray(self.F(v[self.ix[-1]], v[self.iu[-1]], 0.0,
+                                                   self.ref.params)).ravel()
+                s.master = ca.DM(w)
+            else:
+                setattr(m, attr, ca.DM(w))
 
     def control(self, k: int, x: np.ndarray) -> np.ndarray:
+        if self.shift and k > 0:
+            self._shift(k)
         u = np.asarray(self.mpc.make_step(np.asarray(x).reshape(-1, 1))).ravel()
         if not self.mpc.solver_stats.get("success", False):
             self.failures += 1
@@ -111,14 +153,17 @@ def run(n_steps: int = 100, seed: int = 0) -> dict:
     dm_default = DoMPCController(ref, lqr, Q, lqr.R, 10, 5, warm=False)
     t_build_dm = time.perf_counter() - t0
     dm_warm = DoMPCController(ref, lqr, Q, lqr.R, 10, 5, warm=True)
+    dm_shift = DoMPCController(ref, lqr, Q, lqr.R, 10, 5, warm=True, shift=True)
     plant = Plant(ref, "ball", prob.velocity_dims)
     rng = np.random.default_rng(seed)
     x = ref.state(0) + np.asarray(PAPER_OFFSET_BOX) * rng.uniform(-1, 1, 6)
     W = 1e-7 * rng.uniform(-1, 1, (n_steps, 3))
-    names = ("ours", "dompc", "dompc_warm", "lqr")
-    ctl = {"ours": ours, "dompc": dm_default, "dompc_warm": dm_warm, "lqr": lqr}
+    names = ("ours", "dompc", "dompc_warm", "dompc_shift", "lqr")
+    ctl = {"ours": ours, "dompc": dm_default, "dompc_warm": dm_warm, "dompc_shift": dm_shift,
+           "lqr": lqr}
+    iters = {n: [] for n in ("ours", "dompc", "dompc_warm", "dompc_shift")}
     times = {n: np.empty(n_steps) for n in names}
-    diff = {"dompc": 0.0, "dompc_warm": 0.0, "lqr": 0.0}
+    diff = {"dompc": 0.0, "dompc_warm": 0.0, "dompc_shift": 0.0, "lqr": 0.0}
     umax = 0.0
     for k in range(n_steps):
         us = {}
@@ -127,7 +172,10 @@ def run(n_steps: int = 100, seed: int = 0) -> dict:
             t = time.perf_counter()
             us[n] = ctl[n].control(k, x)
             times[n][k] = time.perf_counter() - t
-        for n in diff:
+            if n in iters:
+                st = ctl[n].solver.stats() if n == "ours" else ctl[n].mpc.solver_stats
+                iters[n].append(int(st["iter_count"]))
+        for n in diff:  # noqa: PLC0206 (updated in place)
             diff[n] = max(diff[n], float(np.max(np.abs(us[n] - us["ours"]))))
         umax = max(umax, float(np.linalg.norm(us["ours"])))
         x = plant.step(x, us["ours"], W[k], float(ref.time(k)), ref.dt)
@@ -135,12 +183,14 @@ def run(n_steps: int = 100, seed: int = 0) -> dict:
     mean = {n: float(np.mean(times[n][1:])) for n in names}
     return {"n_steps": n_steps, "median": med, "mean": mean, "diff": diff,
             "fallbacks": ours.fallbacks, "dm_failures": dm_default.failures,
-            "dmw_failures": dm_warm.failures, "t_build_ours": t_build_ours,
+            "dmw_failures": dm_warm.failures, "dms_failures": dm_shift.failures,
+            "iters": {n: float(np.mean(v[1:])) for n, v in iters.items()},
+            "t_build_ours": t_build_ours,
             "t_build_dm": t_build_dm, "umax": umax}
 
 
 def markdown(r: dict) -> str:
-    m, a = r["median"], r["mean"]
+    m, a, it = r["median"], r["mean"], r["iters"]
     return f"""## MPC
 
 `benchmarks/bench_mpc.py`: nonlinear MPC time per step on `l2-halo` (Patel & Subbarao Table 3:
@@ -148,27 +198,42 @@ N_p = 10, N_c = 5, Q = diag(1000, 1000, 1000, 100, 100, 100), R = I on the thrus
 1 h steps, RK4 with 2 substeps, thrust ball u^T u <= 1, IPOPT tol 1e-10), {r['n_steps']} closed-loop
 steps from the paper's initial offset with the W = 1e-7 disturbance.  do-mpc 5 solves the same NLP
 (discrete model = the same RK4 map, same cost and terminal weight, control horizon as equality
-constraints) on the same states in the same process, calls interleaved.
+constraints) on the same states in the same process, calls interleaved.  Warm starts: do-mpc by
+default re-uses its previous solution and multipliers unshifted; "shifted" gives it ocreach's
+policy (IPOPT warm-start options, previous plan shifted one step, last state propagated,
+dynamics, thrust and bound multipliers shifted by one stage).
 
-| controller | median time/step | mean time/step | ratio (median) to ocreach MPC |
-| --- | ---: | ---: | ---: |
-| ocreach MPC (shifted warm start) | {1e3 * m['ours']:.2f} ms | {1e3 * a['ours']:.2f} ms | 1.00 |
-| do-mpc, default IPOPT start | {1e3 * m['dompc']:.2f} ms | {1e3 * a['dompc']:.2f} ms | {m['dompc'] / m['ours']:.2f} |
-| do-mpc, same warm-start options | {1e3 * m['dompc_warm']:.2f} ms | {1e3 * a['dompc_warm']:.2f} ms | {m['dompc_warm'] / m['ours']:.2f} |
-| ocreach LQR (periodic Riccati) | {1e3 * m['lqr']:.3f} ms | {1e3 * a['lqr']:.3f} ms | {m['lqr'] / m['ours']:.4f} |
+| controller | median time/step | mean time/step | IPOPT iterations (mean) | ratio (median) to ocreach MPC |
+| --- | ---: | ---: | ---: | ---: |
+| ocreach MPC (shifted warm start) | {1e3 * m['ours']:.2f} ms | {1e3 * a['ours']:.2f} ms | {it['ours']:.1f} | 1.00 |
+| do-mpc, default IPOPT start | {1e3 * m['dompc']:.2f} ms | {1e3 * a['dompc']:.2f} ms | {it['dompc']:.1f} | {m['dompc'] / m['ours']:.2f} |
+| do-mpc, same warm-start options | {1e3 * m['dompc_warm']:.2f} ms | {1e3 * a['dompc_warm']:.2f} ms | {it['dompc_warm']:.1f} | {m['dompc_warm'] / m['ours']:.2f} |
+| do-mpc, same options + shifted plan | {1e3 * m['dompc_shift']:.2f} ms | {1e3 * a['dompc_shift']:.2f} ms | {it['dompc_shift']:.1f} | {m['dompc_shift'] / m['ours']:.2f} |
+| ocreach LQR (periodic Riccati) | {1e3 * m['lqr']:.3f} ms | {1e3 * a['lqr']:.3f} ms | | {m['lqr'] / m['ours']:.4f} |
 
 ocreach MPC / do-mpc (median): {m['ours'] / m['dompc']:.2f}x (default start),
-{m['ours'] / m['dompc_warm']:.2f}x (same warm-start options) -- target <= 1.0x.
+{m['ours'] / m['dompc_warm']:.2f}x (same warm-start options), {m['ours'] / m['dompc_shift']:.2f}x (same
+options and shifted plan) -- target <= 1.0x; against do-mpc's fastest variant here:
+{m['ours'] / min(m['dompc'], m['dompc_warm'], m['dompc_shift']):.2f}x.  (The shifted plan is feasible to ~1e-13 where
+do-mpc's unshifted guess violates the dynamics by ~2e-3, yet do-mpc's IPOPT run takes more
+iterations from it; ocreach's NLP differs in its variables -- deviations from the reference, the
+held controls shared instead of equality-constrained, no x_0 copy.)
 Same solution: max |u_ocreach - u_do-mpc| over the run {r['diff']['dompc']:.1e} (default),
-{r['diff']['dompc_warm']:.1e} (warm), with ||u|| up to {r['umax']:.2g}; max |u_MPC - u_LQR| {r['diff']['lqr']:.1e}
-(the MPC is the LQR law plus the N_c = 5 hold and the nonlinear prediction).
+{r['diff']['dompc_warm']:.1e} (warm), {r['diff']['dompc_shift']:.1e} (shifted), with ||u|| up to
+{r['umax']:.2g}; max |u_MPC - u_LQR| {r['diff']['lqr']:.1e} (the MPC is the LQR law plus the N_c = 5
+hold and the nonlinear prediction).
 Failures: ocreach fallbacks {r['fallbacks']}, do-mpc unsuccessful solves {r['dm_failures']} /
-{r['dmw_failures']}.  Build time: ocreach {r['t_build_ours']:.2f} s, do-mpc {r['t_build_dm']:.2f} s.
-Where the time goes (ocreach): IPOPT needs 4-5 iterations per warm-started step; about half the
-time is the exact Hessian of the Lagrangian of the RK4 map (SX virtual machine), the rest IPOPT
-itself and the constraint Jacobian.  CasADi's `jit` (C code) cuts function evaluations ~7x but the
-build takes about a minute, so it is not the default.  Timings were taken with other jobs sharing
-the 2 cores and vary by tens of percent between runs; the ratios are stable (calls interleaved).
+{r['dmw_failures']} / {r['dms_failures']}.  Build time: ocreach {r['t_build_ours']:.2f} s, do-mpc
+{r['t_build_dm']:.2f} s.
+Where the time goes (ocreach): about half of it is the exact Hessian of the Lagrangian of the RK4
+map (SX virtual machine), the rest IPOPT itself and the constraint Jacobian.  CasADi's `jit` (C
+code) cuts function evaluations ~7x; measured once for the whole solver (IPOPT on the NLP
+generated with `generate_dependencies`, compiled with `cc -O1`, same options and warm start, 40
+steps, identical controls): 9.7 ms per step vs 13-16 ms with the SX virtual machine (1.4-1.7x),
+for a 33-46 s compile per NLP configuration (n_p, n_c, thrust set, tube).  A one-period run (349
+steps) saves ~2 s, so only a warm disk cache pays; not adopted.  Timings were taken with other
+jobs sharing the 2 cores and vary by tens of percent between runs; the ratios are more stable
+(calls interleaved).
 """
 
 
@@ -191,7 +256,8 @@ def main(argv=None) -> int:
     print(f"median time/step: ocreach MPC {1e3 * m['ours']:.2f} ms, do-mpc {1e3 * m['dompc']:.2f} ms "
           f"(warm options {1e3 * m['dompc_warm']:.2f} ms), LQR {1e3 * m['lqr']:.3f} ms")
     print(f"ratio ocreach/do-mpc: {m['ours'] / m['dompc']:.2f}x (default), "
-          f"{m['ours'] / m['dompc_warm']:.2f}x (warm); MPC/LQR {m['ours'] / m['lqr']:.0f}x; "
+          f"{m['ours'] / m['dompc_warm']:.2f}x (warm), {m['ours'] / m['dompc_shift']:.2f}x (shifted); "
+          f"iterations {r['iters']}; MPC/LQR {m['ours'] / m['lqr']:.0f}x; "
           f"max |du| vs do-mpc {r['diff']['dompc']:.1e}")
     text = markdown(r)
     if args.write:
