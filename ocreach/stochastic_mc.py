@@ -132,24 +132,35 @@ def _cname(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name) or "anon"
 
 
+#: C prelude shared by the generated kernels (this module's and ocreach.reach.cut_kernel's):
+#: ``OCR_WORK_ALLOC(n_arg, n_res)`` declares CasADi's work arrays ``arg``, ``res``, ``iw``, ``wk``
+#: of the Function ``OCR_FUN`` with ``n_arg`` / ``n_res`` spare slots; ``OCR_WORK_FREE`` frees them.
+C_WORK = r"""
+#include <stdlib.h>
+#define OCR_WORK_ALLOC(n_arg, n_res) \
+  casadi_int sa, sr, si, sw; \
+  OCR_FUN_work(&sa, &sr, &si, &sw); \
+  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + (n_arg))); \
+  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + (n_res))); \
+  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1)); \
+  casadi_real* wk = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
+#define OCR_WORK_FREE free(arg); free(res); free(iw); free(wk);
+"""
+
+
 _BATCH_C = """
 #include <stdlib.h>
 CASADI_SYMBOL_EXPORT int ocr_batch(long N, long n_in, const double** in, const long* in_stride,
                                    long n_out, double** out, const long* out_stride) {
-  casadi_int sa, sr, si, sw;
-  OCR_FUN_work(&sa, &sr, &si, &sw);
-  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + n_in + 1));
-  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + n_out + 1));
-  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
-  casadi_real* w = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
-  if (!arg || !res || !iw || !w) return -1;
+  OCR_WORK_ALLOC(n_in + 1, n_out + 1)
+  if (!arg || !res || !iw || !wk) { OCR_WORK_FREE return -1; }
   int flag = 0;
   for (long s = 0; s < N && !flag; ++s) {
     for (long i = 0; i < n_in; ++i) arg[i] = in[i] + s * in_stride[i];
     for (long j = 0; j < n_out; ++j) res[j] = out[j] + s * out_stride[j];
-    flag = OCR_FUN(arg, res, iw, w, 0);
+    flag = OCR_FUN(arg, res, iw, wk, 0);
   }
-  free(arg); free(res); free(iw); free(w);
+  OCR_WORK_FREE
   return flag;
 }
 """
@@ -187,9 +198,10 @@ class _BatchFunction:
         if not jit_enabled():
             return None
         main = (f"#define OCR_FUN {self.fun.name()}\n#define OCR_FUN_work {self.fun.name()}_work\n"
-                "#include \"gen.c\"\n#include \"batch.c\"\n").encode()
+                "#include \"gen.c\"\n#include \"work.h\"\n#include \"batch.c\"\n").encode()
         lib = compile_source(f"ocr_batch_{self.fun.name()}",
-                              {"gen.c": generate_c([self.fun]), "batch.c": _BATCH_C.encode(),
+                              {"gen.c": generate_c([self.fun]), "work.h": C_WORK.encode(),
+                               "batch.c": _BATCH_C.encode(),
                                "main.c": main}, "main.c", ("-O2",))
         dll = ctypes.CDLL(str(lib))
         fn = dll.ocr_batch
@@ -244,16 +256,11 @@ CASADI_SYMBOL_EXPORT int ocr_mc_run(long N, long n, long m, long k0, long k1, co
                                     const double* Z, const double* unom, const double* Lu,
                                     const double* p, double* X, double* gmean, double* gstd,
                                     long* fail) {
-  casadi_int sa, sr, si, sw;
-  OCR_FUN_work(&sa, &sr, &si, &sw);
-  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + 7));
-  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + 2));
-  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
-  casadi_real* w = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
+  OCR_WORK_ALLOC(7, 2)
   double* xn = (double*)malloc(sizeof(double) * n);
   double* u = (double*)malloc(sizeof(double) * (m + 1));
   int flag = 0;
-  if (!arg || !res || !iw || !w || !xn || !u) flag = -1;
+  if (!arg || !res || !iw || !wk || !xn || !u) flag = -1;
   for (long k = k0; k < k1 && !flag; ++k) {
     double t = grid[k], dt = grid[k + 1] - grid[k];
     const double* Zk = Z + (k - k0) * N * m;
@@ -267,7 +274,7 @@ CASADI_SYMBOL_EXPORT int ocr_mc_run(long N, long n, long m, long k0, long k1, co
       }
       arg[0] = x; arg[1] = u; arg[2] = &t; arg[3] = &dt; arg[4] = p; arg[5] = p;
       res[0] = xn;
-      if (OCR_FUN(arg, res, iw, w, 0)) { flag = 2; fail[0] = k + 1; break; }
+      if (OCR_FUN(arg, res, iw, wk, 0)) { flag = 2; fail[0] = k + 1; break; }
       int ok = 1;
       for (long a = 0; a < n; ++a) { x[a] = xn[a]; ok &= isfinite(xn[a]) ? 1 : 0; }
       if (!ok) { flag = 1; fail[0] = k + 1; }
@@ -283,7 +290,7 @@ CASADI_SYMBOL_EXPORT int ocr_mc_run(long N, long n, long m, long k0, long k1, co
       for (long a = 0; a < n; ++a) { double d = X[s * n + a] - mu[a]; sd[a] += d * d; }
     for (long a = 0; a < n; ++a) sd[a] = sqrt(sd[a] / (double)(N - 1));
   }
-  free(arg); free(res); free(iw); free(w); free(xn); free(u);
+  OCR_WORK_FREE free(xn); free(u);
   return flag;
 }
 """
@@ -300,9 +307,10 @@ class _MCKernel:
         from ocreach.flow import compile_source, generate_c
 
         main = (f"#define OCR_FUN {fun.name()}\n#define OCR_FUN_work {fun.name()}_work\n"
-                "#include \"gen.c\"\n#include \"mc.c\"\n").encode()
-        lib = compile_source(f"ocr_mc_{fun.name()}", {"gen.c": generate_c([fun]), "mc.c": _MC_C.encode(),
-                                                        "main.c": main}, "main.c", ("-O2",))
+                "#include \"gen.c\"\n#include \"work.h\"\n#include \"mc.c\"\n").encode()
+        sources = {"gen.c": generate_c([fun]), "work.h": C_WORK.encode(), "mc.c": _MC_C.encode(),
+                   "main.c": main}
+        lib = compile_source(f"ocr_mc_{fun.name()}", sources, "main.c", ("-O2",))
         self._dll = ctypes.CDLL(str(lib))
         self._fn = self._dll.ocr_mc_run
         self._fn.restype = ctypes.c_int

@@ -58,12 +58,7 @@ CASADI_SYMBOL_EXPORT int ocr_cut_run(long K, long n, long r, long M, long ny, co
                                      const double* grid, const double* xi, const double* w,
                                      const double* Eh, const double* Ch, const double* p,
                                      double* mean, double* cov, long* fail) {
-  casadi_int sa, sr, si, sw;
-  OCR_FUN_work(&sa, &sr, &si, &sw);
-  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + 7));
-  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + 3));
-  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
-  casadi_real* wk = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
+  OCR_WORK_ALLOC(7, 3)
   double* Pp = (double*)malloc(sizeof(double) * n * n);
   double* L = (double*)malloc(sizeof(double) * n * n);
   double* X = (double*)malloc(sizeof(double) * n);
@@ -123,7 +118,7 @@ CASADI_SYMBOL_EXPORT int ocr_cut_run(long K, long n, long r, long M, long ny, co
       if (!isfinite(Pn[a]) || (a < n && !isfinite(mn[a]))) { flag = 2; fail[0] = k + 1; }
   }
 done:
-  free(arg); free(res); free(iw); free(wk); free(Pp); free(L); free(X); free(MU); free(QQ);
+  OCR_WORK_FREE free(Pp); free(L); free(X); free(MU); free(QQ);
   free(Y);
   return flag;
 }
@@ -158,13 +153,14 @@ class CUTKernel:
 
     def __init__(self, sm):
         from ocreach.flow import compile_source, generate_c
+        from ocreach.stochastic_mc import C_WORK
 
         fun = point_function(sm)
         main = (f"#define OCR_FUN {fun.name()}\n#define OCR_FUN_work {fun.name()}_work\n"
-                "#include \"gen.c\"\n#include \"kernel.c\"\n").encode()
-        lib = compile_source(f"ocr_cut_{fun.name()}", {"gen.c": generate_c([fun]),
-                                                         "kernel.c": _KERNEL_C.encode(),
-                                                         "main.c": main}, "main.c", ("-O2",))
+                "#include \"gen.c\"\n#include \"work.h\"\n#include \"kernel.c\"\n").encode()
+        sources = {"gen.c": generate_c([fun]), "work.h": C_WORK.encode(),
+                   "kernel.c": _KERNEL_C.encode(), "main.c": main}
+        lib = compile_source(f"ocr_cut_{fun.name()}", sources, "main.c", ("-O2",))
         self._dll = ctypes.CDLL(str(lib))
         self._fn = self._dll.ocr_cut_run
         self._fn.restype = ctypes.c_int
