@@ -317,6 +317,22 @@ def test_forced_ipopt_failure_falls_back_and_is_counted(halo, halo_ref, halo_lqr
     assert tiny.fallbacks == 1 and "CpuTime" in tiny.events[0]["reason"]
 
 
+def test_warm_start_failure_is_retried_cold_before_falling_back(halo_ref, halo_lqr):
+    """The state jumps away from the previous plan (same state at steps 0 and 1, while the
+    reference moves on by an hour): the warm-started solve stalls; the cold restart solves it to
+    the same control as a fresh MPC, without a fallback."""
+    x = halo_ref.state(0) + 1e-5
+    mpc = MPC(Q_PAPER, R_PAPER, fallback=halo_lqr).setup(halo_ref, "ball")
+    mpc.control(0, x)
+    u1 = mpc.control(1, x)
+    fresh = MPC(Q_PAPER, R_PAPER, fallback=halo_lqr).setup(halo_ref, "ball")
+    u_fresh = fresh.control(1, x)
+    assert fresh.fallbacks == 0 and mpc.fallbacks == 0
+    assert [e["fallback"] for e in mpc.events] == ["cold restart"]
+    assert np.allclose(u1, u_fresh, atol=1e-8)
+    assert np.linalg.norm(u1) == pytest.approx(1.0, abs=1e-6)  # saturated: the jump is large
+
+
 def test_failure_after_success_uses_shifted_plan(halo_ref, halo_lqr):
     mpc = MPC(Q_PAPER, R_PAPER, n_p=10, n_c=5, fallback=halo_lqr).setup(halo_ref, "ball")
     x = halo_ref.state(0) + np.r_[1e-4, 0, 0, 0, 5e-4, 0]

@@ -27,7 +27,10 @@ states and ``U`` the ``n_u x N`` controls (CasADi SX), for any other constraint.
 Failure handling: if IPOPT does not report success (including ``max_cpu_time`` / ``max_iter``
 exhaustion, non-finite values or an exception), the event is logged, counted in ``fallbacks`` and
 recorded in ``events``; the controller applies the shifted previous plan while it is within the
-control horizon of a successful solve, otherwise the LQR law.
+control horizon of a successful solve, otherwise the LQR law.  Before that, a failed *warm-started*
+solve (not a time-out or an exception) is retried once from the cold LQR roll-out guess with
+IPOPT's default barrier start (a second solver, built on first use); the retry is recorded in
+``events`` (``"cold restart"``) but is not a fallback when it succeeds.
 """
 from __future__ import annotations
 
@@ -203,10 +206,13 @@ class MPC:
             "ipopt.max_iter": self.max_iter, "ipopt.tol": 1e-10,
             "ipopt.acceptable_tol": 1e-7,
         }
+        user = {f"ipopt.{k}": v for k, v in self.ipopt_options.items()}
+        self._nlp, self._cold_opts = nlp, {**opts, **user}
+        self._cold_solver = None
         if self.warm_start:
             opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-4,
                          "ipopt.warm_start_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9})
-        opts.update({f"ipopt.{k}": v for k, v in self.ipopt_options.items()})
+        opts.update(user)
         self.solver = ca.nlpsol("mpc", "ipopt", nlp, opts)
         n_w = wv.numel()
         lbx = -np.inf * np.ones(n_w)
@@ -264,12 +270,13 @@ class MPC:
             parts += [c.ravel(), G.reshape(self.n_p, -1, order="F").ravel()]
         return np.concatenate([np.ravel(v) for v in parts]), Xr
 
-    def _initial_guess(self, k: int, x: np.ndarray, Xr: np.ndarray) -> np.ndarray:
+    def _initial_guess(self, k: int, x: np.ndarray, Xr: np.ndarray, cold: bool = False) -> np.ndarray:
+        """Shifted previous plan (warm), or the LQR law held and rolled out (cold)."""
         nx, nu = self.reference.model.n_x, self.reference.model.n_u
         N, Nc = self.n_p, self.n_c
         F = self.reference.discretization.F
         p = self.reference.params
-        if self._w is not None and self.warm_start and self.plan_k == k - 1:
+        if not cold and self._w is not None and self.warm_start and self.plan_k == k - 1:
             U = self._w[: nu * Nc].reshape(Nc, nu)
             U = np.vstack([U[1:], U[-1:]]) if Nc > 1 else U
             Xprev = self._X_abs
@@ -305,24 +312,21 @@ class MPC:
             args["lam_g0"] = lam_g
             args["lam_x0"] = self._lam_x
         t_start = time.perf_counter()
-        status, err = "", ""
-        try:
-            sol = self.solver(**args)
-            status = self.solver.stats().get("return_status", "")
-        except RuntimeError as exc:  # evaluation errors inside IPOPT
-            sol, err = None, str(exc)
+        sol, status, err = self._attempt(self.solver, args)
+        if sol is None and "lam_g0" in args and not err and "CpuTime" not in status:
+            # a warm start from a plan the state has left can stall IPOPT (small mu_init); one
+            # cold restart (LQR roll-out guess, default barrier start) before falling back
+            self.events.append({"step": int(k), "reason": status, "fallback": "cold restart"})
+            log.info("MPC step %d: warm-started IPOPT failed (%s); cold restart", k, status)
+            cold = {key: v for key, v in args.items() if key not in ("lam_g0", "lam_x0")}
+            cold["x0"] = self._initial_guess(k, x, Xr, cold=True)
+            sol, status, err = self._attempt(self.cold_solver, cold)
         self.solve_times.append(time.perf_counter() - t_start)
         self.last_status = status or err
-        ok = sol is not None and status in _OK
+        ok = sol is not None
         if ok:
             w = np.asarray(sol["x"]).ravel()
-            ok = bool(np.all(np.isfinite(w)))
-        if ok:
             Uc = w[: nu * Nc].reshape(Nc, nu)
-            ratio = np.max(thrust_ratio(Uc, "ball" if self.kind == "ball" else "box"))
-            if ratio > self.u_bound * (1 + 1e-6):
-                ok, status = False, f"{status} (thrust bound violated)"
-        if ok:
             self._w = w
             self._lam_g = np.asarray(sol["lam_g"]).ravel()
             self._lam_x = np.asarray(sol["lam_x"]).ravel()
@@ -332,6 +336,35 @@ class MPC:
             self.plan_k = k
             return saturate(Uc[0], self.plant_kind)
         return self._fallback(k, x, status or err or "non-finite solution")
+
+    @property
+    def cold_solver(self) -> ca.Function:
+        """The NLP solver without warm-start options (built on first use, then re-used)."""
+        if not self.warm_start:
+            return self.solver
+        if self._cold_solver is None:
+            self._cold_solver = ca.nlpsol("mpc_cold", "ipopt", self._nlp, self._cold_opts)
+        return self._cold_solver
+
+    def _attempt(self, solver, args: dict) -> tuple[dict | None, str, str]:
+        """One IPOPT call: ``(solution or None, return status, exception text)``; a solution is
+        returned only if IPOPT succeeded, it is finite and the controls respect the thrust set."""
+        try:
+            sol = solver(**args)
+            status = solver.stats().get("return_status", "")
+        except RuntimeError as exc:  # evaluation errors inside IPOPT
+            return None, "", str(exc)
+        if status not in _OK:
+            return None, status, ""
+        w = np.asarray(sol["x"]).ravel()
+        if not np.all(np.isfinite(w)):
+            return None, f"{status} (non-finite solution)", ""
+        nu, Nc = self.reference.model.n_u, self.n_c
+        ratio = np.max(thrust_ratio(w[: nu * Nc].reshape(Nc, nu),
+                                    "ball" if self.kind == "ball" else "box"))
+        if ratio > self.u_bound * (1 + 1e-6):
+            return None, f"{status} (thrust bound violated)", ""
+        return sol, status, ""
 
     def _fallback(self, k: int, x: np.ndarray, reason: str) -> np.ndarray:
         self.fallbacks += 1

@@ -356,7 +356,7 @@ def _markdown(problem, data: dict, figs: list[str]) -> str:
     out += ["", "## Metric definitions", ""]
     out += [f"- `{k}`: {v}" for k, v in METRIC_DOC.items()]
     if data["mpc_events"]:
-        out += ["", "## MPC fallback events", ""]
+        out += ["", "## MPC solver events (cold restarts and fallbacks)", ""]
         out += [f"- step {e['step']}: {e['reason']} -> {e['fallback']}" for e in data["mpc_events"]]
     out += [""] + [f"![{f}]({f})" for f in figs] + [""]
     return "\n".join(out)
