@@ -304,7 +304,8 @@ class MPC:
         N, Nc = self.n_p, self.n_c
         pv, Xr = self._parameters(k, x)
         w0 = self._initial_guess(k, x, Xr)
-        args = dict(x0=w0, p=pv, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
+        args = {"x0": w0, "p": pv, "lbx": self._lbx, "ubx": self._ubx, "lbg": self._lbg,
+                "ubg": self._ubg}
         if self.warm_start and self._lam_g is not None and self.plan_k == k - 1:
             lam_g = self._lam_g.copy()
             dyn = lam_g[: self._n_dyn].reshape(N, nx)

@@ -216,15 +216,15 @@ def reference_from_problem(problem, *, dt: float | None = None, n_steps: int | N
     check_positive("dt", step)
     ref = problem.reference
     if ref is not None:
-        M = max(2, int(round(ref.period / step)))
+        M = max(2, round(float(ref.period) / step))
         out = periodic_reference(problem.model, ref.x0, ref.period, M, params=problem.params,
                                  n_sub=n_sub, name=getattr(ref, "name", "") or problem.id)
         span = abs(grid[-1] - grid[0])
-        out.n_track = int(n_steps) if n_steps is not None else max(1, int(round(span / out.dt)))
+        out.n_track = int(n_steps) if n_steps is not None else max(1, round(float(span) / out.dt))
         return out
     if problem.backward:
         raise ProblemError(f"problem {problem.id!r} has a backward grid; tracking needs forward time")
-    K = int(n_steps) if n_steps is not None else int(round((grid[-1] - grid[0]) / step))
+    K = int(n_steps) if n_steps is not None else round(float(grid[-1] - grid[0]) / step)
     if int(pad) != pad or pad < 0:
         raise ProblemError(f"pad (look-ahead steps) must be an integer >= 0; got {pad!r}")
     ref = natural_reference(problem.model, problem.x0, step, K + int(pad), params=problem.params,
