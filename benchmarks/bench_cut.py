@@ -23,6 +23,7 @@ import numpy as np
 import ocreach
 from ocreach.problem import get_problem
 from ocreach.reach.cut import standard_rule
+from ocreach.report import replace_markdown_section
 from ocreach.stochastic_mc import stochastic_monte_carlo
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -197,10 +198,7 @@ def main(argv=None) -> int:
     text = report(sp, rows, ref)
     print(text)
     if args.write:
-        sys.path.insert(0, str(ROOT / "examples"))
-        from jain_reentry import write_section
-
-        write_section(ROOT / "docs" / "benchmarks.md", "## CUT", text)
+        replace_markdown_section(ROOT / "docs" / "benchmarks.md", "## CUT\n\n" + text)
     return 0
 
 

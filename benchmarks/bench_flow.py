@@ -13,7 +13,6 @@ Usage: ``python benchmarks/bench_flow.py [--write] [--quick]``; ``--write`` upda
 from __future__ import annotations
 
 import argparse
-import re
 import statistics
 import sys
 import time
@@ -24,6 +23,7 @@ from scipy.integrate import solve_ivp
 
 from ocreach.flow import propagate, stm, stt
 from ocreach.models import cr3bp
+from ocreach.report import replace_markdown_section
 
 RTOL, ATOL = 1e-10, 1e-12
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
@@ -202,15 +202,6 @@ tens of percent between runs.
 """
 
 
-def write_section(text: str) -> None:
-    old = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
-    pattern = re.compile(r"^## Flows\n.*?(?=^## |\Z)", re.S | re.M)
-    new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip() + "\n\n" + text
-    tmp = DOCS.with_suffix(".md.tmp")
-    tmp.write_text(new)
-    tmp.replace(DOCS)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="update the Flows section of docs/benchmarks.md")
@@ -229,7 +220,7 @@ def main(argv=None) -> int:
           f"error {h['err_tight']:.1e}")
     text = markdown(d, h)
     if args.write:
-        write_section(text)
+        replace_markdown_section(DOCS, text)
         print(f"wrote the Flows section of {DOCS}")
     return 0
 

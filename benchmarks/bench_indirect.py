@@ -13,7 +13,6 @@ docs/benchmarks.md is replaced.
 from __future__ import annotations
 
 import argparse
-import re
 import time
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from scipy.integrate import solve_ivp
 from ocreach.problem import get_problem
 from ocreach.reach.base import reach
 from ocreach.reach.indirect import FFOE
+from ocreach.report import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 RTOL, ATOL = 1e-10, 1e-12
@@ -139,15 +139,6 @@ def markdown(rows_o, rows_s, sw, samples) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    old = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
-    pattern = re.compile(r"^## Indirect\n.*?(?=^## |\Z)", re.DOTALL | re.MULTILINE)
-    new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip() + "\n\n" + text
-    tmp = DOCS.with_suffix(".md.tmp")
-    tmp.write_text(new)
-    tmp.replace(DOCS)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="update the Indirect section of docs/benchmarks.md")
@@ -169,7 +160,7 @@ def main(argv=None) -> int:
     text = markdown(rows_o, rows_s, sw, args.samples)
     print(text)
     if args.write:
-        write_section(text)
+        replace_markdown_section(DOCS, text)
     return 0
 
 

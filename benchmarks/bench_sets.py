@@ -13,13 +13,13 @@
 from __future__ import annotations
 
 import argparse
-import re
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ocreach.sets import PolyZonotope, Zonotope, new_ids, points_in_zonotope, reduce, tensor_map
+from ocreach.report import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
@@ -127,16 +127,6 @@ per LP); the answers agree with the per-point cvxpy loop on {ct['agree']}/{ct['n
 """
 
 
-def write_section(text: str) -> None:
-    doc = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n\n"
-    pattern = re.compile(r"^## Sets\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(doc):
-        doc = pattern.sub(lambda _: text + "\n", doc)
-    else:
-        doc = doc.rstrip("\n") + "\n\n" + text
-    DOCS.write_text(doc)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="update the Sets section of docs/benchmarks.md")
@@ -150,7 +140,7 @@ def main(argv=None) -> int:
           f"agree {ct['agree']}/{ct['n_loop']}")
     text = section(tm, ct)
     if args.write:
-        write_section(text)
+        replace_markdown_section(DOCS, text)
         print(f"wrote ## Sets to {DOCS}")
     return 0
 

@@ -14,12 +14,12 @@ run's time is reported apart).
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from ocreach.report import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
@@ -138,15 +138,6 @@ def markdown(rows: list[dict], ratio: dict, eng: dict) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str) -> None:
-    old = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
-    pattern = re.compile(r"^## STT\n.*?(?=^## |\Z)", re.S | re.M)
-    new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip() + "\n\n" + text
-    tmp = DOCS.with_suffix(".md.tmp")
-    tmp.write_text(new)
-    tmp.replace(DOCS)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="update the STT section of docs/benchmarks.md")
@@ -168,7 +159,7 @@ def main(argv=None) -> int:
           f"support diff {eng['support_diff']:.1e}")
     text = markdown(rows, ratio, eng)
     if args.write:
-        write_section(text)
+        replace_markdown_section(DOCS, text)
         print(f"wrote the STT section of {DOCS}")
     return 0
 

@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 import ocreach  # noqa: E402
 from ocreach.problem import get_problem  # noqa: E402
 from ocreach.stochastic_mc import stochastic_monte_carlo  # noqa: E402
+from ocreach.report import replace_markdown_section
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG = ROOT / "docs" / "figures"
@@ -227,18 +228,7 @@ def table(res) -> tuple[str, dict]:
 
 def write_section(path: Path, heading: str, body: str) -> None:
     """Replace (or append) the section ``heading`` of a markdown file, leaving the rest alone."""
-    text = path.read_text() if path.exists() else ""
-    lines = text.splitlines()
-    start = next((i for i, ln in enumerate(lines) if ln.strip() == heading), None)
-    if start is None:
-        new = (text.rstrip() + "\n\n" if text.strip() else "") + heading + "\n\n" + body.rstrip() + "\n"
-    else:
-        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
-        new = "\n".join(lines[:start] + [heading, "", body.rstrip(), ""] + lines[end:]) + "\n"
-    from ocreach.reach.result import atomic_write_text
-
-    atomic_write_text(path, new)
-
+    replace_markdown_section(path, heading + "\n\n" + body.rstrip())
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
