@@ -17,7 +17,6 @@ Usage: ``python benchmarks/bench_mpc.py [--steps N] [--write]``.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import time
 import warnings
@@ -29,6 +28,7 @@ import numpy as np
 import ocreach
 from ocreach.control import LQR, MPC, Plant, reference_from_problem
 from ocreach.control.report import PAPER_OFFSET_BOX, PAPER_Q, PAPER_R
+from ocreach.report import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 IPOPT_COMMON = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
@@ -237,15 +237,6 @@ jobs sharing the 2 cores and vary by tens of percent between runs; the ratios ar
 """
 
 
-def write_section(text: str) -> None:
-    old = DOCS.read_text() if DOCS.exists() else "# Benchmarks\n"
-    pattern = re.compile(r"^## MPC\n.*?(?=^## |\Z)", re.DOTALL | re.MULTILINE)
-    new = pattern.sub(lambda _: text + "\n", old) if pattern.search(old) else old.rstrip() + "\n\n" + text
-    tmp = DOCS.with_suffix(".md.tmp")
-    tmp.write_text(new)
-    tmp.replace(DOCS)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=100, help="closed-loop steps (default 100)")
@@ -261,7 +252,7 @@ def main(argv=None) -> int:
           f"max |du| vs do-mpc {r['diff']['dompc']:.1e}")
     text = markdown(r)
     if args.write:
-        write_section(text)
+        replace_markdown_section(DOCS, text)
         print(f"wrote the MPC section of {DOCS}")
     return 0
 

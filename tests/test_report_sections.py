@@ -16,3 +16,12 @@ def test_replace_keeps_other_sections(tmp_path):
     assert p.read_text().endswith("old b\n".replace("old", "new") + "\n## C\n\nc\n")
     with pytest.raises(ProblemError, match="heading"):
         replace_markdown_section(p, "no heading")
+
+
+def test_written_files_have_normal_permissions(tmp_path):
+    import os
+
+    p = replace_markdown_section(tmp_path / "c.md", "## A\n\nx")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert os.stat(p).st_mode & 0o777 == 0o666 & ~mask
