@@ -31,7 +31,7 @@ import numpy as np
 from ocreach.errors import ProblemError
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, Timer
+from ocreach.reach.base import Method, SamplingOptions, Timer
 from ocreach.reach.directions import resolve_dims, sample_directions
 from ocreach.reach.result import ReachResult
 
@@ -254,7 +254,7 @@ class FFOE(Method):
     description = "fast first-order estimate: one unpowered STM pass, control laws by matrix products (Patel & Scheeres Alg. 1)"
 
     @dataclass
-    class Options:
+    class Options(SamplingOptions):
         """Options shared by ffoe, ole and bvp.
 
         ``samples``: number of directions z-hat; ``dims``: direction subspace ("position",
@@ -265,9 +265,7 @@ class FFOE(Method):
         ``rtol``/``atol``: integrator tolerances.
         """
 
-        samples: int = 100
         dims: Any = "position"
-        seed: int = 0
         random: bool = False
         thrust: float | None = None
         uncertainty_radius: float = 0.0
@@ -275,17 +273,11 @@ class FFOE(Method):
         uncertainty_matrix: Any = None
         dv_max: float = 0.0
         dv_dims: Any = None
-        rtol: float = 1e-10
-        atol: float = 1e-12
 
         def __post_init__(self) -> None:
-            if int(self.samples) < 1:
-                raise ProblemError(f"samples must be >= 1; got {self.samples!r}")
-            self.samples = int(self.samples)
+            super().__post_init__()  # samples, seed, rtol, atol
             if self.thrust is not None and (not np.isfinite(float(self.thrust)) or float(self.thrust) <= 0):
                 raise ProblemError(f"thrust (T_max) must be a finite number > 0; got {self.thrust!r}")
-            if not 0 < self.rtol < 1e-3:
-                raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
 
     # -------------------------------------------------------------- shared set-up
     def _setup(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, InitialManifold]:
@@ -320,11 +312,14 @@ class FFOE(Method):
         X0 = manifold.apply(problem.x0, lam0) if manifold.active else np.tile(problem.x0, (len(dirs), 1))
         return U, lam0, X0
 
-    def solve(self, problem: Problem) -> ReachResult:
+    def first_pass(self, problem: Problem, timer: Timer):
+        """Algorithm 1: set-up, unpowered partials, control laws, one powered batch.
+
+        Returns ``(p, dirs, manifold, ref, U, lam0, traj)``; OLE starts from it.
+        """
         from ocreach.flow import propagate
 
         opt = self.options
-        timer = Timer()
         with timer("setup"):
             p, dirs, manifold = self._setup(problem)
         with timer("unpowered_partials"):
@@ -334,6 +329,11 @@ class FFOE(Method):
             U, lam0, X0 = self.laws(problem, B, M, dirs, manifold)
         with timer("powered_propagation"):
             traj = propagate(problem.model, X0, U, problem.grid, p=p, rtol=opt.rtol, atol=opt.atol)
+        return p, dirs, manifold, ref, U, lam0, traj
+
+    def solve(self, problem: Problem) -> ReachResult:
+        timer = Timer()
+        p, dirs, _manifold, ref, U, lam0, traj = self.first_pass(problem, timer)
         meta = self.base_meta(problem, timer.times)
         meta.update(directions=dirs, costate0=lam0, cost=_costs(dirs, traj[:, -1]),
                     params=p, reference_final=ref.states[-1],
@@ -362,7 +362,7 @@ class FFOE(Method):
             p, dirs, manifold = self._setup(problem)
             P = np.stack([with_thrust(problem.model, p, lv) for lv in levels])
         with timer("unpowered_partials"):
-            ref, Fx, Fu = self.reference(problem, p)
+            _ref, Fx, Fu = self.reference(problem, p)
         with timer("control_laws"):
             B, M = backward_sensitivities(Fx, Fu)
             U, lam0, X0 = self.laws(problem, B, M, dirs, manifold)
@@ -415,16 +415,8 @@ class OLE(FFOE):
         model = problem.model
         grid = problem.grid
         timer = Timer()
-        with timer("setup"):
-            p, dirs, manifold = self._setup(problem)
-        with timer("unpowered_partials"):
-            ref, Fx, Fu = self.reference(problem, p)
-        with timer("control_laws"):
-            B, M = backward_sensitivities(Fx, Fu)
-            U, lam0, X0 = self.laws(problem, B, M, dirs, manifold)
+        p, dirs, manifold, ref, U, lam0, traj = self.first_pass(problem, timer)
         N = dirs.shape[0]
-        with timer("powered_propagation"):
-            traj = propagate(model, X0, U, grid, p=p, rtol=opt.rtol, atol=opt.atol)
         J = _costs(dirs, traj[:, -1])
         J_ffoe = J.copy()
         iters = np.zeros(N, dtype=int)
