@@ -67,9 +67,9 @@ def cmd_run(args) -> int:
                                    dims=dims)
     summary = {"problem": problem.id, "method": args.method, "meta": result.meta,
                "final_time": float(result.times[-1])}
-    from ocreach.reach.result import _jsonable
+    from ocreach.reach.result import jsonable
 
-    atomic_write_text(out / "summary.json", json.dumps(_jsonable(summary), indent=2))
+    atomic_write_text(out / "summary.json", json.dumps(jsonable(summary), indent=2))
     rt = result.meta.get("runtime", {})
     print(f"{args.method}: runtime " + ", ".join(f"{k} {v:.3f} s" for k, v in rt.items()))
     print(f"wrote {out}/result.npz, summary.json and {len(planes)} figure(s)")

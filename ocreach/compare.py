@@ -33,12 +33,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ocreach.errors import ProblemError
 from ocreach.geometry import (circle_directions, convex_hull_polygon, in_convex_hull, outline_area,
                               points_in_polygons, polygon_area)
 from ocreach.problem import Problem, get_problem
-from ocreach.errors import ProblemError
 from ocreach.reach.base import method_class, reach
-from ocreach.reach.result import ReachResult, _jsonable, atomic_write_bytes, atomic_write_text
+from ocreach.reach.result import ReachResult, atomic_write_bytes, atomic_write_text, jsonable
 
 
 @dataclass
@@ -234,6 +234,6 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
             "Monte Carlo endpoints inside the estimate.\n")
     paths["table"] = atomic_write_text(out / "comparison.md", text)
     paths["metrics"] = atomic_write_text(out / "metrics.json",
-                                         json.dumps(_jsonable(cmp.metrics), indent=2))
+                                         json.dumps(jsonable(cmp.metrics), indent=2))
     return paths
 

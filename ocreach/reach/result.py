@@ -47,14 +47,17 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically, as :func:`atomic_write_bytes`."""
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def _jsonable(obj: Any) -> Any:
+def jsonable(obj: Any) -> Any:
+    """``obj`` made JSON-serialisable: dict keys as strings, tuples as lists, numpy arrays and scalars
+    as Python values, anything else as its ``repr`` (used for ``meta`` and summaries)."""
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, (np.floating, np.integer, np.bool_)):
@@ -170,7 +173,7 @@ class ReachResult:
             arrays["controls"] = self.controls
         if self.trajectories is not None:
             arrays["trajectories"] = self.trajectories
-        arrays["meta_json"] = np.array(json.dumps(_jsonable(self.meta)))
+        arrays["meta_json"] = np.array(json.dumps(jsonable(self.meta)))
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
         return atomic_write_bytes(path, buf.getvalue())
