@@ -72,6 +72,15 @@ _SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
 
 
 # --------------------------------------------------------------------------- C compilation
+#: What a failed C build raises (no compiler or a failing one: RuntimeError; unwritable cache or a
+#: library that will not load: OSError).  Callers fall back to CasADi's VM or NumPy on these and
+#: only these, so a programming error in a kernel builder is not hidden behind a warning.
+COMPILE_ERRORS: tuple[type[BaseException], ...] = (RuntimeError, OSError)
+
+def c_identifier(name: str) -> str:
+    """``name`` with every non-alphanumeric character replaced by ``_`` (``"anon"`` if empty), for
+    the names of generated C functions."""
+    return "".join(c if c.isalnum() else "_" for c in name) or "anon"
 
 
 def _jit_enabled() -> bool:
@@ -155,7 +164,7 @@ def compile_function(fun: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.
     try:
         lib = _compile_source(fun.name(), {"gen.c": _codegen([fun])}, "gen.c", flags)
         return ca.external(fun.name(), str(lib))
-    except Exception as exc:  # compiler missing or failing: the VM gives the same numbers
+    except COMPILE_ERRORS as exc:  # compiler missing or failing: the VM gives the same numbers
         warnings.warn(f"ocreach.flow: compiling {fun.name()} failed ({exc}); "
                       "using CasADi's interpreted VM instead", RuntimeWarning, stacklevel=3)
         return fun
@@ -231,7 +240,7 @@ class _Stepper:
         if _jit_enabled():
             try:
                 self.native = self._build_native()
-            except Exception as exc:
+            except COMPILE_ERRORS as exc:
                 warnings.warn(f"ocreach.flow: compiling the DOP853 driver for {rhs.name()} failed "
                               f"({exc}); falling back to CasADi's VM (same results, slower)",
                               RuntimeWarning, stacklevel=4)
@@ -391,7 +400,7 @@ def _integrate_native(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps)
 
 def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
     """The same algorithm as the C driver, vectorised over samples in NumPy (fallback)."""
-    n, n_y = y0.shape
+    n = y0.shape[0]
     rhs = st.rhs
     step = st.mapped(st.step, n)
     rhs_n = st.mapped(rhs, n)
@@ -470,14 +479,10 @@ def flow_rhs(model: Model) -> ca.Function:
     """``(x, t, a = [u; p]) -> f(x, u, t; p)`` for :func:`integrate_batch`, cached on the model."""
     def build():
         a = ca.vertcat(model.u, model.p)
-        return ca.Function(f"flow_{_cname(model.name)}", [model.x, model.t, a], [model.f],
+        return ca.Function(f"flow_{c_identifier(model.name)}", [model.x, model.t, a], [model.f],
                            ["y", "t", "a"], ["ydot"])
 
     return model._cached("flow_rhs", build)
-
-
-def _cname(name: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in name)
 
 
 def check_grid(grid, name: str = "grid") -> np.ndarray:
@@ -688,7 +693,7 @@ def stt_rhs(model: Model, order: int) -> ca.Function:
             dots.append(_rowmajor_flat(d3))
         y = ca.vertcat(*syms)
         a = ca.vertcat(model.u, model.p)
-        return ca.Function(f"stt{order}_{_cname(model.name)}", [y, model.t, a], [ca.vertcat(*dots)],
+        return ca.Function(f"stt{order}_{c_identifier(model.name)}", [y, model.t, a], [ca.vertcat(*dots)],
                            ["y", "t", "a"], ["ydot"], {"cse": True})
 
     return model._cached(("stt_rhs", order), build)

@@ -16,12 +16,13 @@ of ``x_k``.  This module holds
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError
+from ocreach.flow import c_identifier
 
 STEPS = ("euler", "flow")
 
@@ -77,13 +78,20 @@ class SplitStepMap:
     def n_h(self) -> int:
         return self.hu.size1_out(0)
 
+    def cached(self, key: Any, build: Callable[[], Any]) -> Any:
+        """``build()`` computed once per ``key`` and kept with this map (compiled kernels of
+        :mod:`ocreach.reach.cut_kernel` and of this module live as long as the map)."""
+        if key not in self._maps:
+            self._maps[key] = build()
+        return self._maps[key]
+
     def _fx(self) -> "_BatchFunction":
         if "fx" not in self._maps:
             x = ca.SX.sym("x", self.n_x)
             t = ca.SX.sym("t")
             p = ca.SX.sym("p", self.f0.size1_in(2))
             G = self.G(x, t, p)
-            fun = ca.Function(f"split_fx_{_cname(self.name)}", [x, t, p],
+            fun = ca.Function(f"split_fx_{c_identifier(self.name)}", [x, t, p],
                               [ca.densify(self.f0(x, t, p)), ca.densify(ca.reshape(G.T, -1, 1))])
             self._maps["fx"] = _BatchFunction(fun, batched=(True, False, False))
         return self._maps["fx"]
@@ -92,7 +100,7 @@ class SplitStepMap:
         if "hu" not in self._maps:
             u = ca.SX.sym("u", self.n_u)
             p = ca.SX.sym("p", self.hu.size1_in(1))
-            fun = ca.Function(f"split_hu_{_cname(self.name)}", [u, p], [ca.densify(self.hu(u, p))])
+            fun = ca.Function(f"split_hu_{c_identifier(self.name)}", [u, p], [ca.densify(self.hu(u, p))])
             self._maps["hu"] = _BatchFunction(fun, batched=(True, False))
         return self._maps["hu"]
 
@@ -116,7 +124,7 @@ class SplitStepMap:
             p = ca.SX.sym("p", self.f0.size1_in(2))
             pu = ca.SX.sym("pu", self.hu.size1_in(1))
             xn = x + dt * (self.f0(x, t, p) + ca.mtimes(self.G(x, t, p), self.hu(u, pu)))
-            fun = ca.Function(f"split_step_{_cname(self.name)}", [x, u, t, dt, p, pu], [ca.densify(xn)])
+            fun = ca.Function(f"split_step_{c_identifier(self.name)}", [x, u, t, dt, p, pu], [ca.densify(xn)])
             self._maps["step"] = _BatchFunction(fun, batched=(True, True, False, False, False, False))
         return self._maps["step"]
 
@@ -126,10 +134,6 @@ class SplitStepMap:
         (Xn,) = self._step()(np.asarray(X, dtype=float), np.asarray(U, dtype=float),
                              np.array([t], dtype=float), np.array([dt], dtype=float), self.p, self.p)
         return Xn
-
-
-def _cname(name: str) -> str:
-    return "".join(c if c.isalnum() else "_" for c in name) or "anon"
 
 
 #: C prelude shared by the generated kernels (this module's and ocreach.reach.cut_kernel's):
@@ -182,9 +186,11 @@ class _BatchFunction:
         self.sizes_out = [fun.size1_out(j) for j in range(fun.n_out())]
         self.native = None
         self.maps: dict[int, ca.Function] = {}
+        from ocreach.flow import COMPILE_ERRORS
+
         try:
             self.native = self._build()
-        except Exception as exc:  # no compiler: CasADi's VM gives the same numbers
+        except COMPILE_ERRORS as exc:  # no compiler: CasADi's VM gives the same numbers
             import warnings
 
             warnings.warn(f"ocreach.stochastic_mc: compiling {fun.name()} failed ({exc}); using "
@@ -340,20 +346,21 @@ class _MCKernel:
 
 
 def _mc_kernel(sm: SplitStepMap) -> _MCKernel | None:
-    from ocreach.flow import jit_enabled
+    from ocreach.flow import COMPILE_ERRORS, jit_enabled
 
-    if "mc_kernel" not in sm._maps:
-        kern = None
-        if jit_enabled():
-            try:
-                kern = _MCKernel(sm._step().fun)
-            except Exception as exc:  # no compiler: the per-step batched path, same numbers
-                import warnings
+    def build() -> _MCKernel | None:
+        if not jit_enabled():
+            return None
+        try:
+            return _MCKernel(sm._step().fun)
+        except COMPILE_ERRORS as exc:  # no compiler: the per-step batched path, same numbers
+            import warnings
 
-                warnings.warn(f"ocreach.stochastic_mc: compiling the Monte Carlo kernel failed "
-                              f"({exc}); using the per-step path (slower)", RuntimeWarning, stacklevel=3)
-        sm._maps["mc_kernel"] = kern
-    return sm._maps["mc_kernel"]
+            warnings.warn(f"ocreach.stochastic_mc: compiling the Monte Carlo kernel failed "
+                          f"({exc}); using the per-step path (slower)", RuntimeWarning, stacklevel=4)
+            return None
+
+    return sm.cached("mc_kernel", build)
 
 
 def step_map_for(problem) -> SplitStepMap:

@@ -141,15 +141,15 @@ def point_function(sm) -> ca.Function:
     Gd = dt * G
     Q = ca.mtimes(ca.mtimes(Gd, ch.T), Gd.T)  # ch is row-major in the kernel: pass its transpose
     q = ca.vertcat(*[Q[a, b] for a in range(n) for b in range(a + 1)])
-    from ocreach.stochastic_mc import _cname
+    from ocreach.flow import c_identifier
 
-    return ca.Function(f"cut_pt_{_cname(sm.name)}", [x, t, dt, p, eh, ch],
+    return ca.Function(f"cut_pt_{c_identifier(sm.name)}", [x, t, dt, p, eh, ch],
                        [ca.densify(mu), ca.densify(q)])
 
 
 class CUTKernel:
     """Compiled whole-horizon mean/covariance recursion for one SplitStepMap (built once, cached
-    in ``sm._maps``; the shared library is cached on disk by :mod:`ocreach.flow`)."""
+    with ``sm`` (:meth:`SplitStepMap.cached`); the shared library is cached on disk by :mod:`ocreach.flow`)."""
 
     def __init__(self, sm):
         from ocreach.flow import compile_source, generate_c
@@ -201,17 +201,18 @@ class CUTKernel:
 def cut_kernel(sm) -> CUTKernel | None:
     """The cached :class:`CUTKernel` of ``sm``, or ``None`` if C compilation is disabled or fails
     (then :func:`ocreach.reach.cut.propagate_moments` in NumPy gives the same numbers)."""
-    from ocreach.flow import jit_enabled
+    from ocreach.flow import COMPILE_ERRORS, jit_enabled
 
-    if "cut_kernel" not in sm._maps:
-        kern = None
-        if jit_enabled():
-            try:
-                kern = CUTKernel(sm)
-            except Exception as exc:  # no compiler: NumPy path, same numbers
-                import warnings
+    def build() -> CUTKernel | None:
+        if not jit_enabled():
+            return None
+        try:
+            return CUTKernel(sm)
+        except COMPILE_ERRORS as exc:  # no compiler: NumPy path, same numbers
+            import warnings
 
-                warnings.warn(f"ocreach.reach.cut: compiling the moment kernel failed ({exc}); "
-                              "using NumPy (slower)", RuntimeWarning, stacklevel=3)
-        sm._maps["cut_kernel"] = kern
-    return sm._maps["cut_kernel"]
+            warnings.warn(f"ocreach.reach.cut: compiling the moment kernel failed ({exc}); "
+                          "using NumPy (slower)", RuntimeWarning, stacklevel=4)
+            return None
+
+    return sm.cached("cut_kernel", build)
