@@ -482,7 +482,7 @@ def flow_rhs(model: Model) -> ca.Function:
         return ca.Function(f"flow_{c_identifier(model.name)}", [model.x, model.t, a], [model.f],
                            ["y", "t", "a"], ["ydot"])
 
-    return model._cached("flow_rhs", build)
+    return model.cached("flow_rhs", build)
 
 
 def check_grid(grid, name: str = "grid") -> np.ndarray:
@@ -696,7 +696,7 @@ def stt_rhs(model: Model, order: int) -> ca.Function:
         return ca.Function(f"stt{order}_{c_identifier(model.name)}", [y, model.t, a], [ca.vertcat(*dots)],
                            ["y", "t", "a"], ["ydot"], {"cse": True})
 
-    return model._cached(("stt_rhs", order), build)
+    return model.cached(("stt_rhs", order), build)
 
 
 def _rowmajor_reshape(v: ca.SX, rows: int, cols: int) -> ca.SX:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Sequence
+from typing import Any, Callable, Hashable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -144,7 +144,9 @@ class Model:
         return float((self.p_default if p is None else p)[self.param_names.index(name)])
 
     # ------------------------------------------------------------------ compiled functions
-    def _cached(self, key, builder):
+    def cached(self, key: Hashable, builder: Callable[[], Any]) -> Any:
+        """``builder()`` computed once per ``key`` and kept in :attr:`cache` (how every CasADi
+        Function derived from this model, here and in the method modules, is built only once)."""
         if key not in self.cache:
             self.cache[key] = builder()
         return self.cache[key]
@@ -152,13 +154,13 @@ class Model:
     @property
     def f_fun(self) -> ca.Function:
         """``f(x, u, t, p) -> xdot``."""
-        return self._cached("f", lambda: ca.Function(
+        return self.cached("f", lambda: ca.Function(
             "f", [self.x, self.u, self.t, self.p], [self.f], ["x", "u", "t", "p"], ["xdot"]))
 
     @property
     def jac_fun(self) -> ca.Function:
         """``(x, u, t, p) -> (f, df/dx, df/du)``."""
-        return self._cached("jac", lambda: ca.Function(
+        return self.cached("jac", lambda: ca.Function(
             "f_jac", [self.x, self.u, self.t, self.p],
             [self.f, ca.jacobian(self.f, self.x), ca.jacobian(self.f, self.u)],
             ["x", "u", "t", "p"], ["f", "A", "B"]))
@@ -187,13 +189,13 @@ class Model:
                 out.append(ca.jacobian(flat, self.z))
             return out
 
-        return self._cached("dexpr", build)[:order]
+        return self.cached("dexpr", build)[:order]
 
     def tensor_fun(self, order: int) -> ca.Function:
         """``(x, u, t, p) -> (f, D1, ..., D_order)`` with ``D_j`` flat as in :meth:`derivative_expressions`."""
         if order not in (1, 2, 3):
             raise ProblemError(f"order must be 1, 2 or 3; got {order!r}")
-        return self._cached(("tensor", order), lambda: ca.Function(
+        return self.cached(("tensor", order), lambda: ca.Function(
             f"f_tensors{order}", [self.x, self.u, self.t, self.p],
             [self.f, *self.derivative_expressions(order)]))
 
@@ -234,7 +236,7 @@ class Model:
                 A += wk * jac(x0 + lk * (self.x - x0), self.u, self.t, self.p)
             return x0, A
 
-        return self._cached(("sdc_expr", n_quad), build)
+        return self.cached(("sdc_expr", n_quad), build)
 
     def sdc_fun(self, n_quad: int = 8) -> ca.Function:
         """``(x, x0, u, t, p) -> (A, dA/dx)``; ``dA/dx`` has shape ``(n_x*n_x, n_x)``.
@@ -248,7 +250,7 @@ class Model:
             return ca.Function("sdc", [self.x, x0, self.u, self.t, self.p], [A, dA],
                                ["x", "x0", "u", "t", "p"], ["A", "dA"])
 
-        return self._cached(("sdc", n_quad), build)
+        return self.cached(("sdc", n_quad), build)
 
     # ------------------------------------------------------------------ control structure
     @cached_property

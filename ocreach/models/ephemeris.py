@@ -306,7 +306,7 @@ def synodic_frame_function(model: Model) -> ca.Function:
         return ca.Function("synodic_frame", [t], [R, ca.jacobian(R, t), M, Md],
                            ["t"], ["R", "Rd", "M", "Md"])
 
-    return model._cached("synodic_frame", build)
+    return model.cached("synodic_frame", build)
 
 
 def synodic_to_inertial(model: Model, t: float, x) -> np.ndarray:

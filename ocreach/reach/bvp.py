@@ -81,7 +81,7 @@ def thrust_law_fun(model: Model) -> ca.Function:
         return ca.Function("u_star_bvp", [model.x, lam, model.t, model.p],
                            [thrust_law_expression(model, lam)])
 
-    return model._cached("u_star_bvp_fun", build)
+    return model.cached("u_star_bvp_fun", build)
 
 
 def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
@@ -107,7 +107,7 @@ def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
         return ca.Function(f"costate_stm_{abs(hash(smooth)) % 10**6}", [y, model.t, model.p],
                            [ca.vertcat(g, dPhi)], ["y", "t", "a"], ["ydot"], {"cse": True})
 
-    return model._cached(("costate_stm_rhs", float(smooth)), build)
+    return model.cached(("costate_stm_rhs", float(smooth)), build)
 
 
 def costate_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
@@ -122,7 +122,7 @@ def costate_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
         return ca.Function(f"costate_{abs(hash(smooth)) % 10**6}", [ca.vertcat(model.x, lam), model.t, model.p],
                            [ca.vertcat(xdot, ldot)], ["y", "t", "a"], ["ydot"])
 
-    return model._cached(("costate_rhs", float(smooth)), build)
+    return model.cached(("costate_rhs", float(smooth)), build)
 
 
 def _slerp(a: np.ndarray, b: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray, float]:

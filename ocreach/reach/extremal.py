@@ -50,7 +50,7 @@ def extremal_rhs(model: Model, kind: str | None = None) -> ca.Function:
                            [ca.vertcat(fx, lam_dot)], ["y", "t", "a"], ["ydot"])
 
     key = "extremal_rhs" if kind == model.control_set else ("extremal_rhs", kind)
-    return model._cached(key, build)
+    return model.cached(key, build)
 
 
 def optimal_control_fun(model: Model, kind: str | None = None) -> ca.Function:
@@ -63,7 +63,7 @@ def optimal_control_fun(model: Model, kind: str | None = None) -> ca.Function:
                            [model.optimal_control_expression(lam, kind=kind)])
 
     key = "u_star_fun" if kind == model.control_set else ("u_star_fun", kind)
-    return model._cached(key, build)
+    return model.cached(key, build)
 
 
 def support_point(initial_set, d: np.ndarray) -> np.ndarray:
