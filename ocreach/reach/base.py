@@ -66,12 +66,35 @@ class Method:
         }
 
 
-def _as_count(name: str, value: Any, minimum: int) -> int:
+def as_count(name: str, value: Any, minimum: int) -> int:
     """``value`` as an int ``>= minimum`` (integral floats such as ``1e3`` from the CLI accepted)."""
     ok = not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
     if ok and np.isfinite(value) and float(value) == int(value) and int(value) >= minimum:
         return int(value)
     raise ProblemError(f"{name} must be an integer >= {minimum}; got {value!r}")
+
+
+def as_real(name: str, value: Any) -> float:
+    """``value`` as a finite float (ints, floats and numeric strings); raises :class:`ProblemError`
+    naming ``name`` otherwise."""
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        out = float("nan")
+    if isinstance(value, bool) or not np.isfinite(out):
+        raise ProblemError(f"{name} must be a finite number; got {value!r}")
+    return out
+
+
+def as_tolerances(rtol: Any, atol: Any) -> tuple[float, float]:
+    """Integrator tolerances checked: ``rtol`` in (0, 1e-3), ``atol`` finite and >= 0."""
+    r = as_real("rtol", rtol)
+    if not 0 < r < 1e-3:
+        raise ProblemError(f"rtol must be in (0, 1e-3); got {rtol!r}")
+    a = as_real("atol", atol)
+    if a < 0:
+        raise ProblemError(f"atol must be a finite number >= 0; got {atol!r}")
+    return r, a
 
 
 @dataclasses.dataclass
@@ -89,16 +112,10 @@ class SamplingOptions:
     atol: float = 1e-12
 
     def __post_init__(self) -> None:
-        self.samples = _as_count("samples", self.samples, 1)
+        self.samples = as_count("samples", self.samples, 1)
         if self.seed is not None:
-            self.seed = _as_count("seed", self.seed, 0)
-        rtol = float(self.rtol)
-        if not 0 < rtol < 1e-3:
-            raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
-        atol = float(self.atol)
-        if not (np.isfinite(atol) and atol >= 0):
-            raise ProblemError(f"atol must be a finite number >= 0; got {self.atol!r}")
-        self.rtol, self.atol = rtol, atol
+            self.seed = as_count("seed", self.seed, 0)
+        self.rtol, self.atol = as_tolerances(self.rtol, self.atol)
 
 
 def _version() -> str:

@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError
-from ocreach.reach.base import Method, Timer
+from ocreach.reach.base import Method, Timer, as_count, as_real
 from ocreach.reach.result import ReachResult
 
 RULES = ("cut", "ut", "gh")
@@ -221,9 +221,12 @@ class CUTMoments(Method):
                 raise ProblemError(f"rule must be one of {RULES}; got {self.rule!r}")
             if self.control_rule is not None and self.control_rule not in RULES:
                 raise ProblemError(f"control_rule must be one of {RULES} or None; got {self.control_rule!r}")
-            if self.order not in CUT_ORDERS:
+            order = as_count("order", self.order, 1) if self.order in CUT_ORDERS else None
+            if order is None:
                 raise ProblemError(f"order must be one of {CUT_ORDERS}; got {self.order!r}")
-            if not (np.isfinite(self.sigma_level) and self.sigma_level > 0):
+            self.order = order
+            self.sigma_level = as_real("sigma_level", self.sigma_level)
+            if not self.sigma_level > 0:
                 raise ProblemError(f"sigma_level must be a finite number > 0; got {self.sigma_level!r}")
             self.third_moments = bool(self.third_moments)
             self.reduce = bool(self.reduce)

@@ -41,7 +41,7 @@ import numpy as np
 
 from ocreach.errors import ProblemError, SetError, SolverError
 from ocreach.problem import ControlSet, Problem
-from ocreach.reach.base import Method, Timer
+from ocreach.reach.base import Method, Timer, as_count, as_tolerances
 from ocreach.reach.result import ReachResult
 
 INPUT_SETS = ("box", "ball")
@@ -475,9 +475,7 @@ class STTReach(Method):
         def __post_init__(self) -> None:
             if self.order not in (1, 2, 3):
                 raise ProblemError(f"order must be 1, 2 or 3; got {self.order!r}")
-            self.h_max = int(self.h_max)
-            if self.h_max < 1:
-                raise ProblemError(f"h_max must be >= 1; got {self.h_max!r}")
+            self.h_max = as_count("h_max", self.h_max, 1)
             if self.input_set is not None and self.input_set not in INPUT_SETS:
                 raise ProblemError(f"input_set must be one of {INPUT_SETS} or None; got {self.input_set!r}")
             if self.reduction not in REDUCTIONS:
@@ -493,13 +491,13 @@ class STTReach(Method):
                 if parts < 1 or not thr > 0:
                     raise ProblemError(f"split needs max_parts >= 1 and threshold > 0; got {self.split!r}")
                 self.split = (parts, thr)
-            self.tube_substeps = int(self.tube_substeps)
-            if self.tube_substeps < 0 or self.tube_substeps == 1:
+            self.tube_substeps = as_count("tube_substeps", self.tube_substeps, 0)
+            if self.tube_substeps == 1:
                 raise ProblemError(f"tube_substeps must be 0 (off) or >= 2; got {self.tube_substeps!r}")
             if self.engine not in ("fused", "library"):
                 raise ProblemError(f"engine must be 'fused' or 'library'; got {self.engine!r}")
-            if not 0 < self.rtol < 1e-3:
-                raise ProblemError(f"rtol must be in (0, 1e-3); got {self.rtol!r}")
+            self.rtol, self.atol = as_tolerances(self.rtol, self.atol)
+            self.lift_independent = bool(self.lift_independent)
 
     # ------------------------------------------------------------------ solve
     def solve(self, problem: Problem) -> ReachResult:
