@@ -74,25 +74,31 @@ def as_count(name: str, value: Any, minimum: int) -> int:
     raise ProblemError(f"{name} must be an integer >= {minimum}; got {value!r}")
 
 
+def _to_float(value: Any) -> float:
+    """``float(value)``, or NaN for booleans and values that are not numbers."""
+    if isinstance(value, bool):
+        return float("nan")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
 def as_real(name: str, value: Any) -> float:
     """``value`` as a finite float (ints, floats and numeric strings); raises :class:`ProblemError`
     naming ``name`` otherwise."""
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        out = float("nan")
-    if isinstance(value, bool) or not np.isfinite(out):
+    out = _to_float(value)
+    if not np.isfinite(out):
         raise ProblemError(f"{name} must be a finite number; got {value!r}")
     return out
 
 
 def as_tolerances(rtol: Any, atol: Any) -> tuple[float, float]:
     """Integrator tolerances checked: ``rtol`` in (0, 1e-3), ``atol`` finite and >= 0."""
-    r = as_real("rtol", rtol)
+    r, a = _to_float(rtol), _to_float(atol)
     if not 0 < r < 1e-3:
         raise ProblemError(f"rtol must be in (0, 1e-3); got {rtol!r}")
-    a = as_real("atol", atol)
-    if a < 0:
+    if not (np.isfinite(a) and a >= 0):
         raise ProblemError(f"atol must be a finite number >= 0; got {atol!r}")
     return r, a
 
