@@ -24,9 +24,10 @@ from ocreach.errors import ProblemError, check_positive
 from ocreach.model import Model
 
 
-def rk4_expression(model: Model, x: ca.SX, u: ca.SX, t: ca.SX, p: ca.SX, dt: float,
+def rk4_expression(model: Model, x: ca.SX, u: ca.SX, t: ca.SX, p: ca.SX, dt: float | ca.SX,
                    n_sub: int) -> ca.SX:
-    """Symbolic state after ``n_sub`` RK4 substeps of length ``dt / n_sub`` with ``u`` held."""
+    """Symbolic state after ``n_sub`` RK4 substeps of length ``dt / n_sub`` with ``u`` held
+    (``dt`` a number, or a symbol as in :mod:`ocreach.reach.direct`)."""
     f = model.f_fun
     h = dt / n_sub
     xk = x

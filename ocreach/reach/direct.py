@@ -20,17 +20,16 @@ from ocreach.problem import Problem
 
 
 def _rk4_step(model, n_sub: int) -> ca.Function:
-    x, u, t, h = model.x, model.u, model.t, ca.SX.sym("h")
-    f = model.f_fun
-    dt = h / n_sub
-    y, tt = x, t
-    for _ in range(n_sub):
-        k1 = f(y, u, tt, model.p)
-        k2 = f(y + dt / 2 * k1, u, tt + dt / 2, model.p)
-        k3 = f(y + dt / 2 * k2, u, tt + dt / 2, model.p)
-        k4 = f(y + dt * k3, u, tt + dt, model.p)
-        y, tt = y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), tt + dt
-    return ca.Function("rk4_step", [x, u, t, h, model.p], [y])
+    """``(x, u, t, h, p) -> x(t + h)`` by ``n_sub`` RK4 substeps with ``u`` held (the same
+    expression as the MPC prediction model); built once per ``n_sub`` and cached on the model."""
+    from ocreach.control.discretize import rk4_expression
+
+    def build() -> ca.Function:
+        h = ca.SX.sym("h")
+        y = rk4_expression(model, model.x, model.u, model.t, model.p, h, n_sub)
+        return ca.Function("rk4_step", [model.x, model.u, model.t, h, model.p], [y])
+
+    return model.cached(("rk4_step", int(n_sub)), build)
 
 
 def _ffoe_guess(problem: Problem, zhat: np.ndarray, g: np.ndarray, p: np.ndarray) -> np.ndarray:
