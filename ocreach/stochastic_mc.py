@@ -376,17 +376,19 @@ def step_map_for(problem) -> SplitStepMap:
     if not model.control_affine:
         raise ProblemError(f"model {model.name} is not control-affine and problem {problem.id!r} has "
                            "no extra['step_map']; give a SplitStepMap f0, G, hu")
-    key = ("split_affine",)
-    if key not in model.cache:
+
+    def split() -> tuple[ca.Function, ca.Function, ca.Function]:
         u0 = ca.DM.zeros(model.n_u)
         f0 = ca.substitute(model.f, model.u, u0)
         G = ca.substitute(ca.jacobian(model.f, model.u), model.u, u0)
-        model.cache[key] = (
-            ca.Function("affine_f0", [model.x, model.t, model.p], [f0]),
-            ca.Function("affine_G", [model.x, model.t, model.p], [G]),
-            ca.Function("affine_hu", [model.u, model.p], [model.u + 0 * ca.sum1(model.p)]))
-    f0, G, hu = model.cache[key]
-    return SplitStepMap(f0, G, hu, np.asarray(problem.params, dtype=float), name=model.name)
+        return (ca.Function("affine_f0", [model.x, model.t, model.p], [f0]),
+                ca.Function("affine_G", [model.x, model.t, model.p], [G]),
+                ca.Function("affine_hu", [model.u, model.p], [model.u + 0 * ca.sum1(model.p)]))
+
+    # one map per parameter vector, so its batched Functions and compiled kernels are built once
+    params = np.asarray(problem.params, dtype=float)
+    return model.cached(("split_affine_map", params.tobytes()), lambda: SplitStepMap(
+        *model.cached(("split_affine",), split), params.copy(), name=model.name))
 
 
 # =============================================================================== Monte Carlo
