@@ -81,17 +81,17 @@ def _check_model(model: Model) -> int:
 
 def _variational_fun(model: Model) -> ca.Function:
     """CasADi ``(z, p) -> dz/dt`` for ``z = [x; vec(Phi)]`` (column-major), ``u = 0``; cached on the model."""
-    key = "orbits.variational"
-    if key not in model.cache:
+    def build() -> ca.Function:
         n = model.n_x
         x = ca.SX.sym("x", n)
         phi = ca.SX.sym("phi", n, n)
         p = ca.SX.sym("p", model.n_p)
         f, A, _ = model.jac_fun(x, ca.SX.zeros(model.n_u), 0, p)
         rhs = ca.vertcat(f, ca.reshape(ca.mtimes(A, phi), n * n, 1))
-        model.cache[key] = ca.Function("cr3bp_variational", [ca.vertcat(x, ca.reshape(phi, n * n, 1)), p],
-                                       [rhs], ["z", "p"], ["zdot"])
-    return model.cache[key]
+        return ca.Function("cr3bp_variational", [ca.vertcat(x, ca.reshape(phi, n * n, 1)), p],
+                           [rhs], ["z", "p"], ["zdot"])
+
+    return model.cached("orbits.variational", build)
 
 
 def _params(model: Model, params) -> np.ndarray:
