@@ -98,7 +98,7 @@ def _projected_estimate(result: ReachResult, dims: Sequence[int]):
             contains = lambda pts: points_in_polygons(pts, outline)  # noqa: E731
         else:
             contains = lambda pts: np.asarray(s.contains(pts), dtype=bool)  # noqa: E731
-        return (lambda d: np.array([s.support(di) for di in d]), outline_area(outline), contains)
+        return (lambda d: np.asarray(s.support(d), dtype=float), outline_area(outline), contains)
     pts = np.asarray(result.points[-1])[:, dims]
     poly = convex_hull_polygon(pts)
     return (lambda d: np.max(pts @ d.T, axis=0), polygon_area(poly),

@@ -133,8 +133,8 @@ class ReachResult:
                 raise ProblemError(f"direction d must have length {pts.shape[-1]}; got {d.shape}")
             return np.max(pts @ d.T, axis=0) if d.ndim == 2 else float(np.max(pts @ d))
         s = self.sets[k] if dims is None else self.sets[k].project(list(dims))
-        if d.ndim == 2:
-            return np.array([s.support(di) for di in d])
+        if d.ndim == 2:  # every set type takes a batch of directions (one vectorised call)
+            return np.asarray(s.support(d), dtype=float)
         return float(s.support(d))
 
     def project(self, dims: Sequence[int]) -> "ReachResult":
