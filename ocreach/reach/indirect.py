@@ -31,7 +31,7 @@ import numpy as np
 from ocreach.errors import ProblemError
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, SamplingOptions, Timer
+from ocreach.reach.base import Method, SamplingOptions, Timer, as_count, as_real
 from ocreach.reach.directions import resolve_dims, sample_directions
 from ocreach.reach.result import ReachResult
 
@@ -276,8 +276,9 @@ class FFOE(Method):
 
         def __post_init__(self) -> None:
             super().__post_init__()  # samples, seed, rtol, atol
-            if self.thrust is not None and (not np.isfinite(float(self.thrust)) or float(self.thrust) <= 0):
+            if self.thrust is not None and not as_real("thrust (T_max)", self.thrust) > 0:
                 raise ProblemError(f"thrust (T_max) must be a finite number > 0; got {self.thrust!r}")
+            self.random = bool(self.random)
 
     # -------------------------------------------------------------- shared set-up
     def _setup(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, InitialManifold]:
@@ -401,12 +402,11 @@ class OLE(FFOE):
 
         def __post_init__(self) -> None:
             super().__post_init__()
+            self.tol = as_real("tol", self.tol)
             if not self.tol > 0:
                 raise ProblemError(f"tol must be > 0; got {self.tol!r}")
-            if int(self.max_iter) < 1:
-                raise ProblemError(f"max_iter must be >= 1; got {self.max_iter!r}")
-            self.max_iter = int(self.max_iter)
-            self.backtrack = int(self.backtrack)
+            self.max_iter = as_count("max_iter", self.max_iter, 1)
+            self.backtrack = as_count("backtrack", self.backtrack, 0)
 
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import propagate
