@@ -90,7 +90,7 @@ def gm(body: str) -> float:
     Moon 4902.800076, Venus 324858.592, Mars system 42828.375214, Jupiter system 126712764.8.
     Earth and Moon are split from ``GMB`` with ``EMRAT = 81.30056907``.
     """
-    _check_body(body, BODIES, "body")
+    check_body(body, BODIES, "body")
     return _constants()[f"gm_{body}"]
 
 
@@ -107,7 +107,9 @@ def de421_coverage() -> tuple[float, float]:
     return c["jd_start"], min(c["jd_end"], DE421_SPK_END_JD)
 
 
-def _check_body(name: str, allowed: Sequence[str], what: str) -> str:
+def check_body(name: str, allowed: Sequence[str], what: str) -> str:
+    """``name`` lower-cased if it is one of ``allowed`` (a body, origin or frame name); raises
+    :class:`ProblemError` naming ``what``, the value and the allowed names otherwise."""
     if not isinstance(name, str) or name.lower() not in allowed:
         raise ProblemError(f"{what} must be one of {list(allowed)}; got {name!r}")
     return name.lower()
@@ -256,7 +258,7 @@ class EphemerisFit:
     def __init__(self, bodies: Iterable[str], epoch_tdb: str | float, span_days,
                  *, tol_km: float = 1e-5, max_degree: int = 64,
                  margin_days: float | None = None) -> None:
-        self.bodies = tuple(sorted({_check_body(b, BODIES, "bodies entry") for b in bodies}))
+        self.bodies = tuple(sorted({check_body(b, BODIES, "bodies entry") for b in bodies}))
         if not self.bodies:
             raise ProblemError("bodies must name at least one body; got an empty list")
         self.epoch = parse_epoch(epoch_tdb)
@@ -354,8 +356,8 @@ class EphemerisFit:
 
     def _matrix(self, body: str, origin: str, piece: int) -> np.ndarray:
         """Chebyshev coefficients (3, deg+1) of ``body - origin`` on one piece."""
-        body = _check_body(body, ORIGINS, "body")
-        origin = _check_body(origin, ORIGINS, "origin")
+        body = check_body(body, ORIGINS, "body")
+        origin = check_body(origin, ORIGINS, "origin")
         comb = _relative(body, origin)
         missing = [s for s in comb if s not in self.series]
         if missing:
@@ -370,7 +372,7 @@ class EphemerisFit:
 
     @staticmethod
     def _rotation(frame: str) -> np.ndarray | None:
-        frame = _check_body(frame, FRAMES, "frame")
+        frame = check_body(frame, FRAMES, "frame")
         return None if frame == "icrf" else ECLIPJ2000_FROM_ICRF
 
     # ------------------------------------------------------------------ numeric
@@ -491,7 +493,7 @@ def _cached_fit(bodies: tuple, epoch: tuple, span, tol_km: float, max_degree: in
 def ephemeris_fit(bodies: Iterable[str], epoch_tdb: str | float, span_days,
                   *, tol_km: float = 1e-5, max_degree: int = 64) -> EphemerisFit:
     """Cached :class:`EphemerisFit` keyed by (bodies, epoch, span, tolerance): fit once per problem."""
-    key_b = tuple(sorted({_check_body(b, BODIES, "bodies entry") for b in bodies}))
+    key_b = tuple(sorted({check_body(b, BODIES, "bodies entry") for b in bodies}))
     ep = parse_epoch(epoch_tdb)
     span = float(span_days) if np.ndim(span_days) == 0 else tuple(float(s) for s in span_days)
     return _cached_fit(key_b, ep, span, float(tol_km), int(max_degree))
@@ -519,23 +521,23 @@ class CircularEarthMoon:
         self.span_days = tuple(span_days)
 
     def gm(self, body: str) -> float:
-        return self._gm[_check_body(body, self.bodies, "body")]
+        return self._gm[check_body(body, self.bodies, "body")]
 
     def _share(self, body: str) -> float:
-        body = _check_body(body, ("earth", "moon", "emb", "ssb"), "body")
+        body = check_body(body, ("earth", "moon", "emb", "ssb"), "body")
         total = self._gm["earth"] + self._gm["moon"]
         return {"earth": -self._gm["moon"] / total, "moon": self._gm["earth"] / total,
                 "emb": 0.0, "ssb": 0.0}[body]
 
     def position_expr(self, body: str, t, origin: str = "ssb", *, frame: str = "icrf"):
-        if _check_body(frame, FRAMES, "frame") != "icrf":
+        if check_body(frame, FRAMES, "frame") != "icrf":
             raise ProblemError("CircularEarthMoon supports frame='icrf' only")
         w = (self._share(body) - self._share(origin)) * self.a
         return ca.vertcat(w * ca.cos(self.n * t), w * ca.sin(self.n * t), 0.0 * t)
 
     def position(self, body: str, t, origin: str = "ssb", *, derivative: int = 0,
                  frame: str = "icrf") -> np.ndarray:
-        if _check_body(frame, FRAMES, "frame") != "icrf":
+        if check_body(frame, FRAMES, "frame") != "icrf":
             raise ProblemError("CircularEarthMoon supports frame='icrf' only")
         t = np.asarray(t, dtype=float)
         w = (self._share(body) - self._share(origin)) * self.a * self.n**derivative

@@ -27,7 +27,7 @@ from ocreach.ephemeris import (
     ORIGINS,
     CircularEarthMoon,
     EphemerisFit,
-    _check_body,
+    check_body,
     ephemeris_fit,
     gm,
 )
@@ -43,7 +43,7 @@ DU_EARTH_MOON_KM = 384400.0
 def _bodies(bodies: Iterable[str]) -> tuple[str, ...]:
     if isinstance(bodies, str):
         bodies = [bodies]
-    out = tuple(dict.fromkeys(_check_body(b, BODIES, "bodies entry") for b in bodies))
+    out = tuple(dict.fromkeys(check_body(b, BODIES, "bodies entry") for b in bodies))
     if not out:
         raise ProblemError("bodies must name at least one gravitating body; got an empty list")
     return out
@@ -55,7 +55,7 @@ def default_inertial_units(central: str, mass0: float = 1.0) -> Units:
     For the SSB and EMB origins the reference GM is the Sun's and Earth+Moon's.  The mass unit is
     ``mass0`` (so the inverse mass state starts at ``n = 1``).
     """
-    central = _check_body(central, ORIGINS, "central")
+    central = check_body(central, ORIGINS, "central")
     du_km = DU_EARTH_MOON_KM if central in ("earth", "moon", "emb") else AU_KM
     ref = {"ssb": gm("sun"), "emb": gm("earth") + gm("moon")}.get(central)
     ref = gm(central) if ref is None else ref
@@ -111,9 +111,9 @@ def ephemeris_inertial(
     propagation; see :class:`ocreach.ephemeris.EphemerisFit`).
     """
     bodies = _bodies(bodies)
-    central = _check_body(central, ORIGINS, "central")
-    frame = _check_body(frame, FRAMES, "frame")
-    frame_acceleration = _check_body(frame_acceleration, FRAME_ACCELERATIONS, "frame_acceleration")
+    central = check_body(central, ORIGINS, "central")
+    frame = check_body(frame, FRAMES, "frame")
+    frame_acceleration = check_body(frame_acceleration, FRAME_ACCELERATIONS, "frame_acceleration")
     thrust = check_positive("thrust (T_max, N)", thrust)
     isp = check_positive("isp (s)", isp)
     mass0 = check_positive("mass0 (kg)", mass0)
@@ -239,7 +239,7 @@ def ephemeris_synodic(
     if "earth" not in bodies or "moon" not in bodies:
         raise ProblemError(f"bodies must contain 'earth' and 'moon' for the synodic frame; got "
                            f"{list(bodies)}")
-    frame_acceleration = _check_body(frame_acceleration, FRAME_ACCELERATIONS, "frame_acceleration")
+    frame_acceleration = check_body(frame_acceleration, FRAME_ACCELERATIONS, "frame_acceleration")
     if not np.isfinite(a_max) or a_max < 0:
         raise ProblemError(f"a_max must be a finite number >= 0; got {a_max!r}")
     du_km, tu = units.length / 1e3, units.time
