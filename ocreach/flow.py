@@ -52,6 +52,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.integrate._ivp import dop853_coefficients as _dop
 
 from ocreach._dop853_driver import DRIVER_SRC
@@ -528,8 +529,10 @@ def _controls(model: Model, controls, k: int, n: int | None) -> np.ndarray:
     return arr
 
 
-def propagate(model: Model, x0, controls, grid, *, p=None, rtol: float = 1e-10,
-              atol: float = 1e-12, substeps: int = 0, max_steps: int = 100000):
+def propagate(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike, *,
+              p: ArrayLike | None = None, rtol: float = 1e-10, atol: float = 1e-12,
+              substeps: int = 0, max_steps: int = 100000
+              ) -> np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Propagate one state or a batch under piecewise-constant controls on ``grid``.
 
     Parameters
@@ -732,7 +735,8 @@ def _stt_unpack(model: Model, order: int, Y: np.ndarray) -> list[np.ndarray]:
     return out
 
 
-def stt(model: Model, x0, controls, grid, order: int, *, p=None, rtol: float = 1e-10,
+def stt(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike, order: int, *,
+        p: ArrayLike | None = None, rtol: float = 1e-10,
         atol: float = 1e-12, max_steps: int = 100000) -> STTResult:
     """Reference trajectory and per-segment STTs of orders 1..``order`` (Foss et al. Eq. 11-13).
 
@@ -759,7 +763,8 @@ def stt(model: Model, x0, controls, grid, order: int, *, p=None, rtol: float = 1
     return STTResult(times=g, states=states, controls=U, phi=tuple(phi))
 
 
-def stm(model: Model, x0, t0: float, t1: float, u=None, *, p=None, rtol: float = 1e-10,
+def stm(model: Model, x0: ArrayLike, t0: float, t1: float, u: ArrayLike | None = None, *,
+        p: ArrayLike | None = None, rtol: float = 1e-10,
         atol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
     """State and state-transition matrix ``(x(t1), dx(t1)/dx(t0))`` under a constant control."""
     u = np.zeros(model.n_u) if u is None else np.asarray(u, dtype=float).reshape(model.n_u)

@@ -10,11 +10,15 @@ import importlib
 import importlib.util
 import platform
 import time
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from ocreach.errors import ProblemError, UnknownNameError
+
+if TYPE_CHECKING:
+    from ocreach.problem import Problem
+    from ocreach.reach.result import ReachResult
 
 #: method name -> "module:Class".  Modules are imported lazily, so a method whose module is not
 #: installed yet simply does not appear in :func:`list_methods`.
@@ -49,10 +53,11 @@ class Method:
                                f"allowed: {sorted(fields)}")
         self.options = self.Options(**options)
 
-    def solve(self, problem) -> "ReachResult":  # noqa: F821
+    def solve(self, problem: Problem) -> ReachResult:
+        """The reachable-set estimate of ``problem`` (each method implements this)."""
         raise NotImplementedError
 
-    def base_meta(self, problem, runtime: dict[str, float]) -> dict[str, Any]:
+    def base_meta(self, problem: Problem, runtime: dict[str, float]) -> dict[str, Any]:
         """The ``meta`` every result carries: method, options, runtime breakdown, versions."""
         import casadi
 
@@ -181,7 +186,7 @@ def available_methods() -> dict[str, str]:
     return out
 
 
-def reach(problem, method: str, **options: Any):
+def reach(problem: Problem | str, method: str, **options: Any) -> ReachResult:
     """Solve ``problem`` (a :class:`Problem` or a problem id) with ``method``.
 
     Options not given fall back to the problem's ``method_options[method]`` and then to the
