@@ -7,23 +7,29 @@
 from __future__ import annotations
 
 import itertools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ocreach.errors import SetError
 
+if TYPE_CHECKING:
+    from ocreach.sets._base import SetBase
+    from ocreach.sets.interval import Interval
+    from ocreach.sets.polyzonotope import PolyZonotope
+    from ocreach.sets.zonotope import Zonotope
 
-def interval_to_zonotope(I):
+
+def interval_to_zonotope(I: Interval) -> Zonotope:
     return I.to_zonotope()
 
 
-def to_zonotope(S):
+def to_zonotope(S: SetBase) -> Zonotope:
     """Zonotope enclosure of any set (exact for intervals/zonotopes)."""
     return S.to_zonotope()
 
 
-def to_polyzonotope(S, ids: Any = None):
+def to_polyzonotope(S: SetBase, ids: Any = None) -> PolyZonotope:
     """Polynomial zonotope of an interval/zonotope (exact, fresh identifiers) or a PZ itself."""
     from ocreach.sets.polyzonotope import PolyZonotope
 
@@ -32,7 +38,7 @@ def to_polyzonotope(S, ids: Any = None):
     return PolyZonotope.from_zonotope(S.to_zonotope(), ids)
 
 
-def unit_ball_zonotope(n: int, k: int | None = None):
+def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     """Outer zonotope of the unit Euclidean ball with ``k >= n`` generators (default 2n, 8 in 2-D).
 
     Directions: the n axes plus quasi-uniform directions (2-D: angles pi j / k, a regular 2k-gon);
@@ -94,7 +100,7 @@ def _sqrt_series(t: dict, nvars: int) -> dict:
     return _poly_add(out, t3, -1.0 / 16.0)
 
 
-def unit_ball_pz(n: int, ids: Any = None):
+def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
     """Polynomial zonotope approximating the unit Euclidean ball ``{||u||_2 <= 1}``.
 
     * n = 1: the interval [-1, 1].

@@ -1,13 +1,17 @@
 """Ellipsoids ``{x : (x-q)^T Q^-1 (x-q) <= 1}`` with symmetric positive semi-definite ``Q``."""
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ocreach.errors import SetError
 from ocreach.sets._base import (SetBase, as_dims, as_directions, as_matrix, as_rng, as_vector, check_linear_map,
                                 ro)
+
+if TYPE_CHECKING:
+    from ocreach.sets.interval import Interval
+    from ocreach.sets.zonotope import Zonotope
 
 
 class Ellipsoid(SetBase):
@@ -64,13 +68,13 @@ class Ellipsoid(SetBase):
     def reduce(self, *args, **kwargs) -> "Ellipsoid":
         return self
 
-    def interval_hull(self):
+    def interval_hull(self) -> Interval:
         from ocreach.sets.interval import Interval
 
         r = np.sqrt(np.diag(self.Q))
         return Interval(self.q - r, self.q + r)
 
-    def to_zonotope(self, k: int | None = None):
+    def to_zonotope(self, k: int | None = None) -> Zonotope:
         """Outer zonotope with ``k`` generators (default: 2n in 2-D... see :func:`unit_ball_zonotope`)."""
         from ocreach.sets.convert import unit_ball_zonotope
 

@@ -1,13 +1,17 @@
 """Axis-aligned boxes ``[lo, hi]`` (interval vectors)."""
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ocreach.errors import SetError
 from ocreach.sets._base import (SetBase, as_dims, as_directions, as_points, as_vector, check_linear_map,
                                 factor_samples, ro)
+
+if TYPE_CHECKING:
+    from ocreach.sets.polyzonotope import PolyZonotope
+    from ocreach.sets.zonotope import Zonotope
 
 
 class Interval(SetBase):
@@ -65,7 +69,7 @@ class Interval(SetBase):
     def interval_hull(self) -> "Interval":
         return self
 
-    def to_zonotope(self):
+    def to_zonotope(self) -> Zonotope:
         """Exact conversion: centre and one axis generator per non-degenerate dimension."""
         from ocreach.sets.zonotope import Zonotope
 
@@ -73,7 +77,7 @@ class Interval(SetBase):
         keep = r > 0
         return Zonotope(self.center, np.diag(r)[:, keep])
 
-    def to_polyzonotope(self, ids: Any = None):
+    def to_polyzonotope(self, ids: Any = None) -> PolyZonotope:
         from ocreach.sets.polyzonotope import PolyZonotope
 
         return PolyZonotope.from_interval(self, ids)

@@ -13,13 +13,17 @@ from __future__ import annotations
 import heapq
 import itertools
 from math import comb
-from typing import Any, Callable, Union
+from typing import TYPE_CHECKING, Any, Callable, Union
 
 import numpy as np
 
 from ocreach.errors import SetError
 from ocreach.sets._base import (SetBase, as_dims, as_directions, as_matrix, as_vector, check_linear_map,
                                 factor_samples, new_ids, ro)
+
+if TYPE_CHECKING:
+    from ocreach.sets.interval import Interval
+    from ocreach.sets.zonotope import Zonotope
 
 _HASH_SEED = 20240917
 
@@ -330,7 +334,7 @@ class PolyZonotope(SetBase):
         return out[0], out[1]
 
     # -- enclosures and queries -------------------------------------------------------------
-    def to_zonotope(self):
+    def to_zonotope(self) -> Zonotope:
         """Zonotope enclosure (Kochdumper & Althoff): monomials with all-even exponents range over
         [0, 1], so they shift the centre by half the generator and keep half as generator."""
         from ocreach.sets.zonotope import Zonotope
@@ -338,7 +342,7 @@ class PolyZonotope(SetBase):
         shift, Gz = enclose_monomials(self.G, self.E)
         return Zonotope(self.c + shift, np.hstack([Gz, self.GI]))
 
-    def interval_hull(self):
+    def interval_hull(self) -> Interval:
         """Interval enclosure (interval hull of the zonotope enclosure)."""
         return self.to_zonotope().interval_hull()
 

@@ -10,9 +10,16 @@
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ocreach.errors import SetError
+
+if TYPE_CHECKING:
+    from ocreach.sets._base import SetBase
+    from ocreach.sets.polyzonotope import PolyZonotope
+    from ocreach.sets.zonotope import Zonotope
 
 _METHODS = ("girard", "pca")
 
@@ -41,7 +48,7 @@ def _girard_metric(G: np.ndarray) -> np.ndarray:
     return np.abs(G).sum(axis=0) - np.abs(G).max(axis=0, initial=0.0)
 
 
-def reduce_zonotope(Z, order: float = 1.0, method: str = "girard"):
+def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> Zonotope:
     """Reduce a zonotope to at most ``floor(order * n)`` generators (order >= 1), sound outer approximation."""
     from ocreach.sets.zonotope import Zonotope
 
@@ -59,7 +66,7 @@ def reduce_zonotope(Z, order: float = 1.0, method: str = "girard"):
     return Zonotope(Z.c, np.hstack([Z.G[:, keep], box_generators(Z.G[:, drop], method)]))
 
 
-def reduce_pz(pz, h_max: int, method: str = "pca"):
+def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope:
     """Reduce a polynomial zonotope to at most ``h_max`` generators in total (dependent + independent).
 
     The ``h_max - n`` largest generators (2-norm) are kept; every other dependent generator is
@@ -96,7 +103,7 @@ def reduce_pz(pz, h_max: int, method: str = "pca"):
     return PolyZonotope(c, pz.G[:, kd], GI, E[used], pz.id[used])
 
 
-def reduce(S, size, method: str | None = None):
+def reduce(S: SetBase, size: float, method: str | None = None) -> SetBase:
     """Dispatch: ``reduce(pz, h_max, method='pca')`` or ``reduce(z, order, method='girard')``."""
     from ocreach.sets.polyzonotope import PolyZonotope
     from ocreach.sets.zonotope import Zonotope

@@ -3,13 +3,17 @@ from __future__ import annotations
 
 import itertools
 from math import comb
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ocreach.errors import SetError
 from ocreach.sets._base import (SetBase, as_dims, as_directions, as_matrix, as_vector, check_linear_map,
                                 factor_samples, ro)
+
+if TYPE_CHECKING:
+    from ocreach.sets.interval import Interval
+    from ocreach.sets.polyzonotope import PolyZonotope
 
 #: largest number of n-subsets summed by :meth:`Zonotope.volume`
 VOLUME_MAX_SUBSETS = 3_000_000
@@ -98,7 +102,7 @@ class Zonotope(SetBase):
         return Zonotope(self.c, self.G[:, keep])
 
     # -- enclosures / queries ---------------------------------------------------------------
-    def interval_hull(self):
+    def interval_hull(self) -> Interval:
         """Tightest enclosing box: ``c -+ sum_i |g_i|`` (the support function along the axes)."""
         from ocreach.sets.interval import Interval
 
@@ -108,7 +112,7 @@ class Zonotope(SetBase):
     def to_zonotope(self) -> "Zonotope":
         return self
 
-    def to_polyzonotope(self, ids: Any = None):
+    def to_polyzonotope(self, ids: Any = None) -> PolyZonotope:
         from ocreach.sets.polyzonotope import PolyZonotope
 
         return PolyZonotope.from_zonotope(self, ids)
