@@ -2,7 +2,11 @@
 
 A :class:`Model` holds one symbolic CasADi expression ``f(x, u, t; p)``.  Everything numerical that
 the methods need (Jacobians, derivative tensors of the augmented dynamics, SDC factors, the optimal
-control of the Hamiltonian) is generated from that one expression and compiled once, on first use.
+control of the Hamiltonian) is generated from that one expression and compiled once, on first use:
+the derivative tensors of the augmented dynamics ``F(z) = [f; 0]``, ``z = [x; u]`` (Foss et al.
+Eq. 11-12), the SDC factors ``A(x)`` (Patel & Subbarao Eq. 18-19) and the Hamiltonian-minimising
+control (Foss et al. Eq. 4).  :meth:`Model.cached` is the one cache every derived Function goes
+through, here and in the method modules.
 
 Conventions
 -----------
