@@ -4,7 +4,9 @@ A :class:`TrackingReference` is sampled on a uniform grid ``t_k = t_0 + k dt``. 
 reference (one orbit period split into ``M`` steps) is indexed modulo ``M``, so a controller can
 look any number of steps ahead (MPC windows, multi-revolution simulations) without integrating an
 unstable orbit for long.  The states are propagated with SciPy's DOP853 at tight tolerance, not
-with the prediction model, so the reference is the *true* nonlinear trajectory.
+with the prediction model, so the reference is the *true* nonlinear trajectory.  Its linearisation
+``(A_k, B_k)`` is taken from the discrete prediction model of :mod:`ocreach.control.discretize`
+(Patel & Subbarao Eq. 26).
 """
 from __future__ import annotations
 
