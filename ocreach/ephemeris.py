@@ -225,8 +225,10 @@ def de421_records(series: str, jd_day: float, days: np.ndarray, derivative: int 
     idx[last] -= 1
     off[last] += span
     if np.any(idx < 0) or np.any(idx >= n_sets):
-        raise ProblemError("time outside DE421 coverage "
-                           f"{_format_jd(e.jalpha)} .. {_format_jd(e.jomega)}")
+        bad = days[(idx < 0) | (idx >= n_sets)]
+        raise ProblemError(f"time outside DE421 coverage {_format_jd(e.jalpha)} .. "
+                           f"{_format_jd(e.jomega)}: got {bad.size} time(s) from JD {jd_day:.1f} "
+                           f"{bad.min():+.6g} to {bad.max():+.6g} days")
     tau = 2.0 * off / span - 1.0
     coef = rec[idx]  # (m, 3, n_coef)
     if derivative:
@@ -529,16 +531,17 @@ class CircularEarthMoon:
         return {"earth": -self._gm["moon"] / total, "moon": self._gm["earth"] / total,
                 "emb": 0.0, "ssb": 0.0}[body]
 
-    def position_expr(self, body: str, t, origin: str = "ssb", *, frame: str = "icrf"):
+    def position_expr(self, body: str, t: ca.SX | ca.MX, origin: str = "ssb", *,
+                      frame: str = "icrf") -> ca.SX | ca.MX:
         if check_body(frame, FRAMES, "frame") != "icrf":
-            raise ProblemError("CircularEarthMoon supports frame='icrf' only")
+            raise ProblemError(f"CircularEarthMoon supports frame='icrf' only; got frame={frame!r}")
         w = (self._share(body) - self._share(origin)) * self.a
         return ca.vertcat(w * ca.cos(self.n * t), w * ca.sin(self.n * t), 0.0 * t)
 
     def position(self, body: str, t, origin: str = "ssb", *, derivative: int = 0,
                  frame: str = "icrf") -> np.ndarray:
         if check_body(frame, FRAMES, "frame") != "icrf":
-            raise ProblemError("CircularEarthMoon supports frame='icrf' only")
+            raise ProblemError(f"CircularEarthMoon supports frame='icrf' only; got frame={frame!r}")
         t = np.asarray(t, dtype=float)
         w = (self._share(body) - self._share(origin)) * self.a * self.n**derivative
         ph = self.n * t + derivative * np.pi / 2
