@@ -1,8 +1,12 @@
 """Exceptions raised by ocreach.
 
-Every message names the parameter, the offending value and what is allowed.
+Every message names the parameter, the offending value and what is allowed.  The ``check_*``
+functions are the shared argument checks (numbers, counts, tolerances) that raise these errors.
 """
 from __future__ import annotations
+
+import math
+from typing import Any
 
 
 class OcreachError(Exception):
@@ -28,7 +32,45 @@ class UnknownNameError(OcreachError, KeyError):
         return str(self.args[0]) if self.args else ""
 
 
-def check_finite(name: str, value) -> None:
+def _to_float(value: Any) -> float:
+    """``float(value)``, or NaN for booleans and values that are not numbers."""
+    if isinstance(value, bool):
+        return float("nan")
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
+        return float("nan")
+
+
+def check_real(name: str, value: Any) -> float:
+    """``value`` as a finite float (ints, floats, numeric strings from the CLI); raises
+    :class:`ProblemError` naming ``name`` otherwise."""
+    out = _to_float(value)
+    if not math.isfinite(out):
+        raise ProblemError(f"{name} must be a finite number; got {value!r}")
+    return out
+
+
+def check_count(name: str, value: Any, minimum: int) -> int:
+    """``value`` as an int ``>= minimum`` (integral floats such as ``1e3`` from the CLI accepted);
+    raises :class:`ProblemError` naming ``name`` otherwise (also for 2.5, True, "x", inf)."""
+    v = _to_float(value) if not isinstance(value, str) else float("nan")
+    if math.isfinite(v) and v == int(v) and int(v) >= minimum:
+        return int(v)
+    raise ProblemError(f"{name} must be an integer >= {minimum}; got {value!r}")
+
+
+def check_tolerances(rtol: Any, atol: Any) -> tuple[float, float]:
+    """Integrator tolerances checked: ``rtol`` in (0, 1e-3), ``atol`` finite and >= 0."""
+    r, a = _to_float(rtol), _to_float(atol)
+    if not 0 < r < 1e-3:
+        raise ProblemError(f"rtol must be in (0, 1e-3); got {rtol!r}")
+    if not (math.isfinite(a) and a >= 0):
+        raise ProblemError(f"atol must be a finite number >= 0; got {atol!r}")
+    return r, a
+
+
+def check_finite(name: str, value: Any) -> None:
     """Raise :class:`ProblemError` if ``value`` holds NaN or inf."""
     import numpy as np
 
@@ -41,7 +83,7 @@ def check_positive(name: str, value: float) -> float:
     """Raise :class:`ProblemError` unless ``value`` is a finite number > 0."""
     import numpy as np
 
-    v = float(value)
+    v = _to_float(value)
     if not np.isfinite(v) or v <= 0:
         raise ProblemError(f"{name} must be a finite number > 0; got {value!r}")
     return v

@@ -45,18 +45,12 @@ import numpy as np
 from ocreach.control.common import as_weight, check_thrust, control_scale, saturate, thrust_ratio
 from ocreach.control.lqr import LQR
 from ocreach.control.reference import TrackingReference
-from ocreach.errors import ProblemError
+from ocreach.errors import ProblemError, check_count
 
 log = logging.getLogger("ocreach.control.mpc")
 
 THRUST_SETS = ("plant", "ball", "box")
 _OK = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-
-
-def _check_int(name: str, value, lo: int) -> int:
-    if isinstance(value, bool) or int(value) != value or value < lo:
-        raise ProblemError(f"{name} must be an integer >= {lo}; got {value!r}")
-    return int(value)
 
 
 class MPC:
@@ -87,16 +81,16 @@ class MPC:
                  tube: int | None = None,
                  extra_constraints: Callable[..., list] | None = None,
                  fallback: LQR | None = None) -> None:
-        self.n_p = _check_int("n_p (prediction horizon)", n_p, 1)
-        self.n_c = _check_int("n_c (control horizon)", n_c, 1)
+        self.n_p = check_count("n_p (prediction horizon)", n_p, 1)
+        self.n_c = check_count("n_c (control horizon)", n_c, 1)
         if self.n_c > self.n_p:
             raise ProblemError(f"n_c (control horizon) must be <= n_p = {self.n_p}; got {n_c!r}")
         if thrust_set not in THRUST_SETS:
             raise ProblemError(f"thrust_set must be one of {THRUST_SETS}; got {thrust_set!r}")
         if not np.isfinite(max_cpu_time) or max_cpu_time <= 0:
             raise ProblemError(f"max_cpu_time must be > 0 (s); got {max_cpu_time!r}")
-        self.max_iter = _check_int("max_iter", max_iter, 0)
-        self.tube_q = None if tube is None else _check_int("tube (generators)", tube, 1)
+        self.max_iter = check_count("max_iter", max_iter, 0)
+        self.tube_q = None if tube is None else check_count("tube (generators)", tube, 1)
         self.Q_in, self.R_in, self.P_in = Q, R, P
         self.thrust_set = thrust_set
         self.weights_in = weights_in

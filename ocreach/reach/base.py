@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ocreach.errors import ProblemError, UnknownNameError
+from ocreach.errors import ProblemError, UnknownNameError, check_count, check_tolerances
 
 if TYPE_CHECKING:
     from ocreach.problem import Problem
@@ -71,43 +71,6 @@ class Method:
         }
 
 
-def as_count(name: str, value: Any, minimum: int) -> int:
-    """``value`` as an int ``>= minimum`` (integral floats such as ``1e3`` from the CLI accepted)."""
-    ok = not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
-    if ok and np.isfinite(value) and float(value) == int(value) and int(value) >= minimum:
-        return int(value)
-    raise ProblemError(f"{name} must be an integer >= {minimum}; got {value!r}")
-
-
-def _to_float(value: Any) -> float:
-    """``float(value)``, or NaN for booleans and values that are not numbers."""
-    if isinstance(value, bool):
-        return float("nan")
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return float("nan")
-
-
-def as_real(name: str, value: Any) -> float:
-    """``value`` as a finite float (ints, floats and numeric strings); raises :class:`ProblemError`
-    naming ``name`` otherwise."""
-    out = _to_float(value)
-    if not np.isfinite(out):
-        raise ProblemError(f"{name} must be a finite number; got {value!r}")
-    return out
-
-
-def as_tolerances(rtol: Any, atol: Any) -> tuple[float, float]:
-    """Integrator tolerances checked: ``rtol`` in (0, 1e-3), ``atol`` finite and >= 0."""
-    r, a = _to_float(rtol), _to_float(atol)
-    if not 0 < r < 1e-3:
-        raise ProblemError(f"rtol must be in (0, 1e-3); got {rtol!r}")
-    if not (np.isfinite(a) and a >= 0):
-        raise ProblemError(f"atol must be a finite number >= 0; got {atol!r}")
-    return r, a
-
-
 @dataclasses.dataclass
 class SamplingOptions:
     """Options every sample-based method shares (``mc``, ``ode``; ``ffoe``/``ole`` can adopt it).
@@ -123,10 +86,10 @@ class SamplingOptions:
     atol: float = 1e-12
 
     def __post_init__(self) -> None:
-        self.samples = as_count("samples", self.samples, 1)
+        self.samples = check_count("samples", self.samples, 1)
         if self.seed is not None:
-            self.seed = as_count("seed", self.seed, 0)
-        self.rtol, self.atol = as_tolerances(self.rtol, self.atol)
+            self.seed = check_count("seed", self.seed, 0)
+        self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
 
 
 def _version() -> str:

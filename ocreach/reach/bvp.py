@@ -36,10 +36,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ocreach.errors import ProblemError, SolverError
+from ocreach.errors import ProblemError, SolverError, check_count, check_real
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.reach.base import Timer, as_count, as_real
+from ocreach.reach.base import Timer
 from ocreach.reach.directions import continuation_order
 from ocreach.reach.indirect import FFOE, InitialManifold, backward_sensitivities
 from ocreach.reach.result import ReachResult
@@ -163,13 +163,13 @@ class BVPContinuation(FFOE):
             super().__post_init__()
             if self.cost not in COSTS:
                 raise ProblemError(f"cost must be one of {COSTS}; got {self.cost!r}")
-            self.smooth, self.tol = as_real("smooth", self.smooth), as_real("tol", self.tol)
+            self.smooth, self.tol = check_real("smooth", self.smooth), check_real("tol", self.tol)
             if not self.smooth >= 0:
                 raise ProblemError(f"smooth must be >= 0; got {self.smooth!r}")
             if not self.tol > 0:
                 raise ProblemError(f"tol must be > 0; got {self.tol!r}")
-            self.max_newton = as_count("max_newton", self.max_newton, 1)
-            self.max_halvings = as_count("max_halvings", self.max_halvings, 0)
+            self.max_newton = check_count("max_newton", self.max_newton, 1)
+            self.max_halvings = check_count("max_halvings", self.max_halvings, 0)
 
     # -------------------------------------------------------------- shooting
     def _shoot(self, problem: Problem, p, manifold: InitialManifold, lam0: np.ndarray):

@@ -33,8 +33,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from ocreach.errors import ProblemError, SolverError
-from ocreach.reach.base import Method, Timer, as_count, as_real
+from ocreach.errors import ProblemError, SolverError, check_count, check_real
+from ocreach.reach.base import Method, Timer
 from ocreach.reach.result import ReachResult
 
 RULES = ("cut", "ut", "gh")
@@ -221,11 +221,11 @@ class CUTMoments(Method):
                 raise ProblemError(f"rule must be one of {RULES}; got {self.rule!r}")
             if self.control_rule is not None and self.control_rule not in RULES:
                 raise ProblemError(f"control_rule must be one of {RULES} or None; got {self.control_rule!r}")
-            order = as_count("order", self.order, 1) if self.order in CUT_ORDERS else None
+            order = check_count("order", self.order, 1) if self.order in CUT_ORDERS else None
             if order is None:
                 raise ProblemError(f"order must be one of {CUT_ORDERS}; got {self.order!r}")
             self.order = order
-            self.sigma_level = as_real("sigma_level", self.sigma_level)
+            self.sigma_level = check_real("sigma_level", self.sigma_level)
             if not self.sigma_level > 0:
                 raise ProblemError(f"sigma_level must be a finite number > 0; got {self.sigma_level!r}")
             self.third_moments = bool(self.third_moments)

@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.errors import ProblemError
+from ocreach.errors import ProblemError, check_count, check_real
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, SamplingOptions, Timer, as_count, as_real
+from ocreach.reach.base import Method, SamplingOptions, Timer
 from ocreach.reach.directions import resolve_dims, sample_directions
 from ocreach.reach.result import ReachResult
 
@@ -276,7 +276,7 @@ class FFOE(Method):
 
         def __post_init__(self) -> None:
             super().__post_init__()  # samples, seed, rtol, atol
-            if self.thrust is not None and not as_real("thrust (T_max)", self.thrust) > 0:
+            if self.thrust is not None and not check_real("thrust (T_max)", self.thrust) > 0:
                 raise ProblemError(f"thrust (T_max) must be a finite number > 0; got {self.thrust!r}")
             self.random = bool(self.random)
 
@@ -402,11 +402,11 @@ class OLE(FFOE):
 
         def __post_init__(self) -> None:
             super().__post_init__()
-            self.tol = as_real("tol", self.tol)
+            self.tol = check_real("tol", self.tol)
             if not self.tol > 0:
                 raise ProblemError(f"tol must be > 0; got {self.tol!r}")
-            self.max_iter = as_count("max_iter", self.max_iter, 1)
-            self.backtrack = as_count("backtrack", self.backtrack, 0)
+            self.max_iter = check_count("max_iter", self.max_iter, 1)
+            self.backtrack = check_count("backtrack", self.backtrack, 0)
 
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import propagate

@@ -39,9 +39,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ocreach.errors import ProblemError, SetError, SolverError
+from ocreach.errors import ProblemError, SetError, SolverError, check_count, check_tolerances
 from ocreach.problem import ControlSet, Problem
-from ocreach.reach.base import Method, Timer, as_count, as_tolerances
+from ocreach.reach.base import Method, Timer
 from ocreach.reach.result import ReachResult
 
 INPUT_SETS = ("box", "ball")
@@ -475,7 +475,7 @@ class STTReach(Method):
         def __post_init__(self) -> None:
             if self.order not in (1, 2, 3):
                 raise ProblemError(f"order must be 1, 2 or 3; got {self.order!r}")
-            self.h_max = as_count("h_max", self.h_max, 1)
+            self.h_max = check_count("h_max", self.h_max, 1)
             if self.input_set is not None and self.input_set not in INPUT_SETS:
                 raise ProblemError(f"input_set must be one of {INPUT_SETS} or None; got {self.input_set!r}")
             if self.reduction not in REDUCTIONS:
@@ -491,12 +491,12 @@ class STTReach(Method):
                 if parts < 1 or not thr > 0:
                     raise ProblemError(f"split needs max_parts >= 1 and threshold > 0; got {self.split!r}")
                 self.split = (parts, thr)
-            self.tube_substeps = as_count("tube_substeps", self.tube_substeps, 0)
+            self.tube_substeps = check_count("tube_substeps", self.tube_substeps, 0)
             if self.tube_substeps == 1:
                 raise ProblemError(f"tube_substeps must be 0 (off) or >= 2; got {self.tube_substeps!r}")
             if self.engine not in ("fused", "library"):
                 raise ProblemError(f"engine must be 'fused' or 'library'; got {self.engine!r}")
-            self.rtol, self.atol = as_tolerances(self.rtol, self.atol)
+            self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
             self.lift_independent = bool(self.lift_independent)
 
     # ------------------------------------------------------------------ solve
