@@ -56,7 +56,7 @@ from numpy.typing import ArrayLike
 from scipy.integrate._ivp import dop853_coefficients as _dop
 
 from ocreach._dop853_driver import DRIVER_SRC
-from ocreach.errors import ProblemError, SolverError
+from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.model import Model
 
 __all__ = ["integrate_batch", "propagate", "stt", "stm", "STTResult", "stt_rhs", "flow_rhs"]
@@ -346,8 +346,7 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
         raise ProblemError(f"args must have shape ({n}, {n_a}) or ({n_a},); got {args.shape}")
     if not np.all(np.isfinite(args)):
         raise ProblemError("args must be finite")
-    if int(max_steps) < 1:
-        raise ProblemError(f"max_steps must be a positive integer; got {max_steps!r}")
+    max_steps = check_count("max_steps", max_steps, 1)
     rtol_v = _tol_vector(rtol, n_y, "rtol")
     atol_v = _tol_vector(atol, n_y, "atol")
 

@@ -21,7 +21,7 @@ from typing import Any, Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ocreach.errors import ProblemError, SolverError
+from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.flow import c_identifier
 
 STEPS = ("euler", "flow")
@@ -450,8 +450,7 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
     ``trajectories`` is ``samples * T * n * 8`` bytes: pass ``times`` for long grids.
     Raises :class:`SolverError` if a sample becomes non-finite.
     """
-    if int(samples) < 2:
-        raise ProblemError(f"samples must be an integer >= 2; got {samples!r}")
+    samples = check_count("samples", samples, 2)
     if step not in STEPS:
         raise ProblemError(f"step must be one of {STEPS}; got {step!r}")
     samples = int(samples)

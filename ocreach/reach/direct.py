@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import casadi as ca
 import numpy as np
 
-from ocreach.errors import ProblemError, SolverError
+from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.problem import Problem
 
 
@@ -56,8 +56,7 @@ def transcription_support(problem: Problem, zhat, *, refine: int = 1, n_sub: int
     zhat = np.asarray(zhat, float)
     if zhat.shape != (model.n_x,):
         raise ProblemError(f"zhat must have length n_x = {model.n_x}; got shape {zhat.shape}")
-    if int(refine) < 1 or int(n_sub) < 1:
-        raise ProblemError(f"refine and n_sub must be >= 1; got {refine!r}, {n_sub!r}")
+    refine, n_sub = check_count("refine", refine, 1), check_count("n_sub", n_sub, 1)
     kind = problem.control_set.kind
     if kind not in ("ball", "box"):
         raise ProblemError(f"transcription_support needs a 'ball' or 'box' control set; got {kind!r}")
