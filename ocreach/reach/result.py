@@ -18,7 +18,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ocreach.errors import ProblemError
+from ocreach.errors import ProblemError, SolverError
 
 FORMAT_VERSION = 1
 
@@ -88,6 +88,11 @@ class ReachResult:
             if seq is not None and len(seq) != self.times.size:
                 raise ProblemError(f"ReachResult.{name} must have one entry per time "
                                    f"({self.times.size}); got {len(seq)}")
+        if self.points is not None:
+            bad = [k for k, pts in enumerate(self.points) if not np.all(np.isfinite(pts))]
+            if bad:  # no silent NaN: a method that produced them has failed
+                raise SolverError(f"ReachResult.points must be finite; time indices {bad[:10]} "
+                                  f"(of {self.times.size}) hold NaN or inf ({self.meta.get('method', '?')})")
         if self.tubes is not None and len(self.tubes) != self.times.size - 1:
             raise ProblemError(f"ReachResult.tubes must have one entry per segment "
                                f"({self.times.size - 1}); got {len(self.tubes)}")
