@@ -5,6 +5,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ocreach.errors import OcreachError
 from ocreach.geometry import convex_hull_polygon
 
 
@@ -82,7 +83,7 @@ def draw_bodies(ax, problem, dims: Sequence[int], times=None) -> None:
         return  # not a position plane
     try:
         tracks = body_tracks(problem, times)
-    except Exception as exc:  # a figure must not die on an ephemeris query; say so on it
+    except (OcreachError, OSError, ValueError) as exc:  # an ephemeris query failed: say so on the figure
         ax.text(0.01, 0.01, f"bodies not drawn: {exc}", transform=ax.transAxes, fontsize=6)
         return
     lim = ax.dataLim
