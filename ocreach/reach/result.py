@@ -190,6 +190,10 @@ def load(path: str | Path) -> ReachResult:
     if not path.is_file():
         raise ProblemError(f"result file {str(path)!r} does not exist")
     with np.load(path, allow_pickle=False) as z:
+        version = int(z["format_version"]) if "format_version" in z else 0
+        if version > FORMAT_VERSION:
+            raise ProblemError(f"result file {str(path)!r} has format_version {version}; this ocreach "
+                               f"reads versions <= {FORMAT_VERSION} (upgrade ocreach)")
         points = None
         if "points" in z:
             split = np.cumsum(z["n_points"])[:-1]
