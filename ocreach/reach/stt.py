@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from ocreach.errors import ProblemError, SetError, SolverError, check_count, che
 from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer
 from ocreach.reach.result import ReachResult
+
+if TYPE_CHECKING:
+    from ocreach.sets import Interval, PolyZonotope
 
 INPUT_SETS = ("box", "ball")
 REDUCTIONS = ("pca", "girard")
@@ -83,12 +86,12 @@ class PZUnion:
     def project(self, dims: Any) -> "PZUnion":
         return PZUnion([p.project(dims) for p in self.parts])
 
-    def support(self, d: Any, splits: int = 0):
+    def support(self, d: Any, splits: int = 0) -> float | np.ndarray:
         vals = np.array([np.atleast_1d(p.support(d, splits=splits)) for p in self.parts])
         out = vals.max(axis=0)
         return float(out[0]) if np.ndim(d) == 1 else out
 
-    def contains(self, points: Any, splits: int = 0, tol: float = 1e-7):
+    def contains(self, points: Any, splits: int = 0, tol: float = 1e-7) -> bool | np.ndarray:
         P = np.atleast_2d(np.asarray(points, dtype=float))
         ok = np.zeros(P.shape[0], dtype=bool)
         for part in self.parts:
@@ -108,13 +111,13 @@ class PZUnion:
         per = max(2, int(pieces) // len(self.parts))
         return [poly for p in self.parts for poly in p.outline(dims, pieces=per)]
 
-    def interval_hull(self):
+    def interval_hull(self) -> Interval:
         from ocreach.sets import Interval
 
         hulls = [p.interval_hull() for p in self.parts]
         return Interval(np.min([h.lo for h in hulls], axis=0), np.max([h.hi for h in hulls], axis=0))
 
-    def plot(self, ax, dims=(0, 1), **kw):
+    def plot(self, ax: Any, dims: Sequence[int] = (0, 1), **kw: Any) -> Any:
         from ocreach.sets.plot import plot_set
 
         out = None
@@ -124,7 +127,7 @@ class PZUnion:
 
 
 # ============================================================================ helpers
-def input_pz(kind: str, n_u: int):
+def input_pz(kind: str, n_u: int) -> PolyZonotope:
     """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
 
     ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"``: the unit ball by
@@ -139,7 +142,7 @@ def input_pz(kind: str, n_u: int):
     raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
 
 
-def make_dependent(pz):
+def make_dependent(pz: PolyZonotope) -> PolyZonotope:
     """The same set with every independent generator turned into a dependent one with a fresh
     linear factor (exact: an independent generator is a factor that appears in one monomial)."""
     from ocreach.sets import PolyZonotope, new_ids
@@ -170,7 +173,7 @@ def stt_polynomial(phi: Sequence[np.ndarray], dz: np.ndarray) -> list[np.ndarray
     return out
 
 
-def nonlinearity_index(phi: Sequence[np.ndarray], dZ, samples: int = 64, seed: int = 0) -> float:
+def nonlinearity_index(phi: Sequence[np.ndarray], dZ: PolyZonotope, samples: int = 64, seed: int = 0) -> float:
     """``max_s ||order-n term|| / max_s ||linear term||`` over extreme samples of ``dZ``.
 
     Small values mean the STT polynomial is nearly linear over the set, i.e. the set is well
@@ -185,8 +188,8 @@ def nonlinearity_index(phi: Sequence[np.ndarray], dZ, samples: int = 64, seed: i
     return top / lin if lin > 0 else (0.0 if top == 0 else math.inf)
 
 
-def stt_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str, engine: str, timer: Timer,
-             counts: dict[str, int]):
+def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str, engine: str,
+             timer: Timer, counts: dict[str, int]) -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` (Foss Eq. 18-19, Alg. 1 lines 6-9).
 
     ``engine="library"``: the set library's ``tensor_map`` per order, exact sums and
@@ -257,8 +260,9 @@ def _sym(T: np.ndarray) -> np.ndarray:
     return sum(np.transpose(T, (0, *p)) for p in perms) / len(perms)
 
 
-def fused_step(phi: Sequence[np.ndarray], dZ, h_max: int, method: str = "pca",
-               timer: Timer | None = None, counts: dict[str, int] | None = None, prune: float = 1e-3):
+def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str = "pca",
+               timer: Timer | None = None, counts: dict[str, int] | None = None,
+               prune: float = 1e-3) -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` in one vectorised pass (Foss Eq. 18, 21-22).
 
     Same result as the set library's ``tensor_map`` per order, exact sum and ``reduce_pz`` (checked
