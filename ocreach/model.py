@@ -161,6 +161,12 @@ class Model:
         return self.cached("f", lambda: ca.Function(
             "f", [self.x, self.u, self.t, self.p], [self.f], ["x", "u", "t", "p"], ["xdot"]))
 
+    def costate_dynamics(self, lam: ca.SX, u: ca.SX) -> tuple[ca.SX, ca.SX]:
+        """Symbolic state and costate rates ``dx/dt = f(x, u, t)``, ``dlam/dt = -(df/dx)^T lam``
+        (Foss et al. Eq. 4) for a control expression ``u`` (usually ``u*(x, lam)``)."""
+        f, A, _ = self.jac_fun(self.x, u, self.t, self.p)
+        return f, -ca.mtimes(A.T, lam)
+
     @property
     def jac_fun(self) -> ca.Function:
         """``(x, u, t, p) -> (f, df/dx, df/du)``."""

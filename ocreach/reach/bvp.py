@@ -94,9 +94,7 @@ def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
         n = model.n_x
         lam = ca.SX.sym("lam", n)
         u_star = thrust_law_expression(model, lam, smooth)
-        jac = ca.Function("fx", [model.x, model.u, model.t, model.p], [ca.jacobian(model.f, model.x)])
-        xdot = model.f_fun(model.x, u_star, model.t, model.p)
-        ldot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
+        xdot, ldot = model.costate_dynamics(lam, u_star)
         w = ca.vertcat(model.x, lam)
         g = ca.vertcat(xdot, ldot)
         A = ca.jacobian(g, w)
@@ -116,9 +114,7 @@ def costate_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
     def build():
         lam = ca.SX.sym("lam", model.n_x)
         u_star = thrust_law_expression(model, lam, smooth)
-        jac = ca.Function("fx", [model.x, model.u, model.t, model.p], [ca.jacobian(model.f, model.x)])
-        xdot = model.f_fun(model.x, u_star, model.t, model.p)
-        ldot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
+        xdot, ldot = model.costate_dynamics(lam, u_star)
         return ca.Function(f"costate_{abs(hash(smooth)) % 10**6}", [ca.vertcat(model.x, lam), model.t, model.p],
                            [ca.vertcat(xdot, ldot)], ["y", "t", "a"], ["ydot"])
 

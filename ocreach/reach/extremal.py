@@ -40,11 +40,7 @@ def extremal_rhs(model: Model, kind: str | None = None) -> ca.Function:
     def build():
         lam = ca.SX.sym("lam", model.n_x)
         u_star = model.optimal_control_expression(lam, kind=kind)
-        f_fun = model.f_fun
-        fx = f_fun(model.x, u_star, model.t, model.p)
-        jac = ca.Function("fx", [model.x, model.u, model.t, model.p],
-                          [ca.jacobian(model.f, model.x)])
-        lam_dot = -ca.mtimes(jac(model.x, u_star, model.t, model.p).T, lam)
+        fx, lam_dot = model.costate_dynamics(lam, u_star)
         y = ca.vertcat(model.x, lam)
         return ca.Function(f"extremal_rhs_{kind}", [y, model.t, model.p],
                            [ca.vertcat(fx, lam_dot)], ["y", "t", "a"], ["ydot"])
