@@ -25,7 +25,7 @@ def _parse_sets(items: list[str] | None) -> dict:
     return out
 
 
-def _split_options(problem_id: str, values: dict) -> tuple[dict, dict]:
+def _split_options(values: dict) -> tuple[dict, dict]:
     """Split ``--set`` values into problem overrides and method options (``problem.NAME=``)."""
     prob, meth = {}, {}
     for k, v in values.items():
@@ -33,7 +33,7 @@ def _split_options(problem_id: str, values: dict) -> tuple[dict, dict]:
     return prob, meth
 
 
-def cmd_list(args) -> int:
+def cmd_list(args: argparse.Namespace) -> int:
     from ocreach.problem import list_problems
     from ocreach.reach.base import available_methods
 
@@ -46,13 +46,13 @@ def cmd_list(args) -> int:
     return 0
 
 
-def cmd_run(args) -> int:
+def cmd_run(args: argparse.Namespace) -> int:
     from ocreach.plot import plot_projections_over_time
     from ocreach.problem import get_problem
     from ocreach.reach.base import reach
-    from ocreach.reach.result import atomic_write_text
+    from ocreach.reach.result import atomic_write_text, jsonable
 
-    prob_over, opts = _split_options(args.problem, _parse_sets(args.set))
+    prob_over, opts = _split_options(_parse_sets(args.set))
     problem = get_problem(args.problem, **prob_over)
     print(problem.summary())
     result = reach(problem, args.method, **opts)
@@ -67,8 +67,6 @@ def cmd_run(args) -> int:
                                    dims=dims)
     summary = {"problem": problem.id, "method": args.method, "meta": result.meta,
                "final_time": float(result.times[-1])}
-    from ocreach.reach.result import jsonable
-
     atomic_write_text(out / "summary.json", json.dumps(jsonable(summary), indent=2))
     rt = result.meta.get("runtime", {})
     print(f"{args.method}: runtime " + ", ".join(f"{k} {v:.3f} s" for k, v in rt.items()))
@@ -76,11 +74,11 @@ def cmd_run(args) -> int:
     return 0
 
 
-def cmd_compare(args) -> int:
+def cmd_compare(args: argparse.Namespace) -> int:
     from ocreach.compare import compare, write_comparison
     from ocreach.problem import get_problem
 
-    prob_over, opts = _split_options(args.problem, _parse_sets(args.set))
+    prob_over, opts = _split_options(_parse_sets(args.set))
     problem = get_problem(args.problem, **prob_over)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     per_method: dict[str, dict] = {m: {} for m in methods}
@@ -104,13 +102,13 @@ def cmd_compare(args) -> int:
     return 1 if cmp.errors else 0
 
 
-def cmd_report(args) -> int:
+def cmd_report(args: argparse.Namespace) -> int:
     if args.kind != "lqr-vs-mpc":
         raise OcreachError(f"unknown report {args.kind!r}; available: ['lqr-vs-mpc']")
     from ocreach.control.report import lqr_vs_mpc_report
     from ocreach.problem import get_problem
 
-    prob_over, opts = _split_options(args.problem, _parse_sets(args.set))
+    prob_over, opts = _split_options(_parse_sets(args.set))
     problem = get_problem(args.problem, **prob_over)
     out = Path(args.out or f"out/report_{problem.id}")
     metrics = lqr_vs_mpc_report(problem, out, **opts)
@@ -119,7 +117,7 @@ def cmd_report(args) -> int:
     return 0
 
 
-def cmd_bench(args) -> int:
+def cmd_bench(args: argparse.Namespace) -> int:
     bench_dir = Path(__file__).resolve().parent.parent / "benchmarks"
     scripts = sorted(bench_dir.glob("bench_*.py"))
     if args.only:
