@@ -24,7 +24,6 @@ a different (larger) reachable set than the Monte Carlo truth, which uses the pr
 """
 from __future__ import annotations
 
-import io
 import json
 import time
 from dataclasses import dataclass, field
@@ -38,7 +37,7 @@ from ocreach.geometry import (circle_directions, convex_hull_polygon, in_convex_
                               points_in_polygons, polygon_area)
 from ocreach.problem import Problem, get_problem
 from ocreach.reach.base import method_class, reach
-from ocreach.reach.result import ReachResult, atomic_write_bytes, atomic_write_text, jsonable
+from ocreach.reach.result import ReachResult, atomic_write_text, jsonable
 
 
 @dataclass
@@ -199,7 +198,7 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from ocreach.plot import axis_label, plot_result, time_label
+    from ocreach.plot import axis_label, plot_result, save_figure, time_label
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -224,10 +223,7 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
         ax.legend(fontsize=8)
     fig.suptitle(f"{p.id}: final reachable-set estimates at {time_label(p, p.grid[-1])}")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    plt.close(fig)
-    paths["figure"] = atomic_write_bytes(out / "overlay.png", buf.getvalue())
+    paths["figure"] = save_figure(fig, out / "overlay.png")
     text = (f"# Method comparison: {p.id}\n\n{p.summary()}\n\n{cmp.table()}\n\n"
             "support err: mean signed support-function error against the best known lower bound "
             "(all real trajectory endpoints), as a fraction of the width; MC covered: fraction of "

@@ -1,7 +1,8 @@
 """Plots of reachability results: 2-D projections over time, overlays of several methods."""
 from __future__ import annotations
 
-from typing import Sequence
+from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -137,6 +138,21 @@ def plot_result(result, ax=None, dims: Sequence[int] = (0, 1), k: int | Sequence
     return ax
 
 
+def save_figure(fig, path: str | Path, *, dpi: int = 120, **savefig_kw: Any) -> Path:
+    """Write ``fig`` as PNG to ``path`` atomically and close it (``savefig_kw`` go to
+    ``Figure.savefig``, e.g. ``bbox_inches="tight"``)."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    from ocreach.reach.result import atomic_write_bytes
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, **savefig_kw)
+    plt.close(fig)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
 def dims_are_position(problem, dims: Sequence[int]) -> bool:
     return all(d in problem.position_dims for d in dims)
 
@@ -149,7 +165,6 @@ def plot_projections_over_time(result, problem, path, dims: Sequence[int] = (0, 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from ocreach.reach.result import atomic_write_bytes
 
     n = result.times.size
     if every:
@@ -176,9 +191,4 @@ def plot_projections_over_time(result, problem, path, dims: Sequence[int] = (0, 
     ax.legend(fontsize=7, loc="best")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    save_figure(fig, path)

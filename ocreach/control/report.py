@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import html
 import inspect
-import io
 import json
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,8 @@ from ocreach.control.mpc import MPC
 from ocreach.control.reference import reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, compare_controllers
 from ocreach.errors import ProblemError
-from ocreach.reach.result import atomic_write_bytes, atomic_write_text
+from ocreach.plot import save_figure
+from ocreach.reach.result import atomic_write_text
 
 #: Patel & Subbarao Table 3 weights and horizons; Table 2 results (for the comparison line).
 PAPER_Q = (1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0)
@@ -64,15 +64,6 @@ def paper_pattern(problem, pos: float, vel: float) -> np.ndarray:
     return d
 
 
-def _fig_bytes(fig) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return buf.getvalue()
-
-
 def _figures(problem, results: dict[str, SimResult], out: Path) -> list[str]:
     import matplotlib
 
@@ -101,7 +92,7 @@ def _figures(problem, results: dict[str, SimResult], out: Path) -> list[str]:
     ax[0].set_title(f"{problem.id}: tracking error")
     for a in ax:
         a.grid(True, which="both", alpha=0.3)
-    atomic_write_bytes(out / "tracking_error.png", _fig_bytes(fig))
+    save_figure(fig, out / "tracking_error.png", bbox_inches="tight")
     names.append("tracking_error.png")
 
     fig, ax = plt.subplots(figsize=(8, 4))
@@ -123,7 +114,7 @@ def _figures(problem, results: dict[str, SimResult], out: Path) -> list[str]:
     ax.set_title(f"{problem.id}: control history")
     ax.legend()
     ax.grid(True, alpha=0.3)
-    atomic_write_bytes(out / "control.png", _fig_bytes(fig))
+    save_figure(fig, out / "control.png", bbox_inches="tight")
     names.append("control.png")
 
     if len(pos) == 3:
@@ -140,7 +131,7 @@ def _figures(problem, results: dict[str, SimResult], out: Path) -> list[str]:
         ax3.set_zlabel(f"z ({lab})")
         ax3.set_title(f"{problem.id}: closed-loop trajectories (rotating frame)")
         ax3.legend()
-        atomic_write_bytes(out / "trajectory.png", _fig_bytes(fig))
+        save_figure(fig, out / "trajectory.png", bbox_inches="tight")
         names.append("trajectory.png")
     return names
 
