@@ -282,8 +282,7 @@ class BVPContinuation(FFOE):
                     controls_note="continuous optimal control u*(lambda(t)); controls holds its value "
                                   "at each segment start; re-simulate [x0, costate0] with "
                                   "bvp.costate_rhs(model, smooth) (extremal_rhs when smooth = 0)")
-        return ReachResult(times=g, points=[traj[:, k] for k in range(K + 1)], controls=controls,
-                           trajectories=traj, meta=meta)
+        return ReachResult.from_trajectories(g, traj, controls=controls, meta=meta)
 
     def _continue(self, problem, p, manifold, lam, J, Dz, za, zb, dims, x_ref):
         """Continue the solution from direction ``za`` to ``zb``: Euler predictor of Tucker Eq. 12

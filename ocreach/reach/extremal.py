@@ -147,5 +147,4 @@ class ExtremalODE(Method):
         meta["outward_normal"] = normal / np.linalg.norm(normal, axis=1, keepdims=True)
         meta["controls_note"] = ("continuous optimal control u*(lambda(t)); controls holds its "
                                  "value at each segment start; re-simulate with extremal_rhs")
-        return ReachResult(times=grid, points=[traj[:, k] for k in range(K + 1)],
-                           controls=controls, trajectories=traj, meta=meta)
+        return ReachResult.from_trajectories(grid, traj, controls=controls, meta=meta)

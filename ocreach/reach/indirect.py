@@ -341,8 +341,7 @@ class FFOE(Method):
                     controls_note="piecewise-constant normalised controls; trajectories[:, 0] is the "
                                   "initial state (shifted on the uncertainty/Delta-V manifold if any); "
                                   "re-simulate with flow.propagate(model, traj[:, 0], controls, grid, p=meta['params'])")
-        return ReachResult(times=problem.grid, points=[traj[:, k] for k in range(traj.shape[1])],
-                           controls=U, trajectories=traj, meta=meta)
+        return ReachResult.from_trajectories(problem.grid, traj, controls=U, meta=meta)
 
     def sweep(self, problem: Problem, thrust_levels) -> list[ReachResult]:
         """FFOE for several thrust levels re-using one set of unpowered partials.
@@ -377,8 +376,7 @@ class FFOE(Method):
             meta = self.base_meta(problem, {k: v / L for k, v in timer.times.items()})
             meta.update(directions=dirs, costate0=lam0, cost=_costs(dirs, traj[i, :, -1]), params=P[i],
                         thrust_level=float(levels[i]), sweep_runtime=dict(timer.times))
-            out.append(ReachResult(times=problem.grid, points=[traj[i, :, k] for k in range(traj.shape[2])],
-                                   controls=U, trajectories=traj[i], meta=meta))
+            out.append(ReachResult.from_trajectories(problem.grid, traj[i], controls=U, meta=meta))
         return out
 
 
@@ -463,8 +461,7 @@ class OLE(FFOE):
                     reference_final=ref.states[-1],
                     controls_note="piecewise-constant normalised controls; re-simulate with "
                                   "flow.propagate(model, traj[:, 0], controls, grid, p=meta['params'])")
-        return ReachResult(times=grid, points=[traj[:, k] for k in range(traj.shape[1])],
-                           controls=U, trajectories=traj, meta=meta)
+        return ReachResult.from_trajectories(grid, traj, controls=U, meta=meta)
 
 
     def _backtrack(self, problem, p, manifold, dirs, U, traj, J, lam0, U_new, traj_new, J_new, lam_new):

@@ -94,8 +94,7 @@ class MonteCarlo(Method):
         meta = self.base_meta(problem, timer.times)
         meta["control_law"] = law
         meta["control_laws"] = list(LAWS)
-        return ReachResult(times=problem.grid, points=[traj[:, k] for k in range(traj.shape[1])],
-                           controls=u, trajectories=traj, meta=meta)
+        return ReachResult.from_trajectories(problem.grid, traj, controls=u, meta=meta)
 
     def _solve_stochastic(self, problem: Problem) -> ReachResult:
         """Jain et al.'s Monte Carlo: Gaussian x0 and fresh Gaussian controls at every step.
@@ -119,6 +118,5 @@ class MonteCarlo(Method):
         meta = self.base_meta(problem, timer.times)
         meta["stochastic"] = True
         meta["controls_note"] = "controls are the sampled physical controls on every grid segment"
-        return ReachResult(times=np.asarray(out["times"]),
-                           points=[traj[:, k] for k in range(traj.shape[1])],
-                           controls=out.get("controls"), trajectories=traj, meta=meta)
+        return ReachResult.from_trajectories(np.asarray(out["times"]), traj,
+                                             controls=out.get("controls"), meta=meta)

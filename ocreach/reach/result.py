@@ -97,6 +97,18 @@ class ReachResult:
             raise ProblemError(f"ReachResult.tubes must have one entry per segment "
                                f"({self.times.size - 1}); got {len(self.tubes)}")
 
+    @classmethod
+    def from_trajectories(cls, times: Any, trajectories: np.ndarray, *,
+                          controls: np.ndarray | None = None,
+                          meta: dict[str, Any] | None = None) -> ReachResult:
+        """A sample-based result: ``points[k] = trajectories[:, k]`` for ``trajectories`` of shape
+        ``(samples, len(times), n_x)`` (the samples at each time are views, not copies)."""
+        traj = np.asarray(trajectories)
+        if traj.ndim != 3:
+            raise ProblemError(f"trajectories must have shape (samples, times, n_x); got {traj.shape}")
+        return cls(times=times, points=[traj[:, k] for k in range(traj.shape[1])], controls=controls,
+                   trajectories=traj, meta={} if meta is None else meta)
+
     # ------------------------------------------------------------------ queries
     @property
     def method(self) -> str:
