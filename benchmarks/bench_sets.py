@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach.sets import PolyZonotope, Zonotope, new_ids, points_in_zonotope, reduce, tensor_map
 from ocreach.report import replace_markdown_section
+from ocreach.sets import PolyZonotope, Zonotope, new_ids, points_in_zonotope, reduce, tensor_map
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
@@ -69,8 +69,8 @@ def bench_tensor_map(reps: int = 5) -> dict:
     rng = np.random.default_rng(0)
     pz = make_pz(rng)
     T = rng.normal(size=(6, 6, 6))
-    ours = lambda: reduce(tensor_map(T, pz), 400, "pca")  # noqa: E731
-    ref = lambda: numpy_reference(T, np.asarray(pz.c), np.asarray(pz.G), np.asarray(pz.E), 400)  # noqa: E731
+    ours = lambda: reduce(tensor_map(T, pz), 400, "pca")
+    ref = lambda: numpy_reference(T, np.asarray(pz.c), np.asarray(pz.G), np.asarray(pz.E), 400)
     out = ours()
     c_ref, G_ref, E_ref, box = ref()
     # same enclosure: compare support functions of the two results in random directions

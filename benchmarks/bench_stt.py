@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from ocreach.report import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"

@@ -31,12 +31,18 @@ from pathlib import Path
 import numpy as np
 
 import ocreach
-from ocreach.geometry import circle_directions, convex_hull_polygon, hull_area, in_convex_hull
+from ocreach.geometry import (
+    circle_directions,
+    convex_hull_polygon,
+    hull_area,
+    in_convex_hull,
+    outline_area,
+    points_in_polygons,
+)
 from ocreach.problem import ControlSet, get_problem
 from ocreach.reach.base import available_methods
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.result import atomic_write_bytes, atomic_write_text
-from ocreach.geometry import outline_area, points_in_polygons
 
 TRAJ_METHODS = {"ode": {"samples": 100}, "ffoe": {"samples": 100, "dims": "position"},
                 "bvp": {"samples": 100, "dims": "position"}}

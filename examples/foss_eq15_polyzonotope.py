@@ -15,10 +15,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from ocreach.sets import PolyZonotope, unit_ball_pz  # noqa: E402
+from ocreach.sets import PolyZonotope, unit_ball_pz
 
 OUT = Path(__file__).resolve().parents[1] / "docs" / "figures" / "foss_eq15_polyzonotope.png"
 

@@ -25,13 +25,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-import ocreach  # noqa: E402
-from ocreach.problem import get_problem  # noqa: E402
-from ocreach.stochastic_mc import stochastic_monte_carlo  # noqa: E402
+import ocreach
+from ocreach.problem import get_problem
 from ocreach.report import replace_markdown_section
+from ocreach.stochastic_mc import stochastic_monte_carlo
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG = ROOT / "docs" / "figures"

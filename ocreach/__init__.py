@@ -8,20 +8,47 @@ Public API::
     r.support([1, 0, 0, 0])
     ocreach.compare(p, ["mc", "ode"])
 """
+from ocreach.compare import compare
 from ocreach.errors import OcreachError, ProblemError, SetError, SolverError, UnknownNameError
 from ocreach.flow import integrate_batch, propagate, stm, stt
 from ocreach.model import Model
-from ocreach.problem import ControlSet, Problem, Reference, get_problem, list_problems, load_problem_file
-from ocreach.reach import ReachResult, available_methods, load, reach
-from ocreach.compare import compare  # noqa: E402  (the function, not the module)
+from ocreach.problem import (
+    ControlSet,
+    Problem,
+    Reference,
+    get_problem,
+    list_problems,
+    load_problem_file,
+)
+from ocreach.reach import Method, ReachResult, available_methods, load, method_class, reach
 from ocreach.units import Units
 
 __version__ = "0.1.0"
 
 
 __all__ = [
-    "ControlSet", "Model", "OcreachError", "Problem", "ProblemError", "ReachResult", "Reference",
-    "SetError", "SolverError", "UnknownNameError", "Units", "available_methods", "compare",
-    "get_problem", "integrate_batch", "list_problems", "load", "load_problem_file", "propagate",
-    "reach", "stm", "stt",
+    "ControlSet",
+    "Method",
+    "Model",
+    "OcreachError",
+    "Problem",
+    "ProblemError",
+    "ReachResult",
+    "Reference",
+    "SetError",
+    "SolverError",
+    "Units",
+    "UnknownNameError",
+    "available_methods",
+    "compare",
+    "get_problem",
+    "integrate_batch",
+    "list_problems",
+    "load",
+    "load_problem_file",
+    "method_class",
+    "propagate",
+    "reach",
+    "stm",
+    "stt",
 ]

@@ -26,15 +26,22 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from ocreach.errors import ProblemError
-from ocreach.geometry import (circle_directions, convex_hull_polygon, in_convex_hull, outline_area,
-                              points_in_polygons, polygon_area)
+from ocreach.geometry import (
+    circle_directions,
+    convex_hull_polygon,
+    in_convex_hull,
+    outline_area,
+    points_in_polygons,
+    polygon_area,
+)
 from ocreach.problem import Problem, get_problem
 from ocreach.reach.base import method_class, reach
 from ocreach.reach.result import ReachResult, atomic_write_text, jsonable
@@ -94,9 +101,9 @@ def _projected_estimate(result: ReachResult, dims: Sequence[int]):
         outline = s.outline() if hasattr(s, "outline") else convex_hull_polygon(
             s.sample(4000, np.random.default_rng(0), mode="extreme"))
         if isinstance(outline, (list, tuple)):  # PZ / union of PZs: pieces of the non-convex outline
-            contains = lambda pts: points_in_polygons(pts, outline)  # noqa: E731
+            contains = lambda pts: points_in_polygons(pts, outline)
         else:
-            contains = lambda pts: np.asarray(s.contains(pts), dtype=bool)  # noqa: E731
+            contains = lambda pts: np.asarray(s.contains(pts), dtype=bool)
         return (lambda d: np.asarray(s.support(d), dtype=float), outline_area(outline), contains)
     pts = np.asarray(result.points[-1])[:, dims]
     poly = convex_hull_polygon(pts)

@@ -59,7 +59,7 @@ from ocreach._dop853_driver import DRIVER_SRC
 from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.model import Model
 
-__all__ = ["integrate_batch", "propagate", "stt", "stm", "STTResult", "stt_rhs", "flow_rhs"]
+__all__ = ["STTResult", "flow_rhs", "integrate_batch", "propagate", "stm", "stt", "stt_rhs"]
 
 # --------------------------------------------------------------------------- DOP853 constants
 _NS = _dop.N_STAGES  # 12

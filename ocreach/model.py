@@ -17,9 +17,10 @@ Conventions
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Callable, Hashable, Sequence
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -87,7 +88,7 @@ class Model:
         units: Units | None = None,
         description: str = "",
         state_units: Sequence[str] | None = None,
-    ) -> "Model":
+    ) -> Model:
         """Validate shapes and build a model (the usual constructor).
 
         ``state_units``: optional unit label per state (e.g. ``"DU"``, ``"DU/TU"``) for plots.

@@ -15,8 +15,8 @@ constant-mass CR3BP models of :func:`ocreach.models.cr3bp`; the thrust is held a
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
 
 import casadi as ca
 import numpy as np

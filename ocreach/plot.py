@@ -1,8 +1,9 @@
 """Plots of reachability results: 2-D projections over time, overlays of several methods."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

@@ -10,9 +10,10 @@ import importlib
 import importlib.util
 import inspect
 import pkgutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -159,7 +160,7 @@ class Problem:
         self.validate()
 
     # ---------------------------------------------------------------- validation
-    def validate(self) -> "Problem":
+    def validate(self) -> Problem:
         """Check every field; raise :class:`ProblemError` naming the field, value and what is allowed."""
         self.model.validate_state(self.x0, "x0")
         if self.x0.ndim != 1:

@@ -29,9 +29,10 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
-from typing import Callable, Literal
+from functools import cache
+from typing import Literal
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -388,7 +389,7 @@ def _disk_cache_store(n: int, order: int, density: str, theta: np.ndarray) -> No
         pass
 
 
-@lru_cache(maxsize=None)
+@cache
 def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], tuple[np.ndarray, ...]]:
     """Solve the CUT moment equations for the orbit radii and weights.
 
@@ -441,7 +442,7 @@ def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], 
     return structure, tuple(np.array(p, dtype=float) for p in _split(structure, best))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _cut_arrays(n: int, order: int, density: str) -> tuple[np.ndarray, np.ndarray]:
     if n == 1:  # 1-D: the symmetric rule with order/2 + 1 nodes is Gauss-Hermite / Legendre
         m = order // 2 + 1

@@ -15,8 +15,9 @@ of ``x_k``.  This module holds
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -85,7 +86,7 @@ class SplitStepMap:
             self._maps[key] = build()
         return self._maps[key]
 
-    def _fx(self) -> "_BatchFunction":
+    def _fx(self) -> _BatchFunction:
         if "fx" not in self._maps:
             x = ca.SX.sym("x", self.n_x)
             t = ca.SX.sym("t")
@@ -96,7 +97,7 @@ class SplitStepMap:
             self._maps["fx"] = _BatchFunction(fun, batched=(True, False, False))
         return self._maps["fx"]
 
-    def _hu(self) -> "_BatchFunction":
+    def _hu(self) -> _BatchFunction:
         if "hu" not in self._maps:
             u = ca.SX.sym("u", self.n_u)
             p = ca.SX.sym("p", self.hu.size1_in(1))
@@ -115,7 +116,7 @@ class SplitStepMap:
         (H,) = self._hu()(np.asarray(U, dtype=float), self.p)
         return H
 
-    def _step(self) -> "_BatchFunction":
+    def _step(self) -> _BatchFunction:
         if "step" not in self._maps:
             x = ca.SX.sym("x", self.n_x)
             u = ca.SX.sym("u", self.n_u)

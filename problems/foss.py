@@ -2,7 +2,7 @@
 using state-transition tensors" (AMOS 2024): Van der Pol (Sec. 3.1) and the DRO (Sec. 4.1)."""
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -32,7 +32,7 @@ def vdp(t_final: float = 3.0, dt: float = 0.1, gain: float = 0.05) -> Problem:
     )
 
 
-@lru_cache(maxsize=None)
+@cache
 def dro_orbit() -> PeriodicOrbit:
     """Foss Sec. 4.1 state [0.2765, 0, 0, 2.1379] corrected with x0 fixed (vy0 = 2.137623, T = 6.2374 TU)."""
     return correct_symmetric(cr3bp(MU_FOSS, planar=True), [0.2765, 0.0, 0.0, 2.1379], fix="x",

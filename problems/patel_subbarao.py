@@ -7,7 +7,7 @@ The periodic reference orbits are corrected by :mod:`ocreach.orbits` once per pr
 """
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -35,7 +35,7 @@ EARTH_MARS_EPOCH = "2007-04-10"
 HOUR_TU = 3600.0 / EARTH_MOON_PATEL.time
 
 
-@lru_cache(maxsize=None)
+@cache
 def halo_orbit() -> PeriodicOrbit:
     """The paper's L2 halo state corrected with ``z0 = -0.0862`` fixed (x0, vy0 free).
 
@@ -45,7 +45,7 @@ def halo_orbit() -> PeriodicOrbit:
     return correct_symmetric(cr3bp(MU_PATEL), HALO_SEED, fix="z", family="L2 southern halo")
 
 
-@lru_cache(maxsize=None)
+@cache
 def nrho_orbit() -> PeriodicOrbit:
     """The southern L2 9:2 NRHO at ``mu = 0.01215`` (x0 at apolune), see :func:`ocreach.orbits.nrho_9_2`."""
     return nrho_9_2(MU_PATEL, EARTH_MOON_PATEL)

@@ -11,13 +11,12 @@ import itertools
 
 import numpy as np
 import pytest
+from test_reentry import _linear_problem, phys_rhs
 
 import ocreach
 from ocreach.errors import ProblemError
-from ocreach.models.reentry import GLIDER
 from ocreach.problem import get_problem
 from ocreach.stochastic_mc import stochastic_monte_carlo
-from test_reentry import _linear_problem, phys_rhs
 
 D = np.pi / 180
 
@@ -178,7 +177,7 @@ def test_kernels_use_public_flow_names():
     import ast
     from pathlib import Path
 
-    import ocreach.flow as flow
+    from ocreach import flow
 
     for name in ("jit_enabled", "cache_dir", "compile_source", "generate_c"):
         assert callable(getattr(flow, name)) and not name.startswith("_")

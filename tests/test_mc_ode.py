@@ -71,10 +71,10 @@ def _direct_support(problem, direction, n_seg=60, substeps=8, box=False):
     t0, tf = problem.grid[0], problem.grid[-1]
     h = (tf - t0) / n_seg / substeps
     x, u = ca.MX.sym("x", m.n_x), ca.MX.sym("u", m.n_u)
-    f = lambda xx: m.f_fun(xx, u, 0.0, problem.params)  # noqa: E731 (autonomous CR3BP)
+    f = lambda xx: m.f_fun(xx, u, 0.0, problem.params)
     xk = x
     for _ in range(substeps):
-        k1 = f(xk); k2 = f(xk + h / 2 * k1); k3 = f(xk + h / 2 * k2); k4 = f(xk + h * k3)  # noqa: E702
+        k1 = f(xk); k2 = f(xk + h / 2 * k1); k3 = f(xk + h / 2 * k2); k4 = f(xk + h * k3)
         xk = xk + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     step = ca.Function("step", [x, u], [xk])
     opti = ca.Opti()

@@ -21,7 +21,7 @@ def _fd_jacobian(fun, z, h=1e-6):
 def test_tensors_match_finite_differences(model, z0):
     nx = model.n_x
     T = model.tensors(z0[:nx], z0[nx:], order=3)
-    F = lambda z, j: model.tensors(z[:nx], z[nx:], order=3)[j]  # noqa: E731
+    F = lambda z, j: model.tensors(z[:nx], z[nx:], order=3)[j]
     for j in (1, 2, 3):
         num = _fd_jacobian(lambda z: F(z, j - 1), z0, h=1e-5)
         scale = max(1.0, np.abs(T[j]).max())

@@ -8,8 +8,13 @@ from scipy.integrate import solve_ivp
 
 from ocreach.errors import ProblemError
 from ocreach.models import cr3bp, twobody
-from ocreach.orbits import (continue_family, correct_symmetric, lagrange_points, nrho_9_2,
-                            stability_indices)
+from ocreach.orbits import (
+    continue_family,
+    correct_symmetric,
+    lagrange_points,
+    nrho_9_2,
+    stability_indices,
+)
 from ocreach.units import EARTH_MOON_PATEL
 
 MU_NRHO = 0.012150585609624

@@ -147,6 +147,7 @@ def _linear_problem(cov0, u_cov, K=30, dt=0.1, A=None):
     """x' = A x + B u: the exact mean/covariance recursion of its Euler map is the truth.
     A zero column of ``A`` makes that state absent from f (exercises ``cut``'s ``reduce``)."""
     import casadi as ca
+
     from ocreach.model import Model
 
     x = ca.SX.sym("x", 2)

@@ -2,12 +2,19 @@
 import casadi as ca
 import cvxpy as cp
 import numpy as np
-from hypothesis import given, settings, strategies as st
-
-from ocreach.sets import (Ellipsoid, Interval, PolyZonotope, Zonotope, points_in_zonotope, zonotope_in_interval,
-                          zonotope_in_zonotope)
-
 from _sets_truth import lp_in_zonotope, lp_support
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ocreach.sets import (
+    Ellipsoid,
+    Interval,
+    PolyZonotope,
+    Zonotope,
+    points_in_zonotope,
+    zonotope_in_interval,
+    zonotope_in_zonotope,
+)
 
 SET = settings(max_examples=30, deadline=None)
 

@@ -1,13 +1,21 @@
 """Polynomial zonotopes: exact operations agree pointwise, over-approximations contain samples."""
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from _sets_truth import lp_in_zonotope
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ocreach.errors import SetError
-from ocreach.sets import (Interval, PolyZonotope, Zonotope, cartesian_product, new_ids, reduce, tensor_map,
-                          unit_ball_pz)
-
-from _sets_truth import lp_in_zonotope
+from ocreach.sets import (
+    Interval,
+    PolyZonotope,
+    Zonotope,
+    cartesian_product,
+    new_ids,
+    reduce,
+    tensor_map,
+    unit_ball_pz,
+)
 
 SET = settings(max_examples=30, deadline=None)
 

@@ -1,13 +1,21 @@
 """Zonotopes, intervals, ellipsoids, matrix zonotopes against independent LPs / closed forms."""
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from _sets_truth import lp_in_zonotope, lp_support
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial import ConvexHull
 
 from ocreach.errors import SetError
-from ocreach.sets import (Ellipsoid, Interval, MatrixZonotope, Zonotope, polygon_area, reduce, unit_ball_zonotope)
-
-from _sets_truth import lp_in_zonotope, lp_support
+from ocreach.sets import (
+    Ellipsoid,
+    Interval,
+    MatrixZonotope,
+    Zonotope,
+    polygon_area,
+    reduce,
+    unit_ball_zonotope,
+)
 
 SET = settings(max_examples=30, deadline=None)
 

@@ -34,7 +34,7 @@ that structure; :func:`split_functions` returns ``f0``, ``G`` and ``hu`` as CasA
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import casadi as ca
 import numpy as np
@@ -122,7 +122,7 @@ GLIDER = Vehicle(name="glider", mu=3.986e14, rho0=1.2, Re=6.378e6, h_r=7500.0, S
 VEHICLES = {"shuttle": SHUTTLE, "glider": GLIDER}
 
 
-@lru_cache(maxsize=None)
+@cache
 def _symbols():
     """Symbols and the split expressions ``f0(x; p)``, ``G(x; p)``, ``hu(u; p)`` (built once)."""
     x = ca.SX.sym("x", 6)
@@ -157,7 +157,7 @@ def _symbols():
     return x, u, p, f0, G, hu
 
 
-@lru_cache(maxsize=None)
+@cache
 def split_functions() -> tuple[ca.Function, ca.Function, ca.Function]:
     """``f0(x, t, p) -> (6,)``, ``G(x, t, p) -> (6, 3)``, ``hu(u, p) -> (3,)`` (Jain et al. Eq. 1,
     21-23, corrected; continuous time: the Euler step multiplies ``f0`` and ``G`` by ``dt``)."""

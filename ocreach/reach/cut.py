@@ -26,8 +26,8 @@ ellipsoid, 3 by default) and, in ``meta``, the arrays ``mean`` (K+1, n), ``cov``
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca

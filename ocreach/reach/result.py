@@ -12,9 +12,10 @@ import json
 import os
 import pickle
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -154,7 +155,7 @@ class ReachResult:
             return np.asarray(s.support(d), dtype=float)
         return float(s.support(d))
 
-    def project(self, dims: Sequence[int]) -> "ReachResult":
+    def project(self, dims: Sequence[int]) -> ReachResult:
         """The result restricted to the state components ``dims``."""
         dims = list(dims)
         return ReachResult(

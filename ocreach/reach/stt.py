@@ -34,8 +34,9 @@ Beyond the paper (documented in docs/stt.md):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class PZUnion:
     def __repr__(self) -> str:
         return f"PZUnion(dim={self.dim}, parts={len(self.parts)})"
 
-    def project(self, dims: Any) -> "PZUnion":
+    def project(self, dims: Any) -> PZUnion:
         return PZUnion([p.project(dims) for p in self.parts])
 
     def support(self, d: Any, splits: int = 0) -> float | np.ndarray:

@@ -5,11 +5,24 @@ Sets are immutable numpy-backed values: ``M @ S`` (linear map), ``S + v`` (trans
 ``sample``, ``contains``, ``reduce``, ``interval_hull``, ``to_zonotope``, ``project``, ``plot``.
 """
 from ocreach.sets._base import new_ids
-from ocreach.sets.contains import (CasadiContainment, casadi_containment, containment_constraints,
-                                   points_in_ellipsoid, points_in_zonotope, zonotope_halfspaces,
-                                   zonotope_in_halfspaces, zonotope_in_interval, zonotope_in_zonotope)
-from ocreach.sets.convert import (interval_to_zonotope, to_polyzonotope, to_zonotope, unit_ball_pz,
-                                  unit_ball_zonotope)
+from ocreach.sets.contains import (
+                                   CasadiContainment,
+                                   casadi_containment,
+                                   containment_constraints,
+                                   points_in_ellipsoid,
+                                   points_in_zonotope,
+                                   zonotope_halfspaces,
+                                   zonotope_in_halfspaces,
+                                   zonotope_in_interval,
+                                   zonotope_in_zonotope,
+)
+from ocreach.sets.convert import (
+                                   interval_to_zonotope,
+                                   to_polyzonotope,
+                                   to_zonotope,
+                                   unit_ball_pz,
+                                   unit_ball_zonotope,
+)
 from ocreach.sets.ellipsoid import Ellipsoid
 from ocreach.sets.interval import Interval
 from ocreach.sets.matzonotope import MatrixZonotope, matzonotope_times_zonotope

@@ -141,7 +141,7 @@ def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
         cols, exps = [], []
         for i in range(3):
             j, k = [x for x in range(3) if x != i]
-            def mono(pw):  # noqa: E306
+            def mono(pw):
                 e = [0, 0, 0]
                 for var, pow_ in pw:
                     e[var] = pow_

@@ -6,8 +6,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocreach.errors import SetError
-from ocreach.sets._base import (SetBase, as_dims, as_directions, as_matrix, as_rng, as_vector, check_linear_map,
-                                ro)
+from ocreach.sets._base import (
+    SetBase,
+    as_dims,
+    as_directions,
+    as_matrix,
+    as_rng,
+    as_vector,
+    check_linear_map,
+    ro,
+)
 
 if TYPE_CHECKING:
     from ocreach.sets.interval import Interval
@@ -65,7 +73,7 @@ class Ellipsoid(SetBase):
 
         return points_in_ellipsoid(self, points, tol)
 
-    def reduce(self, *args, **kwargs) -> "Ellipsoid":
+    def reduce(self, *args, **kwargs) -> Ellipsoid:
         return self
 
     def interval_hull(self) -> Interval:
@@ -81,11 +89,11 @@ class Ellipsoid(SetBase):
         B = unit_ball_zonotope(self.dim, k)
         return self.L @ B + self.q
 
-    def project(self, dims: Any) -> "Ellipsoid":
+    def project(self, dims: Any) -> Ellipsoid:
         idx = as_dims(dims, self.dim)
         return Ellipsoid(self.q[idx], self.Q[np.ix_(idx, idx)])
 
-    def __rmatmul__(self, M) -> "Ellipsoid":
+    def __rmatmul__(self, M) -> Ellipsoid:
         """Linear map ``M @ E = Ellipsoid(M q, M Q M^T)`` (exact)."""
         A = check_linear_map(M, self.dim)
         return Ellipsoid(A @ self.q, A @ self.Q @ A.T)

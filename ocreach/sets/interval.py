@@ -6,8 +6,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocreach.errors import SetError
-from ocreach.sets._base import (SetBase, as_dims, as_directions, as_points, as_vector, check_linear_map,
-                                factor_samples, ro)
+from ocreach.sets._base import (
+    SetBase,
+    as_dims,
+    as_directions,
+    as_points,
+    as_vector,
+    check_linear_map,
+    factor_samples,
+    ro,
+)
 
 if TYPE_CHECKING:
     from ocreach.sets.polyzonotope import PolyZonotope
@@ -62,11 +70,11 @@ class Interval(SetBase):
         ok = np.all((P >= self.lo - tol) & (P <= self.hi + tol), axis=1)
         return bool(ok[0]) if single else ok
 
-    def reduce(self, *args, **kwargs) -> "Interval":
+    def reduce(self, *args, **kwargs) -> Interval:
         """Intervals need no order reduction; returns ``self``."""
         return self
 
-    def interval_hull(self) -> "Interval":
+    def interval_hull(self) -> Interval:
         return self
 
     def to_zonotope(self) -> Zonotope:
@@ -82,11 +90,11 @@ class Interval(SetBase):
 
         return PolyZonotope.from_interval(self, ids)
 
-    def project(self, dims: Any) -> "Interval":
+    def project(self, dims: Any) -> Interval:
         idx = as_dims(dims, self.dim)
         return Interval(self.lo[idx], self.hi[idx])
 
-    def cartesian(self, other: "Interval") -> "Interval":
+    def cartesian(self, other: Interval) -> Interval:
         if isinstance(other, Interval):
             return Interval(np.concatenate([self.lo, other.lo]), np.concatenate([self.hi, other.hi]))
         return self.to_zonotope().cartesian(other)

@@ -1,7 +1,8 @@
 """Matrix zonotopes ``{C + sum_j lambda_j G_j : lambda in [-1, 1]^q}`` (Althoff; Patel & Subbarao Eq. 21)."""
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -54,7 +55,7 @@ class MatrixZonotope:
 
         return self.evaluate(factor_samples(n, self.n_generators, as_rng(rng), mode))
 
-    def __add__(self, other: "MatrixZonotope") -> "MatrixZonotope":
+    def __add__(self, other: MatrixZonotope) -> MatrixZonotope:
         if isinstance(other, MatrixZonotope):
             if other.shape != self.shape:
                 raise SetError(f"MatrixZonotope sum: shapes differ ({self.shape} vs {other.shape})")
@@ -81,7 +82,7 @@ class MatrixZonotope:
         return NotImplemented
 
 
-def matzonotope_times_zonotope(MZ: MatrixZonotope, Z) -> "Zonotope":  # noqa: F821
+def matzonotope_times_zonotope(MZ: MatrixZonotope, Z) -> Zonotope:  # noqa: F821
     """Outer zonotope of ``{A x : A in MZ, x in Z}`` (Althoff's matrix-zonotope product; Patel &
     Subbarao Eq. 23-24): with ``x = c + G xi`` and ``A = C + sum_j lambda_j A_j``,
 

@@ -25,8 +25,8 @@ def plot_set(S, ax, dims: Any = (0, 1), pieces: int = 64, **kw):
     ``pieces``.  Keyword arguments go to
     :class:`matplotlib.patches.PathPatch` (``facecolor``, ``edgecolor``, ``alpha``, ``label``...).
     """
-    from matplotlib.path import Path
     from matplotlib.patches import PathPatch
+    from matplotlib.path import Path
 
     from ocreach.sets.polyzonotope import PolyZonotope
 

@@ -12,14 +12,24 @@ from __future__ import annotations
 
 import heapq
 import itertools
+from collections.abc import Callable
 from math import comb
-from typing import TYPE_CHECKING, Any, Callable, Union
+from typing import TYPE_CHECKING, Any, Union
 
 import numpy as np
 
 from ocreach.errors import SetError
-from ocreach.sets._base import (SetBase, as_dims, as_directions, as_matrix, as_vector, check_linear_map,
-                                factor_samples, new_ids, ro)
+from ocreach.sets._base import (
+    SetBase,
+    as_dims,
+    as_directions,
+    as_matrix,
+    as_vector,
+    check_linear_map,
+    factor_samples,
+    new_ids,
+    ro,
+)
 
 if TYPE_CHECKING:
     from ocreach.sets.interval import Interval
@@ -164,13 +174,13 @@ class PolyZonotope(SetBase):
 
     # -- constructors -----------------------------------------------------------------------
     @classmethod
-    def from_zonotope(cls, Z, ids: Any = None) -> "PolyZonotope":
+    def from_zonotope(cls, Z, ids: Any = None) -> PolyZonotope:
         """Exact conversion: each generator becomes a dependent generator with its own factor."""
         h = Z.n_generators
         return cls(Z.c, Z.G, None, np.eye(h, dtype=np.int64), new_ids(h) if ids is None else ids)
 
     @classmethod
-    def from_interval(cls, I, ids: Any = None) -> "PolyZonotope":
+    def from_interval(cls, I, ids: Any = None) -> PolyZonotope:
         return cls.from_zonotope(I.to_zonotope(), ids)
 
     # -- properties -------------------------------------------------------------------------
@@ -228,7 +238,7 @@ class PolyZonotope(SetBase):
         return np.atleast_2d(self.evaluate(F[:, : self.n_factors], F[:, self.n_factors:]))
 
     # -- structural clean-up --------------------------------------------------------------------
-    def compact(self, tol: float = 0.0) -> "PolyZonotope":
+    def compact(self, tol: float = 0.0) -> PolyZonotope:
         """Remove redundant exponents: merge equal columns of E, fold constant monomials into the
         centre, drop zero generators and unused factors (Kochdumper & Althoff, compactGen).
 
@@ -258,7 +268,7 @@ class PolyZonotope(SetBase):
         return E
 
     # -- exact operations -------------------------------------------------------------------
-    def __rmatmul__(self, M) -> "PolyZonotope":
+    def __rmatmul__(self, M) -> PolyZonotope:
         """Linear map ``M @ PZ = <Mc, MG, M GI, E, id>`` (Foss et al. Sec. 2.4), M of shape (m, n)."""
         A = check_linear_map(M, self.dim)
         return PolyZonotope(A @ self.c, A @ self.G, A @ self.GI, self.E, self.id)
@@ -291,17 +301,17 @@ class PolyZonotope(SetBase):
             return PolyZonotope(self.c + as_vector("translation", v, self.dim), self.G, self.GI, self.E, self.id)
         return NotImplemented
 
-    def cartesian(self, other) -> "PolyZonotope":
+    def cartesian(self, other) -> PolyZonotope:
         """Cartesian product ``self x other`` (Foss et al. Sec. 2.4); see :func:`cartesian_product`."""
         return cartesian_product(self, other)
 
-    def project(self, dims: Any) -> "PolyZonotope":
+    def project(self, dims: Any) -> PolyZonotope:
         """Exact projection onto the coordinates ``dims`` (the linear map of Foss et al. Sec. 2.4 with
         rows of the identity); factors and exponents are kept."""
         idx = as_dims(dims, self.dim)
         return PolyZonotope(self.c[idx], self.G[idx], self.GI[idx], self.E, self.id)
 
-    def split(self, factor: int | None = None) -> tuple["PolyZonotope", "PolyZonotope"]:
+    def split(self, factor: int | None = None) -> tuple[PolyZonotope, PolyZonotope]:
         """Exact split along dependent factor with identifier ``factor``: ``a = (a' -+ 1)/2``.
 
         Every monomial is re-expanded by the binomial theorem, ``((a'+s)/2)^e = 2^-e sum_j C(e,j) s^(e-j) a'^j``;
@@ -346,7 +356,7 @@ class PolyZonotope(SetBase):
         """Interval enclosure (interval hull of the zonotope enclosure)."""
         return self.to_zonotope().interval_hull()
 
-    def _split_pieces(self, n_splits: int, score, monotone: bool = False) -> list[tuple[float, "PolyZonotope"]]:
+    def _split_pieces(self, n_splits: int, score, monotone: bool = False) -> list[tuple[float, PolyZonotope]]:
         """Best-first splitting: ``n_splits`` times split the piece with the largest ``score``.
 
         Returns ``(score, piece)`` pairs.  With ``monotone=True`` a child's score is capped by its
@@ -402,7 +412,7 @@ class PolyZonotope(SetBase):
             ok[todo] = piece.to_zonotope().contains(P[todo], tol=tol)
         return bool(ok[0]) if single else ok
 
-    def reduce(self, h_max: int, method: str = "pca") -> "PolyZonotope":
+    def reduce(self, h_max: int, method: str = "pca") -> PolyZonotope:
         """Sound order reduction to at most ``h_max`` generators (Foss et al. Sec. 2.4 Reduce(PZ,
         h_des)); see :func:`ocreach.sets.reduce.reduce_pz`."""
         from ocreach.sets.reduce import reduce_pz

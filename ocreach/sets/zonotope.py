@@ -8,8 +8,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocreach.errors import SetError
-from ocreach.sets._base import (SetBase, as_dims, as_directions, as_matrix, as_vector, check_linear_map,
-                                factor_samples, ro)
+from ocreach.sets._base import (
+    SetBase,
+    as_dims,
+    as_directions,
+    as_matrix,
+    as_vector,
+    check_linear_map,
+    factor_samples,
+    ro,
+)
 
 if TYPE_CHECKING:
     from ocreach.sets.interval import Interval
@@ -75,10 +83,10 @@ class Zonotope(SetBase):
             return Zonotope(self.c + as_vector("translation", v, self.dim), self.G)
         return NotImplemented
 
-    def __neg__(self) -> "Zonotope":
+    def __neg__(self) -> Zonotope:
         return Zonotope(-self.c, self.G)
 
-    def cartesian(self, other) -> "Zonotope":
+    def cartesian(self, other) -> Zonotope:
         """Cartesian product ``Z1 x Z2`` (exact)."""
         from ocreach.sets.interval import Interval
 
@@ -92,12 +100,12 @@ class Zonotope(SetBase):
         G[n1:, self.n_generators:] = other.G
         return Zonotope(np.concatenate([self.c, other.c]), G)
 
-    def project(self, dims: Any) -> "Zonotope":
+    def project(self, dims: Any) -> Zonotope:
         """Exact projection onto the coordinates ``dims`` (rows of ``c`` and ``G``)."""
         idx = as_dims(dims, self.dim)
         return Zonotope(self.c[idx], self.G[idx])
 
-    def remove_zero_generators(self, tol: float = 0.0) -> "Zonotope":
+    def remove_zero_generators(self, tol: float = 0.0) -> Zonotope:
         keep = np.any(np.abs(self.G) > tol, axis=0)
         return Zonotope(self.c, self.G[:, keep])
 
@@ -109,7 +117,7 @@ class Zonotope(SetBase):
         r = np.abs(self.G).sum(axis=1)
         return Interval(self.c - r, self.c + r)
 
-    def to_zonotope(self) -> "Zonotope":
+    def to_zonotope(self) -> Zonotope:
         return self
 
     def to_polyzonotope(self, ids: Any = None) -> PolyZonotope:
@@ -133,14 +141,14 @@ class Zonotope(SetBase):
 
         return points_in_zonotope(self, points, tol=tol)
 
-    def reduce(self, order: float = 1.0, method: str = "girard") -> "Zonotope":
+    def reduce(self, order: float = 1.0, method: str = "girard") -> Zonotope:
         """Sound order reduction (Girard 2005 or PCA, Kopetzki et al. 2017); see
         :func:`ocreach.sets.reduce.reduce_zonotope`."""
         from ocreach.sets.reduce import reduce_zonotope
 
         return reduce_zonotope(self, order, method)
 
-    def split(self, j: int | None = None) -> tuple["Zonotope", "Zonotope"]:
+    def split(self, j: int | None = None) -> tuple[Zonotope, Zonotope]:
         """Split along generator ``j`` (default: the longest); the union of the halves is ``Z``."""
         h = self.n_generators
         if h == 0:
