@@ -81,9 +81,11 @@ class Comparison:
         return "\n".join(lines)
 
     def notes(self) -> list[str]:
-        """Methods whose input set differs from the problem's control set (see module docstring)."""
+        """What the reader needs to read the table: how runtimes were taken, and methods whose
+        input set differs from the problem's control set (see module docstring)."""
         kind = self.problem.control_set.kind
-        out = []
+        out = ["runtime is the wall time of each method's solve in this process, including any "
+               "one-off compilation of generated C code (cached on disk for later runs)."]
         for name, res in self.results.items():
             used = res.meta.get("input_set")
             if used is not None and used != kind:
