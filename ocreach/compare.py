@@ -75,17 +75,15 @@ class Comparison:
             lines.append("| " + " | ".join(row) + " |")
         for name, err in self.errors.items():
             lines.append(f"| {name} | failed: {err} |" + " |" * (len(head) - 2))
-        notes = self.notes()
-        if notes:
-            lines += [""] + [f"Note: {n}" for n in notes]
+        lines += ["", "runtime: wall time of each method's solve in this process, including any one-off "
+                  "compilation of generated C code (cached on disk for later runs)."]
+        lines += [f"Note: {n}" for n in self.notes()]
         return "\n".join(lines)
 
     def notes(self) -> list[str]:
-        """What the reader needs to read the table: how runtimes were taken, and methods whose
-        input set differs from the problem's control set (see module docstring)."""
+        """Methods whose input set differs from the problem's control set (see module docstring)."""
         kind = self.problem.control_set.kind
-        out = ["runtime is the wall time of each method's solve in this process, including any "
-               "one-off compilation of generated C code (cached on disk for later runs)."]
+        out = []
         for name, res in self.results.items():
             used = res.meta.get("input_set")
             if used is not None and used != kind:
