@@ -226,3 +226,9 @@ def test_ode_with_ellipsoid_initial_set_reaches_exact_linear_support():
     starts = r.trajectories[:, 0]
     m = np.einsum("ij,jk,ik->i", starts - q, np.linalg.inv(Q), starts - q)
     assert np.allclose(m, 1.0)
+
+
+def test_mc_rejects_options_a_stochastic_problem_cannot_use():
+    glider = ocreach.get_problem("glider-reentry")
+    with pytest.raises(ocreach.ProblemError, match="do not apply"):
+        ocreach.reach(glider, "mc", samples=10, mix=(1, 0, 0))

@@ -102,8 +102,16 @@ class MonteCarlo(Method):
         States are kept at the problem's ``extra["report_times"]`` and at most ~200 evenly spaced
         grid times (a 2000-step horizon with 10,000 samples would otherwise need ~1 GB).
         """
+        import dataclasses
+
         from ocreach.stochastic_mc import stochastic_monte_carlo
 
+        defaults = {f.name: f.default for f in dataclasses.fields(self.Options)}
+        ignored = [k for k in ("mix", "rtol", "atol") if getattr(self.options, k) != defaults[k]]
+        if ignored:
+            raise ProblemError(f"option(s) {ignored} do not apply to the stochastic problem "
+                               f"{problem.id!r} (Gaussian x0 and controls, the problem's own step "
+                               "map); allowed: samples, seed")
         grid = problem.grid
         stride = max(1, int(np.ceil((grid.size - 1) / 200)))
         keep = set(range(0, grid.size, stride)) | {grid.size - 1}
