@@ -84,6 +84,13 @@ def thrust_law_fun(model: Model) -> ca.Function:
     return model.cached("u_star_bvp_fun", build)
 
 
+def _smooth_tag(smooth: float) -> str:
+    """Readable, deterministic C-name suffix for a smoothing value (``1e-8`` -> ``1_000e_08``)."""
+    from ocreach.flow import c_identifier
+
+    return c_identifier(f"{float(smooth):.3e}")
+
+
 def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
     """``(y = [x; lam; vec Phi], t, p) -> dy/dt``: Foss Eq. 4 with its ``2n x 2n`` STM (row-major).
 
@@ -102,7 +109,7 @@ def costate_stm_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
         Phi = ca.reshape(phi, 2 * n, 2 * n).T  # row-major
         dPhi = ca.reshape(ca.mtimes(A, Phi).T, -1, 1)
         y = ca.vertcat(w, phi)
-        return ca.Function(f"costate_stm_{abs(hash(smooth)) % 10**6}", [y, model.t, model.p],
+        return ca.Function(f"costate_stm_{_smooth_tag(smooth)}", [y, model.t, model.p],
                            [ca.vertcat(g, dPhi)], ["y", "t", "a"], ["ydot"], {"cse": True})
 
     return model.cached(("costate_stm_rhs", float(smooth)), build)
@@ -115,7 +122,7 @@ def costate_rhs(model: Model, smooth: float = 0.0) -> ca.Function:
         lam = ca.SX.sym("lam", model.n_x)
         u_star = thrust_law_expression(model, lam, smooth)
         xdot, ldot = model.costate_dynamics(lam, u_star)
-        return ca.Function(f"costate_{abs(hash(smooth)) % 10**6}", [ca.vertcat(model.x, lam), model.t, model.p],
+        return ca.Function(f"costate_{_smooth_tag(smooth)}", [ca.vertcat(model.x, lam), model.t, model.p],
                            [ca.vertcat(xdot, ldot)], ["y", "t", "a"], ["ydot"])
 
     return model.cached(("costate_rhs", float(smooth)), build)
