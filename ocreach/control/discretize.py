@@ -15,7 +15,7 @@ matrices against SciPy's ``solve_ivp`` (DOP853, rtol 1e-12) on the L2 halo.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -46,13 +46,13 @@ class Discretization:
     """RK4 zero-order-hold discretisation of ``model`` with step ``dt`` and ``n_sub`` substeps.
 
     ``F(x, u, t, p) -> x_next`` and ``F_jac(x, u, t, p) -> (x_next, A, B)`` are built once (SX)
-    and cached on the instance.
+    and cached on the model (keyed by ``dt`` and ``n_sub``), so every controller, plant and
+    report built on the same discretisation shares them.
     """
 
     model: Model
     dt: float
     n_sub: int = 4
-    cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         check_positive("dt", self.dt)
@@ -61,9 +61,7 @@ class Discretization:
                                f"got {self.n_sub!r}")
 
     def _cached(self, key, builder):
-        if key not in self.cache:
-            self.cache[key] = builder()
-        return self.cache[key]
+        return self.model.cached(("rk4_discretization", float(self.dt), int(self.n_sub), key), builder)
 
     @property
     def F(self) -> ca.Function:
