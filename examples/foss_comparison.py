@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import io
 import json
 import time
 from pathlib import Path
@@ -39,10 +38,11 @@ from ocreach.geometry import (
     outline_area,
     points_in_polygons,
 )
+from ocreach.plot import save_figure
 from ocreach.problem import ControlSet, get_problem
 from ocreach.reach.base import available_methods
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.result import atomic_write_bytes, atomic_write_text
+from ocreach.reach.result import atomic_write_text
 
 TRAJ_METHODS = {"ode": {"samples": 100}, "ffoe": {"samples": 100, "dims": "position"},
                 "bvp": {"samples": 100, "dims": "position"}}
@@ -50,12 +50,7 @@ PIECES = 256
 
 
 def _save(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=130)
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    save_figure(fig, path, dpi=130)
     print(f"wrote {path}")
 
 

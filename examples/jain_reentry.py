@@ -29,6 +29,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import ocreach
+from ocreach.plot import save_figure
 from ocreach.problem import get_problem
 from ocreach.report import replace_markdown_section
 from ocreach.stochastic_mc import stochastic_monte_carlo
@@ -124,8 +125,7 @@ def fig_controls(res, name):
     axs[0].legend(loc="best")
     fig.suptitle(f"{p.id}: controls, Gaussian with sigma 3 deg about the nominal (Jain Fig. {3 if 'shuttle' in name else 8})")
     fig.tight_layout()
-    fig.savefig(FIG / f"jain_{name}_controls.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, FIG / f"jain_{name}_controls.png", dpi=110)
 
 
 def fig_states(res, name):
@@ -148,8 +148,7 @@ def fig_states(res, name):
     fig.suptitle(f"{p.id}: CUT8 mean and 3-sigma bounds with Monte Carlo samples "
                  f"(Jain Fig. {4 if 'shuttle' in name else 9})")
     fig.tight_layout()
-    fig.savefig(FIG / f"jain_{name}_states.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, FIG / f"jain_{name}_states.png", dpi=110)
 
 
 def fig_contours(res, name):
@@ -185,8 +184,7 @@ def fig_contours(res, name):
         fig.suptitle(f"{p.id}: Gaussian density contours (1, 2, 3 sigma) from CUT8 with MC samples "
                      f"(Jain Fig. {first_fig + f})")
         fig.tight_layout()
-        fig.savefig(FIG / f"jain_{name}_contours_{f + 1}.png", dpi=100)
-        plt.close(fig)
+        save_figure(fig, FIG / f"jain_{name}_contours_{f + 1}.png", dpi=100)
 
 
 def table(res) -> tuple[str, dict]:

@@ -20,6 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ocreach.plot import save_figure
 from ocreach.problem import get_problem
 from ocreach.reach.base import reach
 
@@ -63,8 +64,7 @@ def _save(fig, out: Path, name: str) -> None:
         if ax.name == "rectilinear":
             ax.ticklabel_format(style="sci", scilimits=(-3, 4), useMathText=True)
     fig.tight_layout()
-    fig.savefig(out / name, dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / name, dpi=130)
     print("wrote", out / name)
 
 
