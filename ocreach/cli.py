@@ -1,4 +1,11 @@
-"""Command line: ``ocreach list | run | compare | report | bench``."""
+"""Command line: ``ocreach list | run | compare | report | bench`` plus registered commands.
+
+Adding a command: write it in your own module with a ``register(subparsers) -> None`` function
+(``subparsers.add_parser(...)`` and ``set_defaults(func=...)``; ``func(args) -> int``) and add the
+module's dotted name to :data:`COMMAND_MODULES`.  Adding a report kind (``ocreach report KIND``): add
+``"KIND": "module:function"`` to :data:`REPORT_KINDS`, with ``function(problem, out_dir, **options)
+-> dict`` (the metrics printed as JSON).
+"""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +16,15 @@ import sys
 from pathlib import Path
 
 from ocreach.errors import OcreachError
+
+#: Modules that add commands: each has ``register(subparsers) -> None``.  One line per module.
+COMMAND_MODULES: list[str] = [
+]
+
+#: ``ocreach report KIND``: kind -> ``"module:function"`` with ``function(problem, out_dir, **opts) -> dict``.
+REPORT_KINDS: dict[str, str] = {
+    "lqr-vs-mpc": "ocreach.control.report:lqr_vs_mpc_report",
+}
 
 
 def _parse_sets(items: list[str] | None) -> dict:
@@ -103,15 +119,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    if args.kind != "lqr-vs-mpc":
-        raise OcreachError(f"unknown report {args.kind!r}; available: ['lqr-vs-mpc']")
-    from ocreach.control.report import lqr_vs_mpc_report
+    if args.kind not in REPORT_KINDS:
+        raise OcreachError(f"unknown report {args.kind!r}; available: {sorted(REPORT_KINDS)}")
+    import importlib
+
     from ocreach.problem import get_problem
 
+    mod_name, func_name = REPORT_KINDS[args.kind].split(":")
+    report_fn = getattr(importlib.import_module(mod_name), func_name)
     prob_over, opts = _split_options(_parse_sets(args.set))
     problem = get_problem(args.problem, **prob_over)
     out = Path(args.out or f"out/report_{problem.id}")
-    metrics = lqr_vs_mpc_report(problem, out, **opts)
+    metrics = report_fn(problem, out, **opts)
     print(json.dumps(metrics, indent=2, default=str))
     print(f"wrote {out}/report.md, report.html, metrics.json and figures")
     return 0
@@ -155,8 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="method option (ode.samples=200) or problem.KEY=VALUE")
     c.set_defaults(func=cmd_compare)
 
-    rp = sub.add_parser("report", help="write a report (lqr-vs-mpc)")
-    rp.add_argument("kind", help="lqr-vs-mpc")
+    rp = sub.add_parser("report", help="write a report (" + ", ".join(REPORT_KINDS) + ")")
+    rp.add_argument("kind", help=" | ".join(REPORT_KINDS))
     rp.add_argument("--problem", default="l2-halo")
     rp.add_argument("--out")
     rp.add_argument("--set", action="append", metavar="KEY=VALUE")
@@ -166,6 +185,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--only", help="comma-separated substrings of benchmark names")
     b.add_argument("--write", action="store_true", help="update docs/benchmarks.md")
     b.set_defaults(func=cmd_bench)
+
+    import importlib
+
+    for mod_name in COMMAND_MODULES:
+        importlib.import_module(mod_name).register(sub)
     return ap
 
 
