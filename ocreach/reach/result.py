@@ -10,8 +10,8 @@ from __future__ import annotations
 import io
 import json
 import os
-import pickle
 import tempfile
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,9 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.errors import ProblemError, SolverError
+from ocreach.errors import OcreachError, ProblemError, SolverError
 
-FORMAT_VERSION = 1
+#: Version 2: sets and tubes as arrays + JSON (version 1 pickled them and is refused).
+FORMAT_VERSION = 2
 
 
 def _umask() -> int:
@@ -68,7 +69,7 @@ def jsonable(obj: Any) -> Any:
     return repr(obj)
 
 
-@dataclass
+@dataclass(repr=False)
 class ReachResult:
     """Reachable-set estimate on a time grid (DESIGN.md contract)."""
 
@@ -177,16 +178,29 @@ class ReachResult:
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | Path) -> Path:
-        """Write the result to ``path`` (``.npz``) atomically; read it back with :func:`load`."""
-        arrays: dict[str, np.ndarray] = {"times": self.times,
+        """Write the result to ``path`` (``.npz``) atomically; read it back with :func:`load`.
+
+        The file holds arrays and JSON only (no pickle): ``schema``, ``format_version``, ``times``,
+        ``points`` (concatenated, with ``n_points``), each set and tube as its defining arrays
+        (described by ``sets_json`` / ``tubes_json``, see :mod:`ocreach.sets.serialize`),
+        ``controls``, ``trajectories`` and ``meta_json``.
+        """
+        from ocreach.sets.serialize import to_arrays
+
+        arrays: dict[str, np.ndarray] = {"schema": np.array(SCHEMA), "times": self.times,
                                           "format_version": np.array(FORMAT_VERSION)}
         if self.points is not None:
             arrays["n_points"] = np.array([len(p) for p in self.points])
             arrays["points"] = np.concatenate([np.asarray(p, dtype=float) for p in self.points])
-        if self.sets is not None:
-            arrays["sets_pickle"] = np.frombuffer(pickle.dumps(self.sets, protocol=5), dtype=np.uint8)
-        if self.tubes is not None:
-            arrays["tubes_pickle"] = np.frombuffer(pickle.dumps(self.tubes, protocol=5), dtype=np.uint8)
+        for name, seq in (("sets", self.sets), ("tubes", self.tubes)):
+            if seq is None:
+                continue
+            descs = []
+            for k, s in enumerate(seq):
+                desc, arrs = to_arrays(s, f"{name}.{k}")
+                descs.append(desc)
+                arrays.update(arrs)
+            arrays[f"{name}_json"] = np.array(json.dumps(descs))
         if self.controls is not None:
             arrays["controls"] = self.controls
         if self.trajectories is not None:
@@ -196,26 +210,85 @@ class ReachResult:
         np.savez_compressed(buf, **arrays)
         return atomic_write_bytes(path, buf.getvalue())
 
+    def __repr__(self) -> str:
+        """A short description (``print(result)`` must not dump the arrays)."""
+        what = (f"{len(self.sets)} sets ({type(self.sets[-1]).__name__})" if self.sets is not None
+                else f"{len(self.points)} point clouds ({len(self.points[-1])} samples at the end)")
+        flags = [f for f in ("guaranteed", "truncated") if self.meta.get(f)]
+        t = self.times
+        return (f"ReachResult(method={self.method!r}, problem={self.meta.get('problem', '?')!r}, "
+                f"t={t[0]:g}..{t[-1]:g} ({t.size} times), {what}"
+                + (f", tubes={len(self.tubes)}" if self.tubes is not None else "")
+                + (f", {', '.join(flags)}" if flags else "") + ")")
+
+
+#: What ``schema`` holds in a result file (with ``format_version``).
+SCHEMA = "ocreach.ReachResult"
+_EXPECTED = (f"an ocreach result file (.npz written by ReachResult.save, schema {SCHEMA!r}, "
+             f"format_version {FORMAT_VERSION})")
+
 
 def load(path: str | Path) -> ReachResult:
-    """Read a result written by :meth:`ReachResult.save`."""
+    """Read a result written by :meth:`ReachResult.save`.
+
+    Only arrays and JSON are read (``allow_pickle=False``; sets are rebuilt by
+    :mod:`ocreach.sets.serialize` from registered types only).  Anything else -- a text file, a
+    truncated or foreign ``.npz``, a file of an older format with pickled sets -- raises one
+    :class:`ProblemError` naming the file and what was expected.
+    """
     path = Path(path)
     if not path.is_file():
         raise ProblemError(f"result file {str(path)!r} does not exist")
-    with np.load(path, allow_pickle=False) as z:
-        version = int(z["format_version"]) if "format_version" in z else 0
-        if version > FORMAT_VERSION:
-            raise ProblemError(f"result file {str(path)!r} has format_version {version}; this ocreach "
-                               f"reads versions <= {FORMAT_VERSION} (upgrade ocreach)")
-        points = None
-        if "points" in z:
-            split = np.cumsum(z["n_points"])[:-1]
-            points = np.split(z["points"], split)
-        sets = pickle.loads(z["sets_pickle"].tobytes()) if "sets_pickle" in z else None
-        return ReachResult(
-            times=z["times"], sets=sets, points=points,
-            controls=z["controls"] if "controls" in z else None,
-            trajectories=z["trajectories"] if "trajectories" in z else None,
-            meta=json.loads(str(z["meta_json"])),
-            tubes=pickle.loads(z["tubes_pickle"].tobytes()) if "tubes_pickle" in z else None,
-        )
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic != b"PK\x03\x04":
+        raise ProblemError(f"result file {str(path)!r} is not a .npz archive; expected {_EXPECTED}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return _read(z, path)
+    except OcreachError as exc:  # a malformed set descriptor or set arrays: name the file
+        if str(path) in str(exc):
+            raise
+        raise ProblemError(f"result file {str(path)!r}: {exc}; expected {_EXPECTED}") from None
+    except (OSError, ValueError, KeyError, IndexError, TypeError, EOFError,
+            zipfile.BadZipFile, json.JSONDecodeError) as exc:
+        raise ProblemError(f"result file {str(path)!r} is damaged or not an ocreach result "
+                           f"({type(exc).__name__}: {exc}); expected {_EXPECTED}") from None
+
+
+def _read(z: Any, path: Path) -> ReachResult:
+    from ocreach.sets.serialize import from_arrays
+
+    names = set(z.files)
+    if "sets_pickle" in names or "tubes_pickle" in names:
+        raise ProblemError(f"result file {str(path)!r} was written by an older ocreach that stored "
+                           "sets as pickles; it is not read (unpickling runs code from the file). "
+                           "Re-run the method to write the current format")
+    if "schema" not in names or str(z["schema"]) != SCHEMA or "times" not in names:
+        raise ProblemError(f"result file {str(path)!r} is a .npz without an ocreach result in it "
+                           f"(members {sorted(names)[:8]}); expected {_EXPECTED}")
+    version = int(z["format_version"])
+    if version != FORMAT_VERSION:
+        raise ProblemError(f"result file {str(path)!r} has format_version {version}; this ocreach "
+                           f"reads version {FORMAT_VERSION}"
+                           + (" (upgrade ocreach)" if version > FORMAT_VERSION else ""))
+    points = None
+    if "points" in names:
+        split = np.cumsum(z["n_points"])[:-1]
+        points = np.split(z["points"], split)
+    seqs = {}
+    for name in ("sets", "tubes"):
+        if f"{name}_json" in names:
+            descs = json.loads(str(z[f"{name}_json"]))
+            if not isinstance(descs, list):
+                raise ProblemError(f"result file {str(path)!r}: {name}_json must be a list")
+            seqs[name] = [from_arrays(d, z) for d in descs]
+    meta = json.loads(str(z["meta_json"]))
+    if not isinstance(meta, dict):
+        raise ProblemError(f"result file {str(path)!r}: meta_json must be a JSON object")
+    return ReachResult(
+        times=z["times"], sets=seqs.get("sets"), points=points,
+        controls=z["controls"] if "controls" in names else None,
+        trajectories=z["trajectories"] if "trajectories" in names else None,
+        meta=meta, tubes=seqs.get("tubes"),
+    )
