@@ -17,10 +17,49 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.errors import ProblemError, UnknownNameError
+from ocreach.errors import ProblemError, UnknownNameError, check_real
 from ocreach.flow import check_grid
 from ocreach.model import CONTROL_SETS, Model
 from ocreach.units import Units
+
+
+#: Relative tolerance of "t_final is a multiple of dt" in :func:`time_grid`.
+GRID_RTOL = 1e-6
+
+
+def time_grid(t_final: Any, dt: Any, *, fit: bool = False, unit: str = "TU",
+              names: tuple[str, str] = ("t_final", "dt")) -> np.ndarray:
+    """The forward grid ``0, dt, 2 dt, ..., t_final`` shared by the problem factories.
+
+    Rule: ``t_final`` and ``dt`` finite and > 0, and ``t_final / dt`` an integer within
+    :data:`GRID_RTOL` (relative) -- otherwise a :class:`ProblemError` stating the rule and the
+    nearest valid ``t_final`` values (no silent rounding of the horizon).  With ``fit=True``
+    (a horizon fixed by physics, e.g. one orbit period) the grid instead has
+    ``n = max(1, round(t_final / dt))`` equal segments ending exactly at ``t_final`` (the step is
+    ``t_final / n``, within a factor 1.5 of ``dt``).
+    """
+    tn, dn = names
+    T, h = check_real(tn, t_final), check_real(dn, dt)
+    if T <= 0:
+        raise ProblemError(f"{tn} must be > 0 {unit}; got {t_final!r}")
+    if h <= 0:
+        raise ProblemError(f"{dn} must be > 0 {unit}; got {dt!r}")
+    ratio = T / h
+    if fit:
+        if ratio < 0.5:
+            raise ProblemError(f"{dn} must be <= 2 {tn} = {2 * T:g} {unit}; got {dt!r}")
+        n = max(1, int(round(ratio)))
+        return np.linspace(0.0, T, n + 1)
+    n = int(round(ratio))
+    if n < 1 or abs(ratio - n) > GRID_RTOL * max(1.0, ratio):
+        lo, hi = max(1, int(np.floor(ratio))), max(1, int(np.ceil(ratio)))
+        near = sorted({lo * h, hi * h})
+        raise ProblemError(f"{tn} = {T:g} {unit} must be a whole multiple of {dn} = {h:g} {unit} "
+                           f"(relative tolerance {GRID_RTOL:g}); nearest valid {tn}: "
+                           + " or ".join(f"{v:.10g}" for v in near))
+    if n > 10_000_000:
+        raise ProblemError(f"{tn} / {dn} = {n} segments exceeds 1e7; use a larger {dn}")
+    return np.linspace(0.0, n * h, n + 1)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import numpy as np
 
 from ocreach.models import cr3bp, vanderpol
 from ocreach.orbits import PeriodicOrbit, correct_symmetric
-from ocreach.problem import Problem
+from ocreach.problem import Problem, time_grid
 from ocreach.units import EARTH_MOON_FOSS
 
 CITATION = "Foss, Rosengren & Biria, AMOS 2024"
@@ -17,15 +17,10 @@ T_MAX_N = 1.1e-3
 MASS_KG = 14.0
 
 
-def _grid(t_final: float, dt: float) -> np.ndarray:
-    n = int(round(t_final / dt))
-    return np.linspace(0.0, n * dt, n + 1)
-
-
 def vdp(t_final: float = 3.0, dt: float = 0.1, gain: float = 0.05) -> Problem:
     """Van der Pol oscillator with input 0.05 u, |u| <= 1, x1 = [0.5, 0], grid 0:0.1:3 (Foss Sec. 3.1)."""
     return Problem(
-        id="vdp", model=vanderpol(gain=gain), x0=np.array([0.5, 0.0]), grid=_grid(t_final, dt),
+        id="vdp", model=vanderpol(gain=gain), x0=np.array([0.5, 0.0]), grid=time_grid(t_final, dt),
         description="Van der Pol oscillator with bounded input (Foss et al. Sec. 3.1)",
         citation=f"{CITATION}, Sec. 3.1, Eq. 20", position_dims=(0, 1), velocity_dims=(0, 1),
         method_options={"stt": {"order": 3, "h_max": 200, "input_set": "box"}},
@@ -46,7 +41,7 @@ def dro(t_final: float = 3.0, dt: float = 0.1, thrust: float = T_MAX_N, mass: fl
     a_max = units.thrust_acceleration(thrust, mass)
     model = cr3bp(MU_FOSS, planar=True, a_max=a_max, units=units)
     return Problem(
-        id="dro", model=model, x0=np.array([0.2765, 0.0, 0.0, 2.1379]), grid=_grid(t_final, dt),
+        id="dro", model=model, x0=np.array([0.2765, 0.0, 0.0, 2.1379]), grid=time_grid(t_final, dt),
         units=units, reference=dro_orbit().to_reference(),
         description=f"planar CR3BP DRO, T_max = {thrust * 1e3:g} mN, m = {mass:g} kg, "
                     f"a_max = {a_max:.4g} DU/TU^2, {t_final:g} TU",

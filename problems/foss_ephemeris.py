@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ocreach.problem import Problem
+from ocreach.problem import Problem, time_grid
 from ocreach.units import EARTH_MOON_FOSS
 
 CITATION = "Foss, Rosengren & Biria, AMOS 2024, Sec. 4.2"
@@ -28,9 +28,9 @@ def nrho_flyby(t_final: float = 1.0, dt: float = 0.05, thrust: float = T_MAX_N, 
     a_max = units.thrust_acceleration(thrust, mass)
     span_days = 1.1 * max(t_final, 0.1) * units.time / 86400.0
     model = ephemeris_synodic(BODIES, EPOCH, span_days, a_max, units=units)
-    n = int(round(t_final / dt))
+    grid = time_grid(t_final, dt)
     return Problem(
-        id="nrho-flyby", model=model, x0=X0.copy(), grid=np.linspace(0.0, n * dt, n + 1), units=units,
+        id="nrho-flyby", model=model, x0=X0.copy(), grid=grid, units=units,
         description=f"NRHO Moon flyby, ephemeris synodic model (Sun, Earth, Moon, Venus), epoch "
                     f"{EPOCH} TDB, T_max = {thrust * 1e3:g} mN, m = {mass:g} kg, {t_final:g} TU",
         citation=CITATION, position_dims=(0, 1, 2), velocity_dims=(3, 4, 5),

@@ -14,21 +14,10 @@ import numpy as np
 
 from ocreach.errors import ProblemError
 from ocreach.models.reentry import GLIDER, SHUTTLE, Vehicle, reentry, step_map
-from ocreach.problem import Problem, StochasticSpec
+from ocreach.problem import Problem, StochasticSpec, time_grid
 
 CITATION = "Jain, Gueho, Singla & Akella, Stochastic reachability analysis for the hypersonic re-entry problem"
 DEG = np.pi / 180.0
-
-
-def _grid(t_final: float, dt: float) -> np.ndarray:
-    if not (np.isfinite(t_final) and t_final > 0):
-        raise ProblemError(f"t_final must be a finite number > 0 s; got {t_final!r}")
-    if not (np.isfinite(dt) and 0 < dt <= t_final):
-        raise ProblemError(f"dt must be in (0, t_final = {t_final:g}] s; got {dt!r}")
-    n = int(round(t_final / dt))
-    if abs(n * dt - t_final) > 1e-9 * t_final:
-        raise ProblemError(f"t_final = {t_final:g} s must be a multiple of dt = {dt:g} s")
-    return np.linspace(0.0, t_final, n + 1)
 
 
 def _spec(vehicle: Vehicle, mean_phys, var_phys, u_nom, sigma_u_deg: float) -> StochasticSpec:
@@ -73,7 +62,7 @@ def shuttle_reentry(t_final: float = 2000.0, dt: float = 1.0, alpha_deg: float =
     ``bank1_deg`` at ``t_final`` (evaluated at each segment's start), both with sigma
     ``sigma_u_deg``.  Forward-Euler step ``dt`` s.
     """
-    grid = _grid(t_final, dt)
+    grid = time_grid(t_final, dt, unit="s")
     t = grid[:-1]
     u_nom = np.column_stack([np.full(t.size, alpha_deg * DEG),
                              (bank0_deg + (bank1_deg - bank0_deg) * t / t_final) * DEG])
@@ -99,7 +88,7 @@ def glider_reentry(t_final: float = 120.0, dt: float = 0.1, alpha_deg: float = 1
     """
     if not 0 <= bank_t0 <= bank_t1:
         raise ProblemError(f"need 0 <= bank_t0 <= bank_t1; got bank_t0={bank_t0!r}, bank_t1={bank_t1!r}")
-    grid = _grid(t_final, dt)
+    grid = time_grid(t_final, dt, unit="s")
     t = grid[:-1]
     bank = np.interp(t, [0.0, bank_t0, bank_t1 + 1e-12, max(t_final, bank_t1 + 1.0)],
                      [0.0, 0.0, bank_deg, bank_deg])

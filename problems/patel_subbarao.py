@@ -14,7 +14,7 @@ import numpy as np
 from ocreach.errors import ProblemError, check_positive
 from ocreach.models import cr3bp, twobody
 from ocreach.orbits import PeriodicOrbit, correct_symmetric, nrho_9_2
-from ocreach.problem import Problem
+from ocreach.problem import Problem, time_grid
 from ocreach.units import EARTH_MOON_PATEL, SUN_AU
 
 CITATION = ("J. Patel & K. Subbarao, \"Set-based reachability for low-thrust spacecraft in two-body "
@@ -51,18 +51,8 @@ def nrho_orbit() -> PeriodicOrbit:
     return nrho_9_2(MU_PATEL, EARTH_MOON_PATEL)
 
 
-def _grid(t_final: float, dt: float) -> np.ndarray:
-    """``n = round(t_final / dt)`` equal segments ending exactly at ``t_final``."""
-    t_final = check_positive("t_final", t_final)
-    dt = check_positive("dt", dt)
-    if dt > t_final:
-        raise ProblemError(f"dt must be <= t_final = {t_final:g}; got {dt!r}")
-    n = max(1, int(round(t_final / dt)))
-    return np.linspace(0.0, t_final, n + 1)
-
-
 def _cislunar(pid: str, orbit: PeriodicOrbit, t_final: float, dt: float, thrust: float,
-              mass: float, isp: float, description: str, citation: str) -> Problem:
+              mass: float, isp: float, description: str, citation: str, fit: bool = False) -> Problem:
     check_positive("thrust", thrust)
     check_positive("mass", mass)
     check_positive("isp", isp)
@@ -70,7 +60,7 @@ def _cislunar(pid: str, orbit: PeriodicOrbit, t_final: float, dt: float, thrust:
     a_max = units.thrust_acceleration(thrust, mass)
     model = cr3bp(MU_PATEL, a_max=a_max, units=units)
     return Problem(
-        id=pid, model=model, x0=orbit.x0.copy(), grid=_grid(t_final, dt), units=units,
+        id=pid, model=model, x0=orbit.x0.copy(), grid=time_grid(t_final, dt, fit=fit), units=units,
         reference=orbit.to_reference(orbit.family),
         description=(f"{description}; T_max = {thrust:g} N, m0 = {mass:g} kg "
                      f"(a_max = {a_max:.4g} DU/TU^2), Isp = {isp:g} s, "
@@ -87,14 +77,16 @@ def l2_halo(t_final: float | None = None, dt: float = HOUR_TU, thrust: float = C
     """Earth-Moon L2 halo, 0.1 N on 1000 kg, one period (349.3 h) in 1 h steps (Patel & Subbarao Tables 2-3).
 
     x0 and the reference are the paper's state corrected with z0 fixed (see :func:`halo_orbit`).
-    Options: ``t_final`` (TU, default one period), ``dt`` (TU, default 1 h = 3600/375200 TU; the
-    grid has ``round(t_final/dt)`` equal segments ending exactly at ``t_final``), ``thrust`` (N),
+    Options: ``t_final`` (TU, default one period), ``dt`` (TU, default 1 h = 3600/375200 TU; for
+    the default one-period horizon the grid has ``round(period/dt)`` equal segments ending exactly
+    at the period, an explicit ``t_final`` must be a multiple of ``dt``), ``thrust`` (N),
     ``mass`` (kg), ``isp`` (s; recorded in ``extra``, the model keeps the mass constant).
     """
     orbit = halo_orbit()
+    fit = t_final is None
     t_final = orbit.period if t_final is None else t_final
     return _cislunar(
-        "l2-halo", orbit, t_final, dt, thrust, mass, isp,
+        "l2-halo", orbit, t_final, dt, thrust, mass, isp, fit=fit,
         description=(f"spatial CR3BP (mu = {MU_PATEL}) L2 southern halo, x0 = paper state "
                      f"{list(HALO_SEED)} corrected with z0 fixed (period {orbit.period:.5f} TU = "
                      f"{orbit.period_in(EARTH_MOON_PATEL):.2f} h; paper quotes "
@@ -140,7 +132,7 @@ def earth_mars(t_days: float = 200.0, dt_days: float = 1.0, thrust: float = EM_T
     a_max = units.thrust_acceleration(thrust, mass)
     model = twobody(mu=1.0, a_max=a_max, units=units)
     return Problem(
-        id="earth-mars", model=model, x0=x0, grid=_grid(t_days * day, dt_days * day), units=units,
+        id="earth-mars", model=model, x0=x0, grid=time_grid(t_days, dt_days, unit="d", names=("t_days", "dt_days")) * day, units=units,
         description=(f"heliocentric two-body transfer from Earth (epoch {EARTH_MARS_EPOCH}, "
                      f"v_inf = 0), T_max = {thrust:g} N, m0 = {mass:g} kg (a_max = {a_max:.4g} "
                      f"AU/TU^2), Isp = {isp:g} s, {t_days:g} d in steps of {dt_days:g} d"),
