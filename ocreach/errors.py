@@ -22,7 +22,15 @@ class SetError(OcreachError, ValueError):
 
 
 class SolverError(OcreachError, RuntimeError):
-    """A numerical solver (integrator, NLP, LP, continuation) failed."""
+    """A numerical solver (integrator, NLP, LP, continuation) failed.
+
+    ``partial``: the part of the result computed before the failure (a ``ReachResult`` with
+    ``meta["truncated"] = True``), or None.  The CLI saves it beside the message.
+    """
+
+    def __init__(self, *args: Any, partial: Any = None) -> None:
+        super().__init__(*args)
+        self.partial = partial
 
 
 class UnknownNameError(OcreachError, KeyError):

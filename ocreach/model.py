@@ -51,6 +51,9 @@ class Model:
     p_default : default numeric parameter values (length of ``p``).
     control_set : ``"ball"`` (``||u||_2 <= 1``), ``"box"`` (``|u_i| <= 1``) or ``"free"``
         (unbounded physical controls, e.g. re-entry angles with a prescribed distribution).
+    thrust_param : name of the parameter that scales the control's effect (``"a_max"``,
+        ``"T_max"``, ``"gain"``), declared by the model builder; "" if none.  Methods that need
+        the thrust level (ffoe, ole, bvp) and the problem's plausibility check read it from here.
     """
 
     name: str
@@ -67,6 +70,7 @@ class Model:
     units: Units | None = None
     description: str = ""
     state_units: tuple[str, ...] = ()
+    thrust_param: str = ""
     cache: dict = field(default_factory=dict, repr=False)
 
     # ------------------------------------------------------------------ construction
@@ -88,6 +92,7 @@ class Model:
         units: Units | None = None,
         description: str = "",
         state_units: Sequence[str] | None = None,
+        thrust_param: str = "",
     ) -> Model:
         """Validate shapes and build a model (the usual constructor).
 
@@ -103,11 +108,15 @@ class Model:
         pd = np.zeros(p.numel()) if p_default is None else np.asarray(p_default, dtype=float).ravel()
         if pd.size != p.numel():
             raise ProblemError(f"p_default must have {p.numel()} entries; got {pd.size}")
+        pnames = _names("p", p.numel(), param_names, "param_names")
+        if thrust_param and thrust_param not in pnames:
+            raise ProblemError(f"thrust_param must be one of the parameters {list(pnames)}; "
+                               f"got {thrust_param!r}")
         return cls(
-            name=name, x=x, u=u, t=t, p=p, f=f, p_default=pd,
+            name=name, x=x, u=u, t=t, p=p, f=f, p_default=pd, thrust_param=thrust_param,
             state_names=_names("x", x.numel(), state_names, "state_names"),
             control_names=_names("u", u.numel(), control_names, "control_names"),
-            param_names=_names("p", p.numel(), param_names, "param_names"),
+            param_names=pnames,
             control_set=control_set, units=units, description=description,
             state_units=_names("", x.numel(), state_units, "state_units") if state_units is not None
             else ("",) * x.numel(),
@@ -264,6 +273,18 @@ class Model:
         return self.cached(("sdc", n_quad), build)
 
     # ------------------------------------------------------------------ control structure
+    def with_control_set(self, kind: str) -> Model:
+        """The same dynamics with admissible set ``kind`` (``"ball"``/``"box"``) for the
+        control laws (cached; its derived Functions are cached on the copy)."""
+        import dataclasses
+
+        if kind == self.control_set:
+            return self
+        if kind not in CONTROL_SETS:
+            raise ProblemError(f"control set kind must be one of {CONTROL_SETS}; got {kind!r}")
+        return self.cached(("with_control_set", kind), lambda: dataclasses.replace(
+            self, name=f"{self.name}-{kind}", control_set=kind, cache={}))
+
     @cached_property
     def control_affine(self) -> bool:
         """True if ``f = f0(x, t) + G(x, t) u`` (``df/du`` does not depend on ``u``)."""
@@ -309,3 +330,15 @@ class Model:
         if not np.all(np.isfinite(arr)):
             raise ProblemError(f"{name} must be finite; got {arr!r}")
         return arr
+
+
+#: Parameter names recognised as the thrust level when a model does not declare ``thrust_param``.
+LEGACY_THRUST_PARAMS = ("a_max", "T_max")
+
+
+def find_thrust_param(model: Model) -> str:
+    """The model's declared ``thrust_param``, else ``a_max``/``T_max`` if it has one, else ""."""
+    if model.thrust_param:
+        return model.thrust_param
+    return next((n for n in LEGACY_THRUST_PARAMS if n in model.param_names), "")
+

@@ -19,9 +19,12 @@ import numpy as np
 
 from ocreach.errors import ProblemError, UnknownNameError, check_real
 from ocreach.flow import check_grid
-from ocreach.model import CONTROL_SETS, Model
+from ocreach.model import CONTROL_SETS, Model, find_thrust_param
 from ocreach.units import Units
 
+
+#: Largest plausible initial thrust acceleration (m/s^2): 1 g0 (see ``Problem._check_thrust``).
+MAX_THRUST_ACCEL = 9.80665
 
 #: Relative tolerance of "t_final is a multiple of dt" in :func:`time_grid`.
 GRID_RTOL = 1e-6
@@ -211,11 +214,7 @@ class Problem:
                                f"{list(self.model.param_names)}; got shape {self.params.shape}")
         if not np.all(np.isfinite(self.params)):
             raise ProblemError(f"params must be finite; got {self.params!r}")
-        for thrust_name in ("a_max", "T_max"):
-            if thrust_name in self.model.param_names:
-                val = self.model.param(thrust_name, self.params)
-                if val <= 0:
-                    raise ProblemError(f"{thrust_name} (thrust) must be > 0; got {val!r}")
+        self._check_thrust()
         if self.control_set.dim != self.model.n_u:
             raise ProblemError(f"control_set.dim must equal n_u = {self.model.n_u}; "
                                f"got {self.control_set.dim}")
@@ -223,6 +222,40 @@ class Problem:
             if not 0 <= d < self.model.n_x:
                 raise ProblemError(f"position/velocity dims must be in [0, {self.model.n_x}); got {d}")
         return self
+
+    def thrust_acceleration_si(self) -> float | None:
+        """Initial thrust acceleration in m/s^2 (``a_max``, or ``T_max`` times the inverse-mass
+        state ``n``, converted with ``units``), or None if the model has no physical thrust."""
+        name = find_thrust_param(self.model)
+        if name not in ("a_max", "T_max") or self.units is None:
+            return None
+        a = self.model.param(name, self.params)
+        if "n" in self.model.state_names:
+            a *= float(self.x0[self.model.state_names.index("n")])
+        return float(a * self.units.length / self.units.time**2)
+
+    def _check_thrust(self) -> None:
+        """Thrust level > 0 and physically plausible.
+
+        Rule: ocreach models continuous low thrust, so the initial thrust acceleration must not
+        exceed :data:`MAX_THRUST_ACCEL` = 1 g0 = 9.80665 m/s^2 (electric propulsion gives
+        1e-5..1e-2 m/s^2; even a chemical stage rarely exceeds 1 g).  A deliberate high-thrust
+        study sets ``extra={"allow_high_thrust": True}``.
+        """
+        name = find_thrust_param(self.model)
+        if not name:
+            return
+        val = self.model.param(name, self.params)
+        if not val > 0:
+            raise ProblemError(f"{name} (thrust) must be > 0; got {val!r}")
+        a = self.thrust_acceleration_si()
+        if a is not None and a > MAX_THRUST_ACCEL and not self.extra.get("allow_high_thrust"):
+            thrust_n = self.extra.get("thrust_N")
+            raise ProblemError(
+                f"thrust is implausible for a low-thrust model: {name} = {val:g} gives a thrust "
+                f"acceleration of {a:.4g} m/s^2" + (f" (thrust {thrust_n:g} N)" if thrust_n else "")
+                + f", above the limit {MAX_THRUST_ACCEL:g} m/s^2 (1 g0); lower the thrust or raise "
+                "the mass, or set extra={'allow_high_thrust': True} on the Problem")
 
     # ---------------------------------------------------------------- convenience
     @property
@@ -297,9 +330,7 @@ def _call_factory(pid: str, factory: Callable[..., Problem], overrides: dict[str
     return prob
 
 
-def load_problem_file(path: str | Path, pid: str | None = None, **overrides: Any) -> Problem:
-    """Load a user problem from a Python file defining ``PROBLEMS`` or a ``problem()`` function."""
-    path = Path(path)
+def _file_table(path: Path) -> dict[str, Callable[..., Problem]]:
     if not path.is_file():
         raise ProblemError(f"problem file {str(path)!r} does not exist")
     spec = importlib.util.spec_from_file_location(f"ocreach_user_{path.stem}", path)
@@ -310,20 +341,48 @@ def load_problem_file(path: str | Path, pid: str | None = None, **overrides: Any
         table = {path.stem: mod.problem}
     if not table:
         raise ProblemError(f"{path} defines neither PROBLEMS = {{id: factory}} nor problem()")
-    if pid is None:
-        if len(table) != 1:
-            raise ProblemError(f"{path} defines several problems {sorted(table)}; name one")
-        pid = next(iter(table))
-    if pid not in table:
-        raise UnknownNameError(f"unknown problem {pid!r} in {path}; available: {sorted(table)}")
-    return _call_factory(pid, table[pid], overrides)
+    return table
+
+
+def split_file_id(spec: str) -> tuple[Path, str | None] | None:
+    """``"dir/f.py"`` -> ``(Path, None)``, ``"dir/f.py:ID"`` -> ``(Path, "ID")``, else None."""
+    spec = str(spec)
+    if spec.endswith(".py"):
+        return Path(spec), None
+    head, sep, tail = spec.rpartition(":")
+    if sep and head.endswith(".py") and tail:
+        return Path(head), tail
+    return None
+
+
+def problem_factory(pid: str) -> tuple[str, Callable[..., Problem]]:
+    """``(id, factory)`` of a bundled problem id, a file ``f.py`` (one problem) or ``f.py:ID``."""
+    file_spec = split_file_id(pid)
+    if file_spec is not None:
+        path, sub = file_spec
+        table = _file_table(path)
+        if sub is None:
+            if len(table) != 1:
+                raise ProblemError(f"{path} defines several problems {sorted(table)}; name one as "
+                                   f"{path}:ID (e.g. {path}:{sorted(table)[0]})")
+            sub = next(iter(table))
+        if sub not in table:
+            raise UnknownNameError(f"unknown problem {sub!r} in {path}; available: {sorted(table)}")
+        return sub, table[sub]
+    reg = _registry()
+    if pid not in reg:
+        raise UnknownNameError(f"unknown problem {pid!r}; available: {sorted(reg)} "
+                               "(or a file FILE.py / FILE.py:ID)")
+    return pid, reg[pid]
+
+
+def load_problem_file(path: str | Path, pid: str | None = None, **overrides: Any) -> Problem:
+    """Load a user problem from a Python file defining ``PROBLEMS`` or a ``problem()`` function."""
+    sub, factory = problem_factory(str(path) + (f":{pid}" if pid is not None else ""))
+    return _call_factory(sub, factory, overrides)
 
 
 def get_problem(pid: str, **overrides: Any) -> Problem:
-    """Return the bundled problem ``pid`` (or load a ``.py`` file path) with keyword overrides."""
-    if str(pid).endswith(".py"):
-        return load_problem_file(pid, **overrides)
-    reg = _registry()
-    if pid not in reg:
-        raise UnknownNameError(f"unknown problem {pid!r}; available: {sorted(reg)}")
-    return _call_factory(pid, reg[pid], overrides)
+    """Return the bundled problem ``pid`` (or a file ``f.py`` / ``f.py:ID``) with keyword overrides."""
+    sub, factory = problem_factory(str(pid))
+    return _call_factory(sub, factory, overrides)

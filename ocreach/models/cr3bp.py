@@ -55,7 +55,7 @@ def cr3bp(
         return Model.build(
             f"cr3bp-{kind}", ca.vertcat(pos, vel), u, f, p=ca.vertcat(mu_s, a_s),
             p_default=[mu, a_max], state_names=names, control_names=cnames,
-            param_names=["mu", "a_max"], control_set=control_set, units=units,
+            param_names=["mu", "a_max"], thrust_param="a_max", control_set=control_set, units=units,
             description=f"{kind} CR3BP, mu = {mu}, thrust acceleration a_max * u",
             state_units=(units or _ND).state_labels(d))
     if units is None or thrust is None or isp is None:
@@ -72,6 +72,6 @@ def cr3bp(
     return Model.build(
         f"cr3bp-{kind}-mass", ca.vertcat(pos, vel, n), u, f, p=ca.vertcat(mu_s, T_s, c_s),
         p_default=[mu, T_nd, c_nd], state_names=names + ["n"], control_names=cnames,
-        param_names=["mu", "T_max", "c_ex"], control_set=control_set, units=units,
+        param_names=["mu", "T_max", "c_ex"], thrust_param="T_max", control_set=control_set, units=units,
         description=f"{kind} CR3BP with inverse mass n = 1/m (1/kg), mu = {mu}",
         state_units=units.state_labels(d, ("1/kg",)))

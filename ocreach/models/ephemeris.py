@@ -160,7 +160,7 @@ def ephemeris_inertial(
     model = Model.build(
         f"ephemeris-inertial-{central}", ca.vertcat(r, v, n), u, f, t=t, p=ca.vertcat(T_s, c_s),
         p_default=[T_nd, c_nd], state_names=["x", "y", "z", "vx", "vy", "vz", "n"],
-        control_names=["ux", "uy", "uz"], param_names=["T_max", "c_ex"],
+        control_names=["ux", "uy", "uz"], param_names=["T_max", "c_ex"], thrust_param="T_max",
         control_set=control_set, units=units, state_units=units.state_labels(3, ("1",)),
         description=(f"DE421 point masses {list(bodies)}, origin {central}, {frame} axes, "
                      f"frame acceleration {frame_acceleration}, inverse mass n = mass0/m "
@@ -285,7 +285,7 @@ def ephemeris_synodic(
     model = Model.build(
         "ephemeris-synodic", ca.vertcat(r, v), u, f, t=t, p=a_s, p_default=[a_max],
         state_names=["x", "y", "z", "vx", "vy", "vz"], control_names=["ux", "uy", "uz"],
-        param_names=["a_max"], control_set=control_set, units=units, state_units=units.state_labels(3),
+        param_names=["a_max"], thrust_param="a_max", control_set=control_set, units=units, state_units=units.state_labels(3),
         description=(f"Earth-Moon synodic frame (Foss Eq. 6), {kind}, frame acceleration "
                      f"{frame_acceleration}, DU = {du_km:g} km, TU = {tu:g} s"))
     model.cache["ephemeris"] = eph

@@ -90,7 +90,8 @@ class Vehicle:
 
     @property
     def units(self) -> Units:
-        return Units(length=self.h_r * self.length_m, time=1.0, name=f"{self.name}: h_r, 1 s")
+        return Units(length=self.h_r * self.length_m, time=1.0, name=f"{self.name}: h_r, 1 s",
+                     length_label="h_r", time_label="s")  # plots say seconds, not TU
 
     def params(self) -> np.ndarray:
         """Model parameter vector in :data:`PARAM_NAMES` order (scaled units)."""

@@ -16,4 +16,4 @@ def vanderpol(*, gain: float = 0.05, mu: float = 1.0) -> Model:
     return Model.build(
         "vanderpol", x, u, f, p=ca.vertcat(m, g), p_default=[mu, gain],
         state_names=["x1", "x2"], control_names=["u"], param_names=["mu", "gain"],
-        control_set="box", description="Van der Pol oscillator with input gain * u, |u| <= 1")
+        thrust_param="gain", control_set="box", description="Van der Pol oscillator with input gain * u, |u| <= 1")

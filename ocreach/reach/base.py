@@ -6,6 +6,7 @@ A method is a class with a nested ``Options`` dataclass (defaults documented, va
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import importlib.util
 import platform
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ocreach.errors import ProblemError, UnknownNameError, check_count, check_tolerances
+from ocreach.errors import ProblemError, UnknownNameError, _to_float, check_count, check_tolerances
 
 if TYPE_CHECKING:
     from ocreach.problem import Problem
@@ -35,8 +36,28 @@ METHOD_PATHS: dict[str, str] = {
 }
 
 
+#: Options every method takes besides its own ``Options`` fields: name -> (default, description).
+COMMON_OPTIONS: dict[str, tuple[float, str]] = {
+    "divergence_factor": (100.0, "stop with a SolverError (keeping the truncated part) when a set "
+                          "or sample is non-finite or ||x||_inf exceeds this factor times the "
+                          "problem scale max(1, ||x0||_inf, ||initial set||_inf) (ocreach.reach.guard); "
+                          "> 1, inf disables the size check"),
+    "max_memory_gb": (4.0, "refuse, before any work, a run whose estimated memory (samples x "
+                      "times x (n_x + n_u) x 8 B x 4 copies) exceeds this many GB; > 0"),
+}
+
+#: Bytes per stored number and working copies in :meth:`Method.memory_estimate`.
+_BYTES, _COPIES = 8, 4
+
+
 class Method:
-    """Base class of reachability methods."""
+    """Base class of reachability methods.
+
+    Subclasses implement ``solve(problem)``; the base class wraps it so that, for every method,
+    the problem is checked before work starts (:meth:`applicable`, :meth:`memory_estimate` against
+    ``max_memory_gb``) and the returned result is checked by the divergence guard
+    (:func:`ocreach.reach.guard.check_result`) -- no method returns non-finite or diverged sets.
+    """
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
@@ -46,16 +67,85 @@ class Method:
         pass
 
     def __init__(self, **options: Any) -> None:
+        from ocreach.errors import check_real
+        from ocreach.options import check_bools
+
+        common = {k: options.pop(k, d) for k, (d, _) in COMMON_OPTIONS.items()}
         fields = {f.name for f in dataclasses.fields(self.Options)}
         unknown = sorted(set(options) - fields)
         if unknown:
             raise ProblemError(f"method {self.name!r} has no option(s) {unknown}; "
-                               f"allowed: {sorted(fields)}")
+                               f"allowed: {sorted(fields | set(COMMON_OPTIONS))} "
+                               f"(see `ocreach methods {self.name}`)")
+        factor = _to_float(common["divergence_factor"])
+        if not factor > 1:
+            raise ProblemError(f"divergence_factor must be a number > 1 (inf: no size check); "
+                               f"got {common['divergence_factor']!r}")
+        self.divergence_factor = factor
+        self.max_memory_gb = check_real("max_memory_gb", common["max_memory_gb"])
+        if not self.max_memory_gb > 0:
+            raise ProblemError(f"max_memory_gb must be > 0; got {common['max_memory_gb']!r}")
+        check_bools(self.Options, options, f"{self.name} option ")
         self.options = self.Options(**options)
+
+    def __init_subclass__(cls, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        inner = cls.__dict__.get("solve")
+        if inner is None or getattr(inner, "_checked", False):
+            return
+
+        @functools.wraps(inner)
+        def solve(self, problem, *args, **kwargs):
+            if getattr(self, "_solving", False):  # a subclass calling super().solve()
+                return inner(self, problem, *args, **kwargs)
+            self.check_before(problem)
+            self._solving = True
+            try:
+                result = inner(self, problem, *args, **kwargs)
+            finally:
+                self._solving = False
+            from ocreach.interrupt import check_interrupt
+            from ocreach.reach.guard import check_result
+
+            check_interrupt()  # a Ctrl-C swallowed by native code is not lost
+            return check_result(result, problem, self.divergence_factor)
+
+        solve._checked = True
+        cls.solve = solve
 
     def solve(self, problem: Problem) -> ReachResult:
         """The reachable-set estimate of ``problem`` (each method implements this)."""
         raise NotImplementedError
+
+    # ------------------------------------------------------------------ checks before work
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        """``(True, "")`` if the method can run on ``problem``, else ``(False, reason)``.
+        The default accepts every problem; methods refine it."""
+        return True, ""
+
+    def memory_estimate(self, problem: Problem) -> float:
+        """Estimated peak bytes: ``samples x times x (n_x + n_u) x 8 B x 4`` for sample-based
+        methods (0 for the others)."""
+        samples = getattr(self.options, "samples", None)
+        if samples is None:
+            return 0.0
+        m = problem.model
+        return float(samples) * problem.grid.size * (m.n_x + m.n_u) * _BYTES * _COPIES
+
+    def check_before(self, problem: Problem) -> None:
+        """Raise :class:`ProblemError` before any work if the method does not apply or the run
+        would exceed ``max_memory_gb``."""
+        ok, why = self.applicable(problem)
+        if not ok:
+            raise ProblemError(f"method {self.name!r} does not apply to problem {problem.id!r}: {why}")
+        need = self.memory_estimate(problem) / 1e9
+        if need > self.max_memory_gb:
+            samples = getattr(self.options, "samples", "?")
+            raise ProblemError(
+                f"samples = {samples} on {problem.grid.size} times x {problem.model.n_x + problem.model.n_u} "
+                f"values needs about {need:.3g} GB, more than max_memory_gb = {self.max_memory_gb:g}; "
+                f"use fewer samples or a shorter horizon, or raise max_memory_gb (--set max_memory_gb=...)")
 
     def base_meta(self, problem: Problem, runtime: dict[str, float]) -> dict[str, Any]:
         """The ``meta`` every result carries: method, options, runtime breakdown, versions."""
@@ -66,9 +156,37 @@ class Method:
             "options": dataclasses.asdict(self.options),
             "problem": problem.id,
             "runtime": runtime,
+            "guard": {"divergence_factor": self.divergence_factor, "max_memory_gb": self.max_memory_gb},
             "versions": {"ocreach": _version(), "casadi": casadi.__version__,
                          "numpy": np.__version__, "python": platform.python_version()},
         }
+
+
+def requirements(problem: Problem, *, bounded: bool = False, control_affine: bool = False,
+                 thrust: bool = False, stochastic: bool = False,
+                 initial_sets: tuple[str, ...] | None = None) -> tuple[bool, str]:
+    """``(ok, reason)`` for the usual needs of a method (used by ``Method.applicable``):
+    a bounded control set, a control-affine model, a declared thrust parameter, a stochastic
+    problem, an initial set of one of the named types (or none)."""
+    from ocreach.model import find_thrust_param
+
+    model = problem.model
+    if stochastic and problem.stochastic is None:
+        return False, ("needs a stochastic problem (Gaussian initial state and controls); the problem "
+                       "has no stochastic specification")
+    if bounded and problem.control_set.kind not in ("ball", "box"):
+        return False, (f"needs a bounded control set ('ball' or 'box'); the problem's controls are "
+                       f"{problem.control_set.kind!r}")
+    if control_affine and not model.control_affine:
+        return False, f"needs a control-affine model (f = f0 + G u); {model.name} is not"
+    if thrust and not find_thrust_param(model):
+        return False, (f"needs a declared thrust parameter (Model thrust_param); {model.name} has "
+                       f"{list(model.param_names)}")
+    if (initial_sets is not None and problem.initial_set is not None
+            and type(problem.initial_set).__name__ not in initial_sets):
+        return False, (f"handles initial sets of type {list(initial_sets)} only; the problem has "
+                       f"{type(problem.initial_set).__name__}")
+    return True, ""
 
 
 @dataclasses.dataclass

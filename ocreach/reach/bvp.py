@@ -229,15 +229,21 @@ class BVPContinuation(FFOE):
             lam0, F, J, Dz, err = cand, Fc, Jc, Dc, ec
         return lam0, err < opt.tol, err, J, Dz
 
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        ok, why = super().applicable(problem)
+        m = problem.model
+        if ok and not m.control_affine and not (problem.control_set.kind == "ball" and "n" in m.state_names):
+            return False, ("needs a control-affine model, or an inverse-mass model (Patel & Scheeres "
+                           "Eq. 11) with a ball control set")
+        return ok, why
+
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import integrate_batch
 
         opt = self.options
-        model = problem.model
+        model = problem.model.with_control_set(problem.control_set.kind)  # laws follow the problem's set
         thrust_law_expression(model, ca.SX.sym("lam", model.n_x))  # ProblemError if no closed-form law
-        if problem.control_set.kind != model.control_set:
-            raise ProblemError(f"method 'bvp' uses the model's control set {model.control_set!r}; "
-                               f"the problem asks for {problem.control_set.kind!r}")
         timer = Timer()
         self._n_shots = 0
         with timer("setup"):

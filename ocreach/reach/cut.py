@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError, check_count, check_real
-from ocreach.reach.base import Method, Timer
+from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 
 RULES = ("cut", "ut", "gh")
@@ -231,6 +231,10 @@ class CUTMoments(Method):
             self.third_moments = bool(self.third_moments)
             self.reduce = bool(self.reduce)
             self.compiled = bool(self.compiled)
+
+    @classmethod
+    def applicable(cls, problem) -> tuple[bool, str]:
+        return requirements(problem, stochastic=True)
 
     def solve(self, problem) -> ReachResult:
         from ocreach.reach.cut_kernel import cut_kernel

@@ -26,7 +26,7 @@ import numpy as np
 from ocreach.errors import ProblemError
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, SamplingOptions, Timer
+from ocreach.reach.base import Method, SamplingOptions, Timer, requirements
 from ocreach.reach.result import ReachResult
 
 
@@ -101,6 +101,11 @@ class ExtremalODE(Method):
     class Options(SamplingOptions):
         """:class:`~ocreach.reach.base.SamplingOptions`: ``samples`` (extremals, default 100),
         ``seed``, ``rtol``, ``atol``."""
+
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        return requirements(problem, bounded=True, control_affine=True,
+                            initial_sets=("Ellipsoid", "Zonotope", "Interval"))
 
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import integrate_batch

@@ -31,20 +31,21 @@ import numpy as np
 from ocreach.errors import ProblemError, check_count, check_real
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, SamplingOptions, Timer
+from ocreach.reach.base import Method, SamplingOptions, Timer, requirements
 from ocreach.reach.directions import resolve_dims, sample_directions
 from ocreach.reach.result import ReachResult
 
-THRUST_PARAMS = ("a_max", "T_max")
-
-
 def thrust_param(model: Model) -> str:
-    """Name of the model parameter that scales the thrust (``a_max`` or ``T_max``)."""
-    for name in THRUST_PARAMS:
-        if name in model.param_names:
-            return name
-    raise ProblemError(f"model {model.name} has no thrust parameter {THRUST_PARAMS}; "
-                       f"its parameters are {list(model.param_names)}")
+    """Name of the model parameter that scales the thrust: the model's declared
+    ``thrust_param`` (e.g. ``a_max``, ``T_max``, Van der Pol's ``gain``), see
+    :func:`ocreach.model.find_thrust_param`."""
+    from ocreach.model import find_thrust_param
+
+    name = find_thrust_param(model)
+    if not name:
+        raise ProblemError(f"model {model.name} declares no thrust parameter (Model.build(..., "
+                           f"thrust_param=NAME)); its parameters are {list(model.param_names)}")
+    return name
 
 
 def with_thrust(model: Model, params: np.ndarray, level: float) -> np.ndarray:
@@ -279,6 +280,10 @@ class FFOE(Method):
             if self.thrust is not None and not check_real("thrust (T_max)", self.thrust) > 0:
                 raise ProblemError(f"thrust (T_max) must be a finite number > 0; got {self.thrust!r}")
             self.random = bool(self.random)
+
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        return requirements(problem, bounded=True, thrust=True, initial_sets=("Ellipsoid",))
 
     # -------------------------------------------------------------- shared set-up
     def _setup(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, InitialManifold]:

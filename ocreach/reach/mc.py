@@ -19,7 +19,7 @@ import numpy as np
 
 from ocreach.errors import ProblemError
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, SamplingOptions, Timer
+from ocreach.reach.base import Method, SamplingOptions, Timer, requirements
 from ocreach.reach.result import ReachResult
 
 LAWS = ("random", "constant", "bang")
@@ -76,6 +76,10 @@ class MonteCarlo(Method):
                 raise ProblemError(f"mix must be three finite non-negative fractions for the laws "
                                    f"{LAWS}, not all zero; got {self.mix!r}")
             self.mix = tuple(float(v) for v in mix)
+
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        return (True, "") if problem.stochastic is not None else requirements(problem, bounded=True)
 
     def solve(self, problem: Problem) -> ReachResult:
         if problem.stochastic is not None:

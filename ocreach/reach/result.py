@@ -7,6 +7,7 @@ samples (``points[k]``, shape ``(m, n_x)``).  Sample-based methods also keep ``c
 """
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -93,8 +94,17 @@ class ReachResult:
         if self.points is not None:
             bad = [k for k, pts in enumerate(self.points) if not np.all(np.isfinite(pts))]
             if bad:  # no silent NaN: a method that produced them has failed
-                raise SolverError(f"ReachResult.points must be finite; time indices {bad[:10]} "
-                                  f"(of {self.times.size}) hold NaN or inf ({self.meta.get('method', '?')})")
+                k = bad[0]
+                msg = (f"ReachResult.points must be finite; time indices {bad[:10]} (of "
+                       f"{self.times.size}, first t = {self.times[k]:g}) hold NaN or inf "
+                       f"(method {self.meta.get('method', '?')!r})")
+                partial = None
+                if k >= 1:
+                    from ocreach.reach.guard import truncated
+
+                    partial = truncated(dataclasses.replace(self, points=self.points[:k],
+                                                            times=self.times[:k]), k, msg)
+                raise SolverError(msg, partial=partial)
         if self.tubes is not None and len(self.tubes) != self.times.size - 1:
             raise ProblemError(f"ReachResult.tubes must have one entry per segment "
                                f"({self.times.size - 1}); got {len(self.tubes)}")

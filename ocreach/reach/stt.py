@@ -42,7 +42,7 @@ import numpy as np
 
 from ocreach.errors import ProblemError, SetError, SolverError, check_count, check_tolerances
 from ocreach.problem import ControlSet, Problem
-from ocreach.reach.base import Method, Timer
+from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 
 if TYPE_CHECKING:
@@ -504,9 +504,15 @@ class STTReach(Method):
             self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
             self.lift_independent = bool(self.lift_independent)
 
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        ok, why = requirements(problem, bounded=True)
+        return ok, why and why + " (or give input_set='box'/'ball')"
+
     # ------------------------------------------------------------------ solve
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import stt as stt_flow
+        from ocreach.reach.guard import check_step
 
         opt = self.options
         model = problem.model
@@ -571,6 +577,7 @@ class STTReach(Method):
             parts = new_parts
             with timer("other"):
                 sets.append(self._assemble(parts))
+                check_step(self, problem, sets, tube)  # stops a diverging run (reach/guard.py)
             gens[k + 1] = sets[-1].n_generators
         meta = self.base_meta(problem, timer.times)
         meta["evaluations"] = counts
