@@ -9,17 +9,25 @@ module's dotted name to :data:`COMMAND_MODULES`.  Adding a report kind (``ocreac
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import subprocess
 import sys
 from pathlib import Path
 
-from ocreach.errors import OcreachError
+from ocreach.errors import OcreachError, ProblemError, SolverError, check_count
+from ocreach.interrupt import install as install_interrupt_handler
+from ocreach.interrupt import interrupt_requested, stage
+from ocreach.interrupt import restore as restore_interrupt_handler
 
 #: Modules that add commands: each has ``register(subparsers) -> None``.  One line per module.
 COMMAND_MODULES: list[str] = [
 ]
+
+#: Optional peers of each benchmark (``bench_NAME.py``): [(import name, pip name)].
+BENCH_PEERS: dict[str, list[tuple[str, str]]] = {
+    "mpc": [("do_mpc", "do-mpc")],
+    "flow": [("heyoka", "heyoka")],
+}
 
 #: ``ocreach report KIND``: kind -> ``"module:function"`` with ``function(problem, out_dir, **opts) -> dict``.
 REPORT_KINDS: dict[str, str] = {
@@ -27,17 +35,23 @@ REPORT_KINDS: dict[str, str] = {
 }
 
 
-def _parse_sets(items: list[str] | None) -> dict:
-    """``["h_max=400", "input_set=box"]`` -> ``{"h_max": 400, "input_set": "box"}``."""
-    out = {}
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises :class:`ProblemError` (naming the option) instead of exiting, so
+    ``main([...])`` called in-process returns 2 with the message like every other bad input."""
+
+    def error(self, message: str):  # type: ignore[override]
+        raise ProblemError(f"{self.prog}: {message}")
+
+
+def _parse_sets(items: list[str] | None, option: str = "--set") -> dict[str, str]:
+    """``["h_max=400", "input_set=box"]`` -> ``{"h_max": "400", "input_set": "box"}`` (strings;
+    converted later by each option's declared type, :func:`ocreach.options.coerce`)."""
+    out: dict[str, str] = {}
     for item in items or []:
-        if "=" not in item:
-            raise OcreachError(f"--set expects key=value; got {item!r}")
-        key, raw = item.split("=", 1)
-        try:
-            out[key.strip()] = ast.literal_eval(raw)
-        except (ValueError, SyntaxError):
-            out[key.strip()] = raw
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ProblemError(f"{option} expects KEY=VALUE; got {item!r}")
+        out[key.strip()] = raw
     return out
 
 
@@ -49,72 +63,237 @@ def _split_options(values: dict) -> tuple[dict, dict]:
     return prob, meth
 
 
-def cmd_list(args: argparse.Namespace) -> int:
-    from ocreach.problem import list_problems
-    from ocreach.reach.base import available_methods
+def _problem(spec: str, raw: dict[str, str]):
+    """The problem ``spec`` (id, FILE.py or FILE.py:ID) with ``--set problem.KEY=VALUE`` overrides
+    converted by the factory's declared parameter types."""
+    from ocreach.options import coerce
+    from ocreach.problem import get_problem, problem_factory
 
-    print("Problems:")
+    _, factory = problem_factory(spec)
+    return get_problem(spec, **coerce(raw, factory, "problem."))
+
+
+def _method_options(name: str, raw: dict[str, str]) -> dict:
+    from ocreach.options import coerce
+    from ocreach.reach.base import method_class
+
+    return coerce(raw, method_class(name).Options, f"{name} option ")
+
+
+def _method(problem, name: str, raw: dict[str, str]):
+    """Method ``name`` built with the problem's defaults and the CLI options (typed by its
+    ``Options`` dataclass); options, applicability and memory are checked here, before any work."""
+    from ocreach.reach.base import method_class
+
+    method = method_class(name)(**{**problem.options_for(name), **_method_options(name, raw)})
+    method.check_before(problem)
+    return method
+
+
+def _small(obj, limit: int = 16):
+    """``meta`` for ``summary.json``: long arrays and lists replaced by a note (they are in the
+    result file's ``meta_json``), so the summary stays small whatever the sample count."""
+    if isinstance(obj, dict):
+        return {str(k): _small(v, limit) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        if len(obj) > limit or sum(isinstance(v, (list, tuple)) for v in obj) * 4 > limit:
+            return f"<{len(obj)} entries, in result.npz>"
+        return [_small(v, limit) for v in obj]
+    return obj
+
+
+class _Stages:
+    """Marks named stages (:func:`ocreach.interrupt.stage`) and remembers the last one reached."""
+
+    def __init__(self) -> None:
+        self.last = "start"
+
+    def __call__(self, name: str) -> None:
+        self.last = name
+        stage(name)
+
+
+def _interrupted(out, mark: _Stages) -> int:
+    """Message and exit code 130 after Ctrl-C; the message says exactly what was kept."""
+    if out.done == "committed":
+        print(f"interrupted after the run was complete: {out.target} holds the new results",
+              file=sys.stderr)
+        return 130
+    kept = out.keep_partial(f"interrupted (Ctrl-C) at stage {mark.last!r}")
+    print(f"interrupted (Ctrl-C) at stage {mark.last!r}: {out.describe_partial(kept)}", file=sys.stderr)
+    return 130
+
+
+def _write_run(folder: Path, result, problem, method: str, mark: _Stages) -> list[str]:
+    """``result.npz``, one figure per projection plane and ``summary.json`` into ``folder``."""
+    from ocreach.plot import plot_projections_over_time
+    from ocreach.reach.result import atomic_write_text, jsonable
+
+    result.save(folder / "result.npz")
+    mark("saved")
+    planes = list(problem.planes().values())
+    if len(problem.position_dims) >= 3:  # spatial: the x-z view too (halo orbits live in it)
+        planes.insert(1, (problem.position_dims[0], problem.position_dims[2]))
+    names = ["result.npz"]
+    for dims in planes:
+        name = f"projection_{dims[0]}_{dims[1]}.png"
+        plot_projections_over_time(result, problem, folder / name, dims=dims)
+        names.append(name)
+        mark(f"figure:{name}")
+    summary = {"problem": problem.id, "method": method, "final_time": float(result.times[-1]),
+               "truncated": bool(result.meta.get("truncated", False)),
+               "meta": _small(jsonable(result.meta))}
+    atomic_write_text(folder / "summary.json", json.dumps(summary, indent=2))
+    mark("summary")
+    return names + ["summary.json"]
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from ocreach.problem import get_problem, list_problems
+    from ocreach.reach.base import available_methods, method_class
+
+    methods = available_methods()
+    print("Methods:")
+    for name, desc in methods.items():
+        print(f"  {name:8s} {desc}")
+    print("\nProblems (methods that apply; `ocreach list --why` gives the reasons):")
     for pid, desc in list_problems().items():
         print(f"  {pid:32s} {desc}")
-    print("Methods:")
-    for name, desc in available_methods().items():
-        print(f"  {name:32s} {desc}")
+        p = get_problem(pid)
+        fit = {m: method_class(m).applicable(p) for m in methods}
+        print(f"  {'':32s} methods: {', '.join(m for m, (ok, _) in fit.items() if ok)}")
+        if args.why:
+            for m, (ok, why) in fit.items():
+                if not ok:
+                    print(f"  {'':32s}   not {m}: {why}")
+    print("\nA problem file: ocreach run FILE.py[:ID] ...; method options: ocreach methods [NAME]")
+    return 0
+
+
+def cmd_methods(args: argparse.Namespace) -> int:
+    from ocreach.options import describe_fields, format_fields
+    from ocreach.reach.base import COMMON_OPTIONS, available_methods, method_class
+
+    names = [args.name] if args.name else list(available_methods())
+    for name in names:
+        cls = method_class(name)
+        print(f"{name}: {cls.description}")
+        print(format_fields(describe_fields(cls.Options)))
+        print()
+    print("Options every method takes:")
+    for key, (default, text) in COMMON_OPTIONS.items():
+        print(f"  {key} : float = {default!r}\n      {text}")
+    print("\nSet with --set KEY=VALUE (run) or --set METHOD.KEY=VALUE (compare); booleans take "
+          "true/false/1/0/yes/no/on/off; problem overrides are --set problem.KEY=VALUE "
+          "(see `ocreach problem ID`).")
+    return 0
+
+
+def cmd_problem(args: argparse.Namespace) -> int:
+    import inspect
+
+    from ocreach.options import describe_fields, format_fields
+    from ocreach.problem import problem_factory
+
+    pid, factory = problem_factory(args.problem)
+    doc = inspect.getdoc(factory) or ""
+    print(f"{pid}: {doc.splitlines()[0] if doc else ''}")
+    print(format_fields(describe_fields(factory)))
     return 0
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from ocreach.plot import plot_projections_over_time
-    from ocreach.problem import get_problem
-    from ocreach.reach.base import reach
-    from ocreach.reach.result import atomic_write_text, jsonable
+    from ocreach.outdir import OutputDir
 
-    prob_over, opts = _split_options(_parse_sets(args.set))
-    problem = get_problem(args.problem, **prob_over)
+    prob_raw, opt_raw = _split_options(_parse_sets(args.set))
+    problem = _problem(args.problem, prob_raw)
+    method = _method(problem, args.method, opt_raw)
+    out = OutputDir(args.out or f"out/{problem.id}_{args.method}")
+    mark = _Stages()
     print(problem.summary())
-    result = reach(problem, args.method, **opts)
-    out = Path(args.out or f"out/{problem.id}_{args.method}")
-    out.mkdir(parents=True, exist_ok=True)
-    result.save(out / "result.npz")
-    planes = list(problem.planes().values())
-    if len(problem.position_dims) >= 3:  # spatial: the x-z view too (halo orbits live in it)
-        planes.insert(1, (problem.position_dims[0], problem.position_dims[2]))
-    for dims in planes:
-        plot_projections_over_time(result, problem, out / f"projection_{dims[0]}_{dims[1]}.png",
-                                   dims=dims)
-    summary = {"problem": problem.id, "method": args.method, "meta": result.meta,
-               "final_time": float(result.times[-1])}
-    atomic_write_text(out / "summary.json", json.dumps(jsonable(summary), indent=2))
+    try:
+        mark("solve")
+        try:
+            result = method.solve(problem)
+        except SolverError as exc:
+            if exc.partial is None:
+                raise
+            _write_run(out.path, exc.partial, problem, args.method, mark)
+            kept = out.keep_partial(f"failed: {exc}")
+            print(f"error: {exc}\n{out.describe_partial(kept)}", file=sys.stderr)
+            return 3
+        mark("solved")
+        files = _write_run(out.path, result, problem, args.method, mark)
+        mark("commit")
+        out.commit()
+        mark("done")
+    except KeyboardInterrupt:
+        return _interrupted(out, mark)
+    except Exception:
+        if interrupt_requested():  # a Ctrl-C that native code turned into another error
+            return _interrupted(out, mark)
+        if out.done is None:
+            out.keep_partial("failed")
+        raise
     rt = result.meta.get("runtime", {})
     print(f"{args.method}: runtime " + ", ".join(f"{k} {v:.3f} s" for k, v in rt.items()))
-    print(f"wrote {out}/result.npz, summary.json and {len(planes)} figure(s)")
+    print(f"wrote {out.target}: {', '.join(files)}")
     return 0
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from ocreach.compare import compare, write_comparison
-    from ocreach.problem import get_problem
+    from ocreach.outdir import OutputDir
 
-    prob_over, opts = _split_options(_parse_sets(args.set))
-    problem = get_problem(args.problem, **prob_over)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    per_method: dict[str, dict] = {m: {} for m in methods}
+    if not methods:
+        raise ProblemError(f"--methods must name at least one method (comma-separated, e.g. "
+                           f"mc,ode); got {args.methods!r}")
+    if len(set(methods)) != len(methods):
+        raise ProblemError(f"--methods names a method twice; got {args.methods!r}")
+    prob_raw, opts = _split_options(_parse_sets(args.set))
+    problem = _problem(args.problem, prob_raw)
+    per_raw: dict[str, dict] = {m: {} for m in methods}
     for key, value in opts.items():
         name, _, opt = key.partition(".")
-        if name not in per_method or not opt:
-            raise OcreachError(f"--set {key}={value!r}: compare options are METHOD.KEY=VALUE with "
+        if name not in per_raw or not opt:
+            raise ProblemError(f"--set {key}={value!r}: compare options are METHOD.KEY=VALUE with "
                                f"METHOD one of {methods}, or problem.KEY=VALUE")
-        per_method[name][opt] = value
-    out = args.out or f"out/compare_{problem.id}"
-    cmp = compare(problem, methods, options=per_method, truth_samples=args.truth_samples,
-                  out_dir=out)
-    print(problem.summary())
-    print()
-    print(cmp.table())
-    paths = write_comparison(cmp, out)
-    print(f"\nwrote {paths['table']}, {paths['metrics']} and {paths['figure']}")
-    if cmp.interrupted:
-        print("interrupted; the finished methods are in the table and files above", file=sys.stderr)
-        return 130
+        per_raw[name][opt] = value
+    for m in methods:  # every method's options checked before any work
+        _method(problem, m, per_raw[m])
+    per_method = {m: _method_options(m, per_raw[m]) for m in methods}
+    from ocreach.options import parse_literal
+
+    truth = check_count("--truth-samples", parse_literal(args.truth_samples), 1)
+    out = OutputDir(args.out or f"out/compare_{problem.id}")
+    mark = _Stages()
+    try:
+        mark("compare")
+        cmp = compare(problem, methods, options=per_method, truth_samples=truth, out_dir=out.path,
+                      stage=mark)
+        mark("compared")
+        print(problem.summary())
+        print()
+        print(cmp.table())
+        write_comparison(cmp, out.path)
+        mark("written")
+        if cmp.interrupted:
+            kept = out.keep_partial("interrupted (Ctrl-C); the table covers the finished methods")
+            print(f"\ninterrupted (Ctrl-C): {out.describe_partial(kept)}", file=sys.stderr)
+            return 130
+        mark("commit")
+        out.commit()
+        mark("done")
+    except KeyboardInterrupt:
+        return _interrupted(out, mark)
+    except Exception:
+        if interrupt_requested():
+            return _interrupted(out, mark)
+        if out.done is None:
+            out.keep_partial("failed")
+        raise
+    print(f"\nwrote {out.target}: comparison.md, metrics.json, overlay.png and one result per method")
     return 1 if cmp.errors else 0
 
 
@@ -123,14 +302,15 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise OcreachError(f"unknown report {args.kind!r}; available: {sorted(REPORT_KINDS)}")
     import importlib
 
-    from ocreach.problem import get_problem
-
     mod_name, func_name = REPORT_KINDS[args.kind].split(":")
     report_fn = getattr(importlib.import_module(mod_name), func_name)
-    prob_over, opts = _split_options(_parse_sets(args.set))
-    problem = get_problem(args.problem, **prob_over)
-    out = Path(args.out or f"out/report_{problem.id}")
-    metrics = report_fn(problem, out, **opts)
+    from ocreach.options import coerce
+    from ocreach.outdir import check_output_dir
+
+    prob_raw, opt_raw = _split_options(_parse_sets(args.set))
+    problem = _problem(args.problem, prob_raw)
+    out = check_output_dir(args.out or f"out/report_{problem.id}")
+    metrics = report_fn(problem, out, **coerce(opt_raw, report_fn))
     print(json.dumps(metrics, indent=2, default=str))
     print(f"wrote {out}/report.md, report.html, metrics.json and figures")
     return 0
@@ -142,7 +322,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.only:
         scripts = [s for s in scripts if any(o in s.stem for o in args.only.split(","))]
     if not scripts:
-        raise OcreachError(f"no benchmark scripts found in {bench_dir}")
+        raise ProblemError(f"--only {args.only!r} matches no benchmark in {bench_dir}; available: "
+                           f"{[s.stem.removeprefix('bench_') for s in sorted(bench_dir.glob('bench_*.py'))]}")
+    import importlib.util
+
+    for s in scripts:  # optional peers checked before anything runs
+        for module, pip_name in BENCH_PEERS.get(s.stem.removeprefix("bench_"), ()):
+            if importlib.util.find_spec(module) is None:
+                raise ProblemError(f"benchmark {s.stem} compares against {pip_name}, which is not "
+                                   f"installed: pip install {pip_name}  (or pip install "
+                                   f"'ocreach[bench]')")
     rc = 0
     for s in scripts:
         print(f"== {s.name}")
@@ -152,13 +341,25 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="ocreach", description="Reachability and optimal control "
-                                 "of low-thrust spacecraft (CasADi).")
-    sub = ap.add_subparsers(dest="command", required=True)
-    sub.add_parser("list", help="list problems and methods").set_defaults(func=cmd_list)
+    ap = _Parser(prog="ocreach", description="Reachability and optimal control "
+                 "of low-thrust spacecraft (CasADi).")
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    ls = sub.add_parser("list", help="list problems, methods and which methods apply to each problem")
+    ls.add_argument("--why", action="store_true", help="say why a method does not apply")
+    ls.set_defaults(func=cmd_list)
 
-    r = sub.add_parser("run", help="run one method on one problem")
-    r.add_argument("problem", help="problem id (see `ocreach list`) or a .py file")
+    mt = sub.add_parser("methods", help="list each method's options (defaults, types, meaning)")
+    mt.add_argument("name", nargs="?", help="one method (default: all)")
+    mt.set_defaults(func=cmd_methods)
+
+    pr = sub.add_parser("problem", help="list a problem's overrides (--set problem.KEY=VALUE)")
+    pr.add_argument("problem", help="problem id, FILE.py or FILE.py:ID")
+    pr.set_defaults(func=cmd_problem)
+
+    r = sub.add_parser("run", help="run one method on one problem",
+                       epilog="Method options: `ocreach methods METHOD`; problem overrides: "
+                              "`ocreach problem PROBLEM`.")
+    r.add_argument("problem", help="problem id (see `ocreach list`), FILE.py or FILE.py:ID")
     r.add_argument("--method", "-m", required=True)
     r.add_argument("--out", help="output folder (default out/PROBLEM_METHOD)")
     r.add_argument("--set", action="append", metavar="KEY=VALUE",
@@ -166,10 +367,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("compare", help="compare methods on one problem")
-    c.add_argument("problem")
+    c.add_argument("problem", help="problem id, FILE.py or FILE.py:ID")
     c.add_argument("--methods", required=True, help="comma-separated, e.g. mc,ode")
     c.add_argument("--out", help="output folder (default out/compare_PROBLEM)")
-    c.add_argument("--truth-samples", type=int, default=2000)
+    c.add_argument("--truth-samples", default="2000", help="Monte Carlo truth samples (integer >= 1)")
     c.add_argument("--set", action="append", metavar="METHOD.KEY=VALUE",
                    help="method option (ode.samples=200) or problem.KEY=VALUE")
     c.set_defaults(func=cmd_compare)
@@ -194,15 +395,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run one command; exit code 0 done, 1 compare with failed methods, 2 bad input or solver
+    error (message on stderr), 3 a diverged run (partial result kept), 130 Ctrl-C."""
+    previous = install_interrupt_handler()
     try:
+        args = build_parser().parse_args(argv)
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("interrupted; finished files are kept", file=sys.stderr)
+    except KeyboardInterrupt:  # before any output folder existed (commands handle their own)
+        print("interrupted (Ctrl-C) before any file was written; nothing kept", file=sys.stderr)
         return 130
     except OcreachError as exc:
+        if interrupt_requested():
+            print("interrupted (Ctrl-C) before any file was written; nothing kept", file=sys.stderr)
+            return 130
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        restore_interrupt_handler(previous)
 
 
 if __name__ == "__main__":

@@ -113,7 +113,7 @@ def _projected_estimate(result: ReachResult, dims: Sequence[int]):
 
 def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str, dict] | None = None,
             truth_samples: int = 2000, seed: int = 0, progress: bool = True,
-            out_dir: str | Path | None = None) -> Comparison:
+            out_dir: str | Path | None = None, stage=None) -> Comparison:
     """Run ``methods`` on ``problem`` and compute the metrics of the module docstring.
 
     ``options`` maps a method name to its options.  Monte Carlo truth (``mc`` with
@@ -121,8 +121,11 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
     reported in ``Comparison.errors`` with its message, not swallowed silently.  With ``out_dir``
     each method's result is saved there (atomically) as soon as it finishes.  Ctrl-C stops the
     remaining work; the methods that finished are kept, metrics are computed from them and
-    ``Comparison.interrupted`` is set.
+    ``Comparison.interrupted`` is set (also when native code turned the Ctrl-C into another
+    error, :func:`ocreach.interrupt.interrupt_requested`).  ``stage(name)`` is called before each
+    method (``"method:NAME"``, the CLI's interruption points).
     """
+    from ocreach.interrupt import acknowledge, interrupt_requested
     from tqdm import tqdm
 
     problem = problem if isinstance(problem, Problem) else get_problem(problem)
@@ -140,13 +143,21 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
     for name in tqdm(list(methods), desc=f"compare {problem.id}", disable=not progress):
         t0 = time.perf_counter()
         try:
+            if stage is not None:
+                stage(f"method:{name}")
             res = reach(problem, name, **options.get(name, {}))
         except KeyboardInterrupt:
             errors[name] = "interrupted (Ctrl-C)"
             interrupted = True
+            acknowledge()  # handled: reported in errors and Comparison.interrupted
             break
         except Exception as exc:  # reported in the table and the return value, never silent
             errors[name] = f"{type(exc).__name__}: {exc}"
+            if interrupt_requested():
+                errors[name] = "interrupted (Ctrl-C)"
+                interrupted = True
+                acknowledge()
+                break
             continue
         runtimes[name] = time.perf_counter() - t0
         results[name] = res
@@ -157,11 +168,14 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
         mc_end = np.asarray(results["mc"].points[-1])
     elif not interrupted:
         try:
+            if stage is not None:
+                stage("method:mc (truth)")
             mc_end = np.asarray(reach(problem, "mc", samples=truth_samples,
                                       seed=seed + 1).points[-1])
         except KeyboardInterrupt:
             errors["mc (truth)"] = "interrupted (Ctrl-C)"
             interrupted = True
+            acknowledge()
     real = ([] if mc_end is None else [mc_end]) + [
         np.asarray(r.points[-1]) for r in results.values() if r.points is not None]
     truth = np.vstack(real) if real else np.empty((0, problem.model.n_x))

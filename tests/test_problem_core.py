@@ -145,7 +145,7 @@ def test_cli_run_vdp_writes_one_figure_per_distinct_plane(tmp_path, capsys):
     out = tmp_path / "vdp"
     assert main(["run", "vdp", "--method", "mc", "--out", str(out), "--set", "samples=20"]) == 0
     assert [f.name for f in out.glob("projection_*.png")] == ["projection_0_1.png"]
-    assert "and 1 figure(s)" in capsys.readouterr().out
+    assert "result.npz, projection_0_1.png, summary.json" in capsys.readouterr().out
 
 
 def test_compare_rejects_bad_names_and_stray_options(capsys):
@@ -175,10 +175,13 @@ def test_compare_ctrl_c_keeps_finished_work(tmp_path, monkeypatch, capsys):
     out = tmp_path / "cmp"
     rc = main(["compare", "vdp", "--methods", "mc,ode", "--out", str(out), "--set", "mc.samples=40"])
     assert rc == 130
-    assert (out / "vdp_mc.npz").is_file() and not (out / "vdp_ode.npz").exists()
-    assert (out / "comparison.md").is_file() and (out / "overlay.png").is_file()
-    assert "interrupted" in (out / "comparison.md").read_text()
-    assert "interrupted" in capsys.readouterr().err
+    assert not out.exists()  # an interrupted comparison never poses as a complete one
+    part = tmp_path / "cmp.partial"  # ... its finished work is kept beside it (issue #10)
+    assert (part / "vdp_mc.npz").is_file() and not (part / "vdp_ode.npz").exists()
+    assert (part / "comparison.md").is_file() and (part / "overlay.png").is_file()
+    assert "interrupted" in (part / "comparison.md").read_text()
+    assert json.loads((part / "MANIFEST.json").read_text())["complete"] is False
+    assert f"kept in {part}" in capsys.readouterr().err
 
 
 def test_axis_and_time_labels_carry_units():

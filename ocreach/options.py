@@ -1,0 +1,137 @@
+"""Option values by declared type: strict booleans, CLI strings, and option descriptions.
+
+A method's options are the fields of its ``Options`` dataclass; a problem's overrides are the
+keyword arguments of its factory.  Both declare types (``lift_independent: bool = False``), and
+values typed on the command line are converted by that declared type, not by guessing:
+``bool`` accepts only true/false/1/0/yes/no/on/off (any case), everything else is parsed as a
+Python literal (``400``, ``1e-3``, ``(4, 0.01)``, ``None``) or kept as a string.
+
+:func:`describe_fields` lists a dataclass's (or a factory's) options with default, type and the
+text of its docstring that documents the field (the docstring is the one place options are
+documented; ``ocreach methods NAME`` prints it).
+"""
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import re
+from typing import Any
+
+import numpy as np
+
+from ocreach.errors import ProblemError
+
+TRUE_WORDS = ("true", "1", "yes", "on")
+FALSE_WORDS = ("false", "0", "no", "off")
+
+
+def parse_bool(name: str, raw: Any) -> bool:
+    """``raw`` as a boolean: a bool, the ints 0/1, or one of true/false/1/0/yes/no/on/off."""
+    if isinstance(raw, (bool, np.bool_)):
+        return bool(raw)
+    if isinstance(raw, (int, np.integer)) and raw in (0, 1):
+        return bool(raw)
+    if isinstance(raw, str) and raw.strip().lower() in TRUE_WORDS + FALSE_WORDS:
+        return raw.strip().lower() in TRUE_WORDS
+    raise ProblemError(f"{name} must be a boolean ({'/'.join(TRUE_WORDS)} or "
+                       f"{'/'.join(FALSE_WORDS)}); got {raw!r}")
+
+
+def _type_text(annotation: Any) -> str:
+    if annotation is inspect.Parameter.empty or annotation is dataclasses.MISSING:
+        return ""
+    return annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+
+
+def is_bool_type(annotation: Any) -> bool:
+    """Whether a declared type is ``bool`` (or ``bool | None``)."""
+    parts = {p.strip() for p in re.split(r"[|,\[\]]", _type_text(annotation)) if p.strip()}
+    return "bool" in parts and parts <= {"bool", "None", "Optional"}
+
+
+def parse_literal(raw: str) -> Any:
+    """A CLI string as a Python literal if it is one (``400``, ``1e-3``, ``None``), else the string."""
+    try:
+        return ast.literal_eval(raw)
+    except (ValueError, SyntaxError, MemoryError, RecursionError, TypeError):
+        return raw
+
+
+def declared_types(target: Any) -> dict[str, Any]:
+    """``{name: declared type}`` of a dataclass's fields or a callable's keyword parameters."""
+    if dataclasses.is_dataclass(target):
+        return {f.name: f.type for f in dataclasses.fields(target)}
+    params = inspect.signature(target).parameters.values()
+    return {p.name: p.annotation for p in params if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+
+
+def coerce(values: dict[str, str], target: Any, where: str = "") -> dict[str, Any]:
+    """CLI strings converted by the declared types of ``target`` (dataclass or callable).
+
+    Unknown names are parsed as literals and left for ``target`` to refuse by name.
+    """
+    types = declared_types(target)
+    out = {}
+    for key, raw in values.items():
+        label = f"{where}{key}"
+        if not isinstance(raw, str):
+            out[key] = raw
+        elif key in types and is_bool_type(types[key]):
+            out[key] = None if raw.strip() == "None" and "None" in _type_text(types[key]) else parse_bool(label, raw)
+        else:
+            out[key] = parse_literal(raw)
+    return out
+
+
+def check_bools(target: Any, values: dict[str, Any], where: str = "") -> None:
+    """Refuse a non-boolean value (e.g. the string ``"false"``) for a field declared ``bool``."""
+    types = declared_types(target)
+    for key, val in values.items():
+        if key in types and is_bool_type(types[key]) and not (val is None and "None" in _type_text(types[key])):
+            parse_bool(f"{where}{key}", val)
+
+
+def _doc_for(doc: str, name: str) -> str:
+    """The sentence(s) of ``doc`` that document ``name`` (from its ````name```` mention to the next
+    option's mention or the end of the paragraph)."""
+    if not doc:
+        return ""
+    text = " ".join(doc.split())
+    m = re.search(rf"``{re.escape(name)}``", text)
+    if not m:
+        return ""
+    rest = text[m.start():]
+    nxt = re.search(r"(?<=[.;)]) ``[A-Za-z_][A-Za-z0-9_]*``", rest[2 + len(name):])
+    chunk = rest if nxt is None else rest[: 2 + len(name) + nxt.start()]
+    return chunk.strip().rstrip(";").strip()
+
+
+def describe_fields(target: Any, doc: str | None = None) -> list[dict[str, str]]:
+    """``[{"name", "type", "default", "doc"}]`` of a dataclass's fields or a factory's parameters."""
+    doc = inspect.getdoc(target) if doc is None else doc
+    rows = []
+    if dataclasses.is_dataclass(target):
+        items = []
+        for f in dataclasses.fields(target):
+            default = f.default if f.default is not dataclasses.MISSING else (
+                f.default_factory() if f.default_factory is not dataclasses.MISSING else "(required)")
+            items.append((f.name, f.type, default, f.metadata.get("doc", "")))
+    else:
+        items = [(p.name, p.annotation, "(required)" if p.default is p.empty else p.default, "")
+                 for p in inspect.signature(target).parameters.values()
+                 if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+    for name, typ, default, meta_doc in items:
+        rows.append({"name": name, "type": _type_text(typ), "default": repr(default),
+                     "doc": meta_doc or _doc_for(doc or "", name)})
+    return rows
+
+
+def format_fields(rows: list[dict[str, str]], indent: str = "  ") -> str:
+    """Rows of :func:`describe_fields` as aligned text (name, type, default, then the doc)."""
+    lines = []
+    for r in rows:
+        lines.append(f"{indent}{r['name']} : {r['type'] or '?'} = {r['default']}")
+        if r["doc"]:
+            lines.append(f"{indent}    {r['doc']}")
+    return "\n".join(lines)

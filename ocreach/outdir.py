@@ -1,0 +1,112 @@
+"""Output folders written as a unit (``ocreach run|compare --out DIR``).
+
+:class:`OutputDir` checks ``DIR`` before any work (it must be a folder or not exist, under a
+writable folder) and creates a temporary folder ``.DIR.tmp-XXXX`` next to it; the command writes
+everything there.  Then exactly one of:
+
+* :meth:`OutputDir.commit` -- the run is complete: the temporary folder replaces ``DIR`` (old
+  ``DIR`` renamed aside, new one renamed in, old one deleted; SIGINT is held back during the
+  renames), so ``DIR`` is always either the old complete folder or the new complete one;
+* :meth:`OutputDir.keep_partial` -- interrupted or failed: ``DIR`` is left as it was; the files
+  finished so far (if any) become ``DIR.partial`` with a ``MANIFEST.json`` saying they are a
+  partial run (``"complete": false``, the reason and the file list); with nothing finished the
+  temporary folder is removed.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from ocreach.errors import ProblemError
+from ocreach.interrupt import deferred
+
+
+def check_output_dir(target: str | Path, option: str = "--out") -> Path:
+    """``target`` as a Path if it can be written as a folder, else a :class:`ProblemError`
+    naming ``option``: it exists and is not a folder, lies under a file, or is not writable."""
+    target = Path(target)
+    if target.exists() and not target.is_dir():
+        raise ProblemError(f"{option} {str(target)!r} exists and is not a folder")
+    anc = target.parent
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise ProblemError(f"{option} {str(target)!r}: {str(anc)!r} is a file, not a folder")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise ProblemError(f"{option} {str(target)!r}: folder {str(anc)!r} is not writable")
+    return target
+
+
+class OutputDir:
+    """A temporary folder next to ``target`` that is published as a whole (module docstring)."""
+
+    def __init__(self, target: str | Path, option: str = "--out") -> None:
+        self.target = check_output_dir(target, option).absolute()
+        try:
+            self.target.parent.mkdir(parents=True, exist_ok=True)
+            self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.tmp-",
+                                              dir=self.target.parent))
+            mask = os.umask(0)
+            os.umask(mask)
+            os.chmod(self.path, 0o777 & ~mask)  # mkdtemp makes 0700; the folder gets normal permissions
+        except OSError as exc:
+            raise ProblemError(f"{option} {str(target)!r} cannot be written: {exc.strerror or exc}") from None
+        self.done: str | None = None  # "committed", "partial", "discarded"
+
+    @property
+    def partial_path(self) -> Path:
+        return self.target.with_name(self.target.name + ".partial")
+
+    def files(self) -> list[str]:
+        return sorted(str(p.relative_to(self.path)) for p in self.path.rglob("*") if p.is_file()) \
+            if self.path.is_dir() else []
+
+    def commit(self) -> Path:
+        """Replace ``target`` by the finished folder (see the module docstring)."""
+        with deferred():
+            old = None
+            if self.target.exists():
+                old = self.target.with_name(f".{self.target.name}.old-{os.getpid()}-{time.time_ns()}")
+                os.rename(self.target, old)
+            os.rename(self.path, self.target)
+            self.done = "committed"
+            if self.partial_path.is_dir():  # a stale partial of an earlier run no longer applies
+                shutil.rmtree(self.partial_path, ignore_errors=True)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return self.target
+
+    def keep_partial(self, reason: str) -> Path | None:
+        """Publish the finished files as ``DIR.partial`` (None if there are none); ``DIR`` untouched."""
+        with deferred():
+            files = self.files()
+            if not files:
+                shutil.rmtree(self.path, ignore_errors=True)
+                self.done = "discarded"
+                return None
+            manifest = {"complete": False, "reason": reason, "files": files,
+                        "target": str(self.target)}
+            (self.path / "MANIFEST.json").write_text(json.dumps(manifest, indent=2))
+            if self.partial_path.exists():
+                shutil.rmtree(self.partial_path)
+            os.rename(self.path, self.partial_path)
+            self.done = "partial"
+        return self.partial_path
+
+    def describe_partial(self, kept: Path | None) -> str:
+        """The sentence the CLI prints after :meth:`keep_partial` (true by construction)."""
+        state = ("left unchanged (the previous complete results)" if self.target.exists()
+                 else "not created")
+        if kept is None:
+            return f"{self.target} {state}; nothing was finished, no files kept"
+        files = [f for f in self.files_in(kept) if f != "MANIFEST.json"]
+        return (f"{self.target} {state}; the finished files are kept in {kept} "
+                f"({', '.join(files)}; MANIFEST.json marks them partial)")
+
+    @staticmethod
+    def files_in(folder: Path) -> list[str]:
+        return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
