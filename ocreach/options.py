@@ -84,12 +84,15 @@ def coerce(values: dict[str, str], target: Any, where: str = "") -> dict[str, An
     return out
 
 
-def check_bools(target: Any, values: dict[str, Any], where: str = "") -> None:
-    """Refuse a non-boolean value (e.g. the string ``"false"``) for a field declared ``bool``."""
+def strict_bools(target: Any, values: dict[str, Any], where: str = "") -> dict[str, Any]:
+    """``values`` with every field declared ``bool`` parsed strictly by :func:`parse_bool` (so the
+    string ``"false"`` is False, not truthy; ``"maybe"`` or 2 raise naming the option)."""
     types = declared_types(target)
+    out = dict(values)
     for key, val in values.items():
         if key in types and is_bool_type(types[key]) and not (val is None and "None" in _type_text(types[key])):
-            parse_bool(f"{where}{key}", val)
+            out[key] = parse_bool(f"{where}{key}", val)
+    return out
 
 
 def _doc_for(doc: str, name: str) -> str:
@@ -102,9 +105,11 @@ def _doc_for(doc: str, name: str) -> str:
     if not m:
         return ""
     rest = text[m.start():]
-    nxt = re.search(r"(?<=[.;)]) ``[A-Za-z_][A-Za-z0-9_]*``", rest[2 + len(name):])
-    chunk = rest if nxt is None else rest[: 2 + len(name) + nxt.start()]
-    return chunk.strip().rstrip(";").strip()
+    skip = len(name) + 8  # a separator right after the name ("``rtol``, ``atol``: ...") joins them
+    nxt = next((h for h in re.finditer(r"(?<=[.;),]) ``[A-Za-z_][A-Za-z0-9_]*``", rest)
+                if h.start() > skip), None)
+    chunk = rest if nxt is None else rest[: nxt.start()]
+    return chunk.strip().rstrip(";,").strip()
 
 
 def describe_fields(target: Any, doc: str | None = None) -> list[dict[str, str]]:

@@ -68,7 +68,7 @@ class Method:
 
     def __init__(self, **options: Any) -> None:
         from ocreach.errors import check_real
-        from ocreach.options import check_bools
+        from ocreach.options import strict_bools
 
         common = {k: options.pop(k, d) for k, (d, _) in COMMON_OPTIONS.items()}
         fields = {f.name for f in dataclasses.fields(self.Options)}
@@ -85,8 +85,7 @@ class Method:
         self.max_memory_gb = check_real("max_memory_gb", common["max_memory_gb"])
         if not self.max_memory_gb > 0:
             raise ProblemError(f"max_memory_gb must be > 0; got {common['max_memory_gb']!r}")
-        check_bools(self.Options, options, f"{self.name} option ")
-        self.options = self.Options(**options)
+        self.options = self.Options(**strict_bools(self.Options, options, f"{self.name} option "))
 
     def __init_subclass__(cls, **kw: Any) -> None:
         super().__init_subclass__(**kw)

@@ -134,13 +134,27 @@ class ReachResult:
 
     def _index(self, k: int) -> int:
         n = self.times.size
-        if not -n <= k < n:
-            raise ProblemError(f"time index k must be in [{-n}, {n}); got {k}")
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not -n <= k < n:
+            raise ProblemError(f"time index k must be an integer in [{-n}, {n}); got {k!r}")
         return k % n
+
+    def _dims(self, dims: Sequence[int] | None) -> list[int] | None:
+        if dims is None:
+            return None
+        n = self.n_x
+        try:
+            out = [int(i) for i in dims if not isinstance(i, (bool, float, str))]
+        except (TypeError, ValueError):
+            out = []
+        if (not out or len(out) != len(list(dims)) or len(set(out)) != len(out)
+                or not all(0 <= i < n for i in out)):
+            raise ProblemError(f"dims must be distinct state indices in [0, {n}); got {dims!r}")
+        return out
 
     def points_at(self, k: int = -1, dims: Sequence[int] | None = None) -> np.ndarray:
         """Samples at time index ``k`` (boundary points, or samples of the set)."""
         k = self._index(k)
+        dims = self._dims(dims)
         if self.points is not None:
             pts = np.asarray(self.points[k])
         else:
@@ -155,7 +169,8 @@ class ReachResult:
         direction ``(n,)`` or many ``(m, n)``.
         """
         k = self._index(k)
-        d = np.asarray(d, dtype=float)
+        d = _directions(d)
+        dims = self._dims(dims)
         if self.points is not None:
             pts = self.points_at(k, dims)
             if d.shape[-1] != pts.shape[-1]:
@@ -230,6 +245,21 @@ class ReachResult:
                 f"t={t[0]:g}..{t[-1]:g} ({t.size} times), {what}"
                 + (f", tubes={len(self.tubes)}" if self.tubes is not None else "")
                 + (f", {', '.join(flags)}" if flags else "") + ")")
+
+
+def _directions(d: Any) -> np.ndarray:
+    """``d`` as a float array of one ``(n,)`` or many ``(m, n)`` finite, non-zero directions."""
+    try:
+        arr = np.asarray(d, dtype=float)
+    except (TypeError, ValueError):
+        raise ProblemError(f"direction d must be an array of numbers; got {d!r}") from None
+    if arr.ndim not in (1, 2) or arr.shape[-1] == 0 or arr.size == 0:
+        raise ProblemError(f"direction d must have shape (n,) or (m, n); got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ProblemError(f"direction d must be finite; got {d!r}")
+    if np.any(np.all(arr == 0, axis=-1)):
+        raise ProblemError(f"direction d must be non-zero (a zero direction has no support); got {d!r}")
+    return arr
 
 
 #: What ``schema`` holds in a result file (with ``format_version``).

@@ -1,0 +1,230 @@
+"""Reliability checks of issue #10: divergence guard, typed options, argument checks before work,
+discoverability (methods, list, FILE.py:ID, thrust metadata)."""
+from __future__ import annotations
+
+import io
+import json
+from contextlib import redirect_stderr, redirect_stdout
+
+import numpy as np
+import pytest
+
+import ocreach
+from ocreach.cli import main
+from ocreach.errors import ProblemError, SolverError
+from ocreach.options import coerce, parse_bool
+from ocreach.problem import get_problem, time_grid
+from ocreach.reach.base import method_class
+from ocreach.reach.guard import check_result, problem_scale
+from ocreach.reach.result import ReachResult
+
+
+def _cli(*argv):
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        rc = main(list(argv))
+    return rc, out.getvalue(), err.getvalue()
+
+
+# ------------------------------------------------------------------ divergence guard
+def test_nrho_stt_divergence_stops_with_error_and_flagged_partial(tmp_path):
+    """Foss STT on the 9:2 NRHO to perilune blows up (~1e4 DU at 76 h vs ~1 DU Monte Carlo):
+    the run stops with a SolverError naming method, time and size, the CLI exits 3 and keeps the
+    truncated, flagged, bounded part in DIR.partial (DIR itself is not created)."""
+    out = tmp_path / "nrho"
+    rc, _, err = _cli("run", "nrho-9-2", "--method", "stt", "--out", str(out))
+    assert rc == 3
+    assert "method 'stt' diverged on 'nrho-9-2'" in err and "t = " in err and "beyond the bound" in err
+    assert not out.exists()
+    part = tmp_path / "nrho.partial"
+    r = ocreach.load(part / "result.npz")
+    assert r.meta["truncated"] is True and len(r.times) < get_problem("nrho-9-2").grid.size
+    bound = 100 * problem_scale(get_problem("nrho-9-2"))
+    for k in range(len(r.times)):
+        h = r.sets[k].interval_hull()
+        assert np.all(np.abs(np.concatenate([h.lo, h.hi])) <= bound)
+    assert json.loads((part / "summary.json").read_text())["truncated"] is True
+    assert json.loads((part / "MANIFEST.json").read_text())["complete"] is False
+
+
+def test_guard_non_finite_points_and_sets_keep_prefix():
+    p = get_problem("vdp")
+    traj = np.zeros((4, p.grid.size, 2))
+    traj[1, 7, 0] = np.nan
+    with pytest.raises(SolverError, match="must be finite") as exc:
+        ReachResult.from_trajectories(p.grid, traj, meta={"method": "mc"})
+    assert exc.value.partial.times.size == 7 and exc.value.partial.meta["truncated"]
+    from ocreach.sets import Interval
+
+    sets = [Interval([-1, -1], [1, 1])] * 5 + [Interval([-1e9, -1], [1, 1])] * (p.grid.size - 5)
+    r = ReachResult(times=p.grid, sets=sets, meta={"method": "x"})
+    with pytest.raises(SolverError, match=r"method 'x' diverged on 'vdp': the estimate at t = 0.5 "
+                                          r"has grown to 1e\+09") as exc:
+        check_result(r, p)
+    assert len(exc.value.partial.sets) == 5
+    assert check_result(r, p, factor=float("inf")) is r  # the option switches the size check off
+
+
+def test_divergence_factor_option_checked():
+    with pytest.raises(ProblemError, match="divergence_factor must be a number > 1"):
+        ocreach.reach("vdp", "mc", divergence_factor=0.5)
+    with pytest.raises(ProblemError, match="max_memory_gb must be > 0"):
+        ocreach.reach("vdp", "mc", max_memory_gb=-1)
+
+
+# ------------------------------------------------------------------ typed options
+@pytest.mark.parametrize("raw,val", [("true", True), ("False", False), ("1", True), ("0", False),
+                                     ("yes", True), ("NO", False), ("on", True), ("off", False)])
+def test_parse_bool_words(raw, val):
+    assert parse_bool("x", raw) is val
+
+
+@pytest.mark.parametrize("raw", ["maybe", "2", "", "truee", "None"])
+def test_parse_bool_refuses(raw):
+    with pytest.raises(ProblemError, match="lift_independent must be a boolean"):
+        coerce({"lift_independent": raw}, method_class("stt").Options, "")
+
+
+def test_cli_false_is_false(tmp_path):
+    out = tmp_path / "o"
+    rc, _, err = _cli("run", "vdp", "-m", "cut", "--out", str(out))  # not applicable: clear error
+    assert rc == 2 and "does not apply" in err and not out.exists()
+    opts = coerce({"lift_independent": "false", "h_max": "50", "split": "4,0.01"},
+                  method_class("stt").Options)
+    assert opts == {"lift_independent": False, "h_max": 50, "split": (4, 0.01)}
+    assert method_class("stt")(lift_independent="false").options.lift_independent is False  # API too
+    with pytest.raises(ProblemError, match="stt option lift_independent must be a boolean"):
+        ocreach.reach("vdp", "stt", lift_independent="maybe")
+
+
+# ------------------------------------------------------------------ checks before work
+@pytest.mark.parametrize("kw,msg", [
+    ({"t_final": 3.05}, r"t_final = 3.05 TU must be a whole multiple of dt = 0.1 TU .* nearest valid t_final: 3 or 3.1"),
+    ({"dt": 5}, "must be a whole multiple of dt = 5"),
+    ({"dt": 0}, "dt must be > 0"), ({"dt": -0.1}, "dt must be > 0"),
+    ({"t_final": -1}, "t_final must be > 0"), ({"t_final": float("nan")}, "t_final must be a finite"),
+])
+def test_grid_rule(kw, msg):
+    with pytest.raises(ProblemError, match=msg):
+        get_problem("vdp", **kw)
+
+
+def test_time_grid_exact_and_fit():
+    g = time_grid(3.0, 0.1)
+    assert g.size == 31 and g[-1] == pytest.approx(3.0)
+    f = time_grid(1.0, 0.3, fit=True)
+    assert f[-1] == 1.0 and f.size == 4
+
+
+def test_out_checked_before_work(tmp_path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    for bad, msg in ((f, "exists and is not a folder"), (f / "sub", "is a file, not a folder")):
+        rc, out, err = _cli("run", "vdp", "-m", "mc", "--out", str(bad))
+        assert rc == 2 and msg in err and "Van der Pol" not in out  # nothing ran
+
+
+def test_memory_estimate_refuses_before_work():
+    with pytest.raises(ProblemError, match=r"samples = 1000000000 .* max_memory_gb = 4"):
+        ocreach.reach("vdp", "mc", samples=1e9)
+    with pytest.raises(ProblemError, match="max_memory_gb = 0.001"):
+        ocreach.reach("vdp", "mc", samples=10_000, max_memory_gb=1e-3)
+
+
+def test_implausible_thrust_refused_with_rule():
+    with pytest.raises(ProblemError, match=r"thrust acceleration of 1000 m/s\^2 \(thrust 1e\+06 N\), "
+                                          r"above the limit 9.80665 m/s\^2 \(1 g0\)"):
+        get_problem("l2-halo", thrust=1e6)
+    assert get_problem("l2-halo").thrust_acceleration_si() == pytest.approx(1e-4)
+
+
+def test_compare_empty_methods_and_bench_peer(monkeypatch):
+    rc, _, err = _cli("compare", "vdp", "--methods", "")
+    assert rc == 2 and "--methods must name at least one method" in err
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "do_mpc" else real(name, *a))
+    rc, _, err = _cli("bench", "--only", "mpc")
+    assert rc == 2 and "pip install do-mpc" in err
+
+
+def test_support_refuses_bad_directions():
+    r = ocreach.reach("vdp", "mc", samples=10)
+    for d, msg in (([np.nan, 1.0], "finite"), ([0.0, 0.0], "non-zero"), ([np.inf, 0], "finite")):
+        with pytest.raises(ProblemError, match=f"direction d must be {msg}"):
+            r.support(d)
+
+
+# ------------------------------------------------------------------ discoverability
+def test_methods_lists_options_with_defaults_and_docs():
+    rc, out, _ = _cli("methods", "stt")
+    assert rc == 0
+    assert "lift_independent : bool = False" in out and "h_max : int = 200" in out
+    assert "maximum number of generators" in out and "divergence_factor : float = 100.0" in out
+
+
+def test_list_shows_applicable_methods_and_why():
+    rc, out, _ = _cli("list", "--why")
+    assert rc == 0
+    assert "not cut: needs a stochastic problem" in out
+    assert "not ode: needs a control-affine model" in out  # the variable-mass ephemeris models
+
+
+def test_problem_file_with_two_problems(tmp_path):
+    f = tmp_path / "mine.py"
+    f.write_text("from ocreach.problems.foss import vdp\n"
+                 "PROBLEMS = {'short': lambda t_final=1.0: vdp(t_final=t_final),\n"
+                 "            'long': lambda: vdp(t_final=2.0)}\n")
+    with pytest.raises(ProblemError, match=r"several problems \['long', 'short'\]; name one as .*:ID"):
+        get_problem(str(f))
+    assert get_problem(f"{f}:long").grid[-1] == pytest.approx(2.0)
+    rc, out, _ = _cli("run", f"{f}:short", "-m", "mc", "--set", "samples=5", "--set",
+                      "problem.t_final=0.5", "--out", str(tmp_path / "o"))
+    assert rc == 0 and (tmp_path / "o" / "result.npz").is_file()
+
+
+@pytest.mark.parametrize("method", ["ffoe", "ole", "bvp"])
+def test_thrust_methods_run_on_vdp_via_declared_thrust_param(method):
+    """vdp declares thrust_param="gain": ffoe/ole/bvp run and their samples are real trajectories
+    (independent check: scipy re-integration of a sample's controls)."""
+    from scipy.integrate import solve_ivp
+
+    p = get_problem("vdp", t_final=1.0)
+    r = ocreach.reach(p, method, samples=4)
+    u = r.controls[0]
+    assert np.all(np.abs(u) <= 1 + 1e-9)
+    x = np.asarray(r.trajectories[0, 0])
+    if method == "bvp":  # bvp's controls are the sampled optimal law; compare endpoint loosely
+        assert np.all(np.isfinite(r.points[-1]))
+        return
+    for k in range(p.n_segments):
+        sol = solve_ivp(lambda t, y: [y[1], (1 - y[0] ** 2) * y[1] - y[0] + 0.05 * u[k, 0]],
+                        (p.grid[k], p.grid[k + 1]), x, rtol=1e-11, atol=1e-12, method="DOP853")
+        x = sol.y[:, -1]
+    assert np.abs(x - r.points[-1][0]).max() < 1e-7
+
+
+def test_model_builders_declare_thrust_and_twobody_default_is_usable():
+    from ocreach.models import cr3bp, twobody, vanderpol
+    from ocreach.problem import Problem
+
+    assert cr3bp(0.01215).thrust_param == "a_max" and vanderpol().thrust_param == "gain"
+    m = twobody()
+    assert m.param("a_max") > 0
+    Problem(id="tb", model=m, x0=[1, 0, 0, 0, 1, 0], grid=np.linspace(0, 1, 3))
+
+
+def test_reentry_plots_in_seconds():
+    from ocreach.plot import time_label
+
+    assert time_label(get_problem("shuttle-reentry", t_final=10.0), 5.0) == "t = 5 s"
+
+
+def test_summary_small_and_print_short(tmp_path):
+    rc, _, _ = _cli("run", "vdp", "-m", "mc", "--set", "samples=3000", "--out", str(tmp_path / "o"))
+    assert rc == 0
+    assert (tmp_path / "o" / "summary.json").stat().st_size < 4000
+    r = ocreach.load(tmp_path / "o" / "result.npz")
+    assert len(str(r)) < 300
