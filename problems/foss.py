@@ -8,6 +8,7 @@ import numpy as np
 
 from ocreach.models import cr3bp, vanderpol
 from ocreach.orbits import PeriodicOrbit, correct_symmetric
+from ocreach.errors import ProblemError
 from ocreach.problem import Problem, time_grid
 from ocreach.units import EARTH_MOON_FOSS
 
@@ -37,6 +38,8 @@ def dro_orbit() -> PeriodicOrbit:
 def dro(t_final: float = 3.0, dt: float = 0.1, thrust: float = T_MAX_N, mass: float = MASS_KG,
         input_set: str = "box") -> Problem:
     """Low-thrust spacecraft on a planar CR3BP DRO, 1.1 mN on 14 kg, 3 TU (Foss Sec. 4.1)."""
+    if input_set not in ("box", "ball"):  # the STT input set (Foss Eq. 16)
+        raise ProblemError(f"input_set must be 'box' or 'ball'; got {input_set!r}")
     units = EARTH_MOON_FOSS
     a_max = units.thrust_acceleration(thrust, mass)
     model = cr3bp(MU_FOSS, planar=True, a_max=a_max, units=units)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ocreach.errors import ProblemError
 from ocreach.problem import Problem, time_grid
 from ocreach.units import EARTH_MOON_FOSS
 
@@ -22,6 +23,8 @@ MASS_KG = 14.0
 def nrho_flyby(t_final: float = 1.0, dt: float = 0.05, thrust: float = T_MAX_N, mass: float = MASS_KG,
                input_set: str = "ball") -> Problem:
     """NRHO Moon flyby in the Sun-Earth-Moon-Venus ephemeris synodic model, 1 TU (Foss Sec. 4.2)."""
+    if input_set not in ("box", "ball"):  # the STT input set (Foss Eq. 16)
+        raise ProblemError(f"input_set must be 'box' or 'ball'; got {input_set!r}")
     from ocreach.models.ephemeris import ephemeris_synodic
 
     units = EARTH_MOON_FOSS

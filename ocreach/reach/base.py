@@ -85,7 +85,14 @@ class Method:
         self.max_memory_gb = check_real("max_memory_gb", common["max_memory_gb"])
         if not self.max_memory_gb > 0:
             raise ProblemError(f"max_memory_gb must be > 0; got {common['max_memory_gb']!r}")
-        self.options = self.Options(**strict_bools(self.Options, options, f"{self.name} option "))
+        values = strict_bools(self.Options, options, f"{self.name} option ")
+        try:
+            self.options = self.Options(**values)
+        except (TypeError, ValueError) as exc:  # a check an Options class missed: still named
+            if isinstance(exc, ProblemError):
+                raise
+            raise ProblemError(f"method {self.name!r}: invalid option value(s) {values!r} "
+                               f"({type(exc).__name__}: {exc})") from None
 
     def __init_subclass__(cls, **kw: Any) -> None:
         super().__init_subclass__(**kw)

@@ -71,7 +71,10 @@ class MonteCarlo(Method):
 
         def __post_init__(self) -> None:
             super().__post_init__()
-            mix = np.asarray(self.mix, dtype=float)
+            try:
+                mix = np.asarray(self.mix, dtype=float)
+            except (TypeError, ValueError):
+                mix = np.full(0, np.nan)
             if mix.shape != (3,) or not np.all(np.isfinite(mix)) or np.any(mix < 0) or mix.sum() <= 0:
                 raise ProblemError(f"mix must be three finite non-negative fractions for the laws "
                                    f"{LAWS}, not all zero; got {self.mix!r}")
