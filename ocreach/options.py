@@ -50,6 +50,33 @@ def is_bool_type(annotation: Any) -> bool:
     return "bool" in parts and parts <= {"bool", "None", "Optional"}
 
 
+def _number_kind(annotation: Any) -> tuple[str, bool] | None:
+    """``("float" | "int", none_allowed)`` for a declared ``float``/``int`` (optionally ``| None``)."""
+    parts = {p.strip() for p in re.split(r"[|,\[\]]", _type_text(annotation)) if p.strip()}
+    nums = parts & {"float", "int"}
+    if len(nums) != 1 or not parts <= {"float", "int", "None", "Optional"}:
+        return None
+    return nums.pop(), "None" in parts
+
+
+def typed_number(name: str, value: Any, annotation: Any) -> Any:
+    """``value`` checked against a declared ``float``/``int`` (finite number; integral for int);
+    other declared types pass unchanged.  Raises :class:`ProblemError` naming ``name``."""
+    from ocreach.errors import check_real
+
+    kind = _number_kind(annotation)
+    if kind is None or (value is None and kind[1]):
+        return value
+    if isinstance(value, str):
+        value = parse_literal(value)
+    v = check_real(name, value)
+    if kind[0] == "int":
+        if v != int(v):
+            raise ProblemError(f"{name} must be an integer; got {value!r}")
+        return int(v)
+    return v
+
+
 def parse_literal(raw: str) -> Any:
     """A CLI string as a Python literal if it is one (``400``, ``1e-3``, ``None``), else the string."""
     try:
@@ -79,6 +106,8 @@ def coerce(values: dict[str, str], target: Any, where: str = "") -> dict[str, An
             out[key] = raw
         elif key in types and is_bool_type(types[key]):
             out[key] = None if raw.strip() == "None" and "None" in _type_text(types[key]) else parse_bool(label, raw)
+        elif key in types and not dataclasses.is_dataclass(target) and _number_kind(types[key]):
+            out[key] = typed_number(label, raw, types[key])  # problem factories: float/int args
         else:
             out[key] = parse_literal(raw)
     return out

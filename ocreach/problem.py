@@ -324,6 +324,11 @@ def _call_factory(pid: str, factory: Callable[..., Problem], overrides: dict[str
     unknown = [k for k in overrides if k not in allowed]
     if unknown and not accepts_any:
         raise ProblemError(f"problem {pid!r} has no option(s) {unknown}; allowed: {allowed}")
+    from ocreach.options import strict_bools, typed_number
+
+    overrides = strict_bools(factory, overrides, "problem option ")
+    overrides = {k: typed_number(k, v, sig.parameters[k].annotation) if k in sig.parameters else v
+                 for k, v in overrides.items()}
     prob = factory(**overrides)
     if not isinstance(prob, Problem):
         raise ProblemError(f"factory for {pid!r} must return a Problem; got {type(prob).__name__}")

@@ -37,9 +37,17 @@ def ro(a: Any, dtype=float) -> np.ndarray:
     return arr
 
 
+def _floats(name: str, v: Any) -> np.ndarray:
+    """``np.asarray(v, float)``, or a :class:`SetError` naming ``name`` (ragged lists, text)."""
+    try:
+        return np.asarray(v, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise SetError(f"{name} must be an array of numbers; got {v!r}") from None
+
+
 def as_vector(name: str, v: Any, n: int | None = None) -> np.ndarray:
     """Validate a finite 1-D vector (of length ``n`` if given)."""
-    arr = np.asarray(v, dtype=float)
+    arr = _floats(name, v)
     if arr.ndim == 0 and n is None:
         arr = arr.reshape(1)
     if arr.ndim != 1:
@@ -53,7 +61,7 @@ def as_vector(name: str, v: Any, n: int | None = None) -> np.ndarray:
 
 def as_matrix(name: str, M: Any, rows: int | None = None, cols: int | None = None) -> np.ndarray:
     """Validate a finite 2-D matrix with the given row/column counts."""
-    arr = np.asarray(M, dtype=float)
+    arr = _floats(name, M)
     if arr.ndim == 1 and rows is not None and arr.size == 0:
         arr = arr.reshape(rows, 0)
     if arr.ndim != 2:
