@@ -202,28 +202,15 @@ def cmd_problem(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    from ocreach.outdir import OutputDir
-
-    prob_raw, opt_raw = _split_options(_parse_sets(args.set))
-    problem = _problem(args.problem, prob_raw)
-    method = _method(problem, args.method, opt_raw)
-    out = OutputDir(args.out or f"out/{problem.id}_{args.method}")
-    mark = _Stages()
-    print(problem.summary())
+def _as_unit(out, mark: _Stages, work) -> int | None:
+    """Run ``work()`` (writes into ``out.path``; returns None when the run is complete, else an
+    exit code after keeping its partial files) and publish the folder when complete.  Ctrl-C, or
+    an error that a Ctrl-C turned into, ends in :func:`_interrupted`; another error keeps the
+    finished files as partial and propagates."""
     try:
-        mark("solve")
-        try:
-            result = method.solve(problem)
-        except SolverError as exc:
-            if exc.partial is None:
-                raise
-            _write_run(out.path, exc.partial, problem, args.method, mark)
-            kept = out.keep_partial(f"failed: {exc}")
-            print(f"error: {exc}\n{out.describe_partial(kept)}", file=sys.stderr)
-            return 3
-        mark("solved")
-        files = _write_run(out.path, result, problem, args.method, mark)
+        rc = work()
+        if rc is not None:
+            return rc
         mark("commit")
         out.commit()
         mark("done")
@@ -235,14 +222,47 @@ def cmd_run(args: argparse.Namespace) -> int:
         if out.done is None:
             out.keep_partial("failed")
         raise
-    rt = result.meta.get("runtime", {})
+    return None
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from ocreach.outdir import OutputDir
+
+    prob_raw, opt_raw = _split_options(_parse_sets(args.set))
+    problem = _problem(args.problem, prob_raw)
+    method = _method(problem, args.method, opt_raw)
+    out = OutputDir(args.out or f"out/{problem.id}_{args.method}")
+    mark = _Stages()
+    print(problem.summary())
+    done: dict = {}
+
+    def work() -> int | None:
+        mark("solve")
+        try:
+            result = method.solve(problem)
+        except SolverError as exc:
+            if exc.partial is None:
+                raise
+            _write_run(out.path, exc.partial, problem, args.method, mark)
+            kept = out.keep_partial(f"failed: {exc}")
+            print(f"error: {exc}\n{out.describe_partial(kept)}", file=sys.stderr)
+            return 3
+        mark("solved")
+        done.update(result=result, files=_write_run(out.path, result, problem, args.method, mark))
+        return None
+
+    rc = _as_unit(out, mark, work)
+    if rc is not None:
+        return rc
+    rt = done["result"].meta.get("runtime", {})
     print(f"{args.method}: runtime " + ", ".join(f"{k} {v:.3f} s" for k, v in rt.items()))
-    print(f"wrote {out.target}: {', '.join(files)}")
+    print(f"wrote {out.target}: {', '.join(done['files'])}")
     return 0
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from ocreach.compare import compare, write_comparison
+    from ocreach.options import parse_literal
     from ocreach.outdir import OutputDir
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -263,12 +283,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
     for m in methods:  # every method's options checked before any work
         _method(problem, m, per_raw[m])
     per_method = {m: _method_options(m, per_raw[m]) for m in methods}
-    from ocreach.options import parse_literal
-
     truth = check_count("--truth-samples", parse_literal(args.truth_samples), 1)
     out = OutputDir(args.out or f"out/compare_{problem.id}")
     mark = _Stages()
-    try:
+    done: dict = {}
+
+    def work() -> int | None:
         mark("compare")
         cmp = compare(problem, methods, options=per_method, truth_samples=truth, out_dir=out.path,
                       stage=mark)
@@ -278,23 +298,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(cmp.table())
         write_comparison(cmp, out.path)
         mark("written")
+        done["cmp"] = cmp
         if cmp.interrupted:
             kept = out.keep_partial("interrupted (Ctrl-C); the table covers the finished methods")
             print(f"\ninterrupted (Ctrl-C): {out.describe_partial(kept)}", file=sys.stderr)
             return 130
-        mark("commit")
-        out.commit()
-        mark("done")
-    except KeyboardInterrupt:
-        return _interrupted(out, mark)
-    except Exception:
-        if interrupt_requested():
-            return _interrupted(out, mark)
-        if out.done is None:
-            out.keep_partial("failed")
-        raise
+        return None
+
+    rc = _as_unit(out, mark, work)
+    if rc is not None:
+        return rc
     print(f"\nwrote {out.target}: comparison.md, metrics.json, overlay.png and one result per method")
-    return 1 if cmp.errors else 0
+    return 1 if done["cmp"].errors else 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:

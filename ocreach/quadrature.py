@@ -362,7 +362,7 @@ _CACHE_VERSION = 1  # bump when the root selection of _solve_cut changes
 def _disk_cache_path(n: int, order: int, density: str):
     from ocreach.flow import cache_dir
 
-    return cache_dir().parent / "cut_rules" / f"cut{order}_{density}_n{n}_v{_CACHE_VERSION}.npy"
+    return cache_dir() / "cut_rules" / f"cut{order}_{density}_n{n}_v{_CACHE_VERSION}.npy"  # inside OCREACH_CACHE_DIR
 
 
 def _disk_cache_load(n: int, order: int, density: str, size: int) -> np.ndarray | None:
