@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ocreach.errors import ProblemError, UnknownNameError, _to_float, check_count, check_tolerances
+from ocreach.errors import (OcreachError, ProblemError, UnknownNameError, _to_float, check_count,
+                            check_tolerances)
 
 if TYPE_CHECKING:
     from ocreach.problem import Problem
@@ -89,7 +90,7 @@ class Method:
         try:
             self.options = self.Options(**values)
         except (TypeError, ValueError) as exc:  # a check an Options class missed: still named
-            if isinstance(exc, ProblemError):
+            if isinstance(exc, OcreachError):
                 raise
             raise ProblemError(f"method {self.name!r}: invalid option value(s) {values!r} "
                                f"({type(exc).__name__}: {exc})") from None
