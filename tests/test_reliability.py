@@ -228,3 +228,23 @@ def test_summary_small_and_print_short(tmp_path):
     assert (tmp_path / "o" / "summary.json").stat().st_size < 4000
     r = ocreach.load(tmp_path / "o" / "result.npz")
     assert len(str(r)) < 300
+
+
+def test_ffoe_on_a_control_affine_user_model_without_thrust_parameter():
+    """A double integrator x1' = x2, x2' = u (box) declares no thrust parameter: ffoe applies
+    (control-affine); its samples satisfy the exact solution x2(T) = x2(0) + sum_k u_k dt."""
+    import casadi as ca
+
+    from ocreach.model import Model
+    from ocreach.problem import Problem
+
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
+    m = Model.build("di", x, u, ca.vertcat(x[1], u[0]), control_set="box")
+    p = Problem(id="di", model=m, x0=[0.0, 0.0], grid=np.linspace(0, 1, 5),
+                position_dims=(0, 1), velocity_dims=(0, 1))
+    assert method_class("ffoe").applicable(p) == (True, "")
+    r = ocreach.reach(p, "ffoe", samples=6)
+    dt = np.diff(p.grid)
+    np.testing.assert_allclose(r.trajectories[:, -1, 1], r.controls[..., 0] @ dt, atol=1e-9)
+    with pytest.raises(ProblemError, match="declares no thrust parameter"):
+        ocreach.reach(p, "ffoe", samples=6, thrust=0.5)

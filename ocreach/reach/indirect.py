@@ -283,7 +283,13 @@ class FFOE(Method):
 
     @classmethod
     def applicable(cls, problem: Problem) -> tuple[bool, str]:
-        return requirements(problem, bounded=True, thrust=True, initial_sets=("Ellipsoid",))
+        """A bounded control set, an ellipsoidal initial set (or none), and a declared thrust
+        parameter or a control-affine model (the laws only need ``F_u``; ``thrust=`` then needs
+        the parameter)."""
+        ok, why = requirements(problem, bounded=True, initial_sets=("Ellipsoid",))
+        if ok and not problem.model.control_affine:
+            return requirements(problem, thrust=True)
+        return ok, why
 
     # -------------------------------------------------------------- shared set-up
     def _setup(self, problem: Problem) -> tuple[np.ndarray, np.ndarray, InitialManifold]:
@@ -292,7 +298,6 @@ class FFOE(Method):
         if problem.control_set.kind == "free":
             raise ProblemError(f"method {self.name!r} needs a bounded control set ('ball' or 'box'); "
                                f"problem {problem.id} has 'free' controls")
-        thrust_param(model)
         p = problem.params if opt.thrust is None else with_thrust(model, problem.params, opt.thrust)
         dims = resolve_dims(opt.dims, problem)
         dirs = sample_directions(model.n_x, dims, opt.samples, opt.seed, opt.random)
