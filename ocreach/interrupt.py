@@ -66,16 +66,27 @@ def check_interrupt() -> None:
 
 @contextlib.contextmanager
 def deferred() -> Iterator[None]:
-    """Hold SIGINT back while the block runs (e.g. the renames that publish an output folder);
-    a Ctrl-C during it is delivered when the block ends."""
-    if not hasattr(signal, "pthread_sigmask"):
+    """Hold SIGINT back while the block runs (e.g. the renames that publish an output folder): a
+    Ctrl-C during it is recorded and raised as ``KeyboardInterrupt`` when the block ends.  (A
+    handler swap rather than a signal mask, so a signal delivered to another thread -- tqdm's
+    monitor -- is held back too.)"""
+    got: list[int] = []
+
+    def hold(signum, frame) -> None:  # noqa: ARG001
+        _STATE["requested"] = True
+        got.append(signum)
+
+    try:
+        previous = signal.signal(signal.SIGINT, hold)
+    except ValueError:  # not the main thread: nothing to hold back here
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        signal.signal(signal.SIGINT, previous)
+        if got:
+            raise KeyboardInterrupt
 
 
 def stage(name: str) -> None:

@@ -67,17 +67,19 @@ class OutputDir:
 
     def commit(self) -> Path:
         """Replace ``target`` by the finished folder (see the module docstring)."""
-        with deferred():
-            old = None
-            if self.target.exists():
-                old = self.target.with_name(f".{self.target.name}.old-{os.getpid()}-{time.time_ns()}")
-                os.rename(self.target, old)
-            os.rename(self.path, self.target)
-            self.done = "committed"
-            if self.partial_path.is_dir():  # a stale partial of an earlier run no longer applies
+        old = None
+        try:
+            with deferred():  # a Ctrl-C here is delivered after the renames
+                if self.target.exists():
+                    old = self.target.with_name(f".{self.target.name}.old-{os.getpid()}-{time.time_ns()}")
+                    os.rename(self.target, old)
+                os.rename(self.path, self.target)
+                self.done = "committed"
+        finally:
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+            if self.done == "committed" and self.partial_path.is_dir():  # stale: an older run's
                 shutil.rmtree(self.partial_path, ignore_errors=True)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
         return self.target
 
     def keep_partial(self, reason: str) -> Path | None:

@@ -248,3 +248,49 @@ def test_ffoe_on_a_control_affine_user_model_without_thrust_parameter():
     np.testing.assert_allclose(r.trajectories[:, -1, 1], r.controls[..., 0] @ dt, atol=1e-9)
     with pytest.raises(ProblemError, match="declares no thrust parameter"):
         ocreach.reach(p, "ffoe", samples=6, thrust=0.5)
+
+
+def test_output_dir_commit_is_a_unit_even_with_sigint_during_the_renames(tmp_path, monkeypatch):
+    import os
+    import signal
+
+    from ocreach.interrupt import install, restore
+    from ocreach.outdir import OutputDir
+
+    target = tmp_path / "d"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+    out = OutputDir(target)
+    (out.path / "new.txt").write_text("new")
+    real_rename = os.rename
+    calls = []
+
+    def rename(a, b):  # Ctrl-C between "old aside" and "new in"
+        calls.append((a, b))
+        real_rename(a, b)
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(os, "rename", rename)
+    prev = install()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            out.commit()
+    finally:
+        restore(prev)
+    assert len(calls) == 2 and out.done == "committed"
+    assert sorted(p.name for p in target.iterdir()) == ["new.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["d"]  # no temporary or old folder left
+
+
+def test_output_dir_partial_and_nothing(tmp_path):
+    from ocreach.outdir import OutputDir
+
+    out = OutputDir(tmp_path / "d")
+    assert out.keep_partial("x") is None and not list(tmp_path.iterdir())
+    out = OutputDir(tmp_path / "d")
+    (out.path / "a.npz").write_bytes(b"1")
+    kept = out.keep_partial("interrupted")
+    assert kept == tmp_path / "d.partial" and not (tmp_path / "d").exists()
+    assert "not created; the finished files are kept in" in out.describe_partial(kept)
+    assert json.loads((kept / "MANIFEST.json").read_text())["files"] == ["a.npz"]
