@@ -131,6 +131,10 @@ class Method:
         The default accepts every problem; methods refine it."""
         return True, ""
 
+    def applicable_with_options(self, problem: Problem) -> tuple[bool, str]:
+        """:meth:`applicable` refined by this instance's options (default: the same)."""
+        return self.applicable(problem)
+
     def memory_estimate(self, problem: Problem) -> float:
         """Estimated peak bytes: ``samples x times x (n_x + n_u) x 8 B x 4`` for sample-based
         methods (0 for the others)."""
@@ -143,7 +147,7 @@ class Method:
     def check_before(self, problem: Problem) -> None:
         """Raise :class:`ProblemError` before any work if the method does not apply or the run
         would exceed ``max_memory_gb``."""
-        ok, why = self.applicable(problem)
+        ok, why = self.applicable_with_options(problem)
         if not ok:
             raise ProblemError(f"method {self.name!r} does not apply to problem {problem.id!r}: {why}")
         need = self.memory_estimate(problem) / 1e9

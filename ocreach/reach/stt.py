@@ -509,6 +509,9 @@ class STTReach(Method):
         ok, why = requirements(problem, bounded=True)
         return ok, why and why + " (or give input_set='box'/'ball')"
 
+    def applicable_with_options(self, problem: Problem) -> tuple[bool, str]:
+        return (True, "") if self.options.input_set is not None else self.applicable(problem)
+
     # ------------------------------------------------------------------ solve
     def solve(self, problem: Problem) -> ReachResult:
         from ocreach.flow import stt as stt_flow
