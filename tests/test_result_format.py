@@ -69,6 +69,8 @@ def test_round_trip_points_controls_trajectories(tmp_path):
     r = ReachResult.from_trajectories(np.arange(4.0), traj, controls=rng.normal(size=(7, 3, 1)),
                                       meta={"method": "mc"})
     q = load(r.save(tmp_path / "r.npz"))
+    with np.load(tmp_path / "r.npz") as z:  # points are the trajectories' columns: stored once
+        assert "points" not in z.files and "points_from_trajectories" in z.files
     assert np.array_equal(q.trajectories, traj) and np.array_equal(q.controls, r.controls)
     for a, b in zip(r.points, q.points):
         assert np.array_equal(a, b)

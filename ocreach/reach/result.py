@@ -206,7 +206,8 @@ class ReachResult:
         """Write the result to ``path`` (``.npz``) atomically; read it back with :func:`load`.
 
         The file holds arrays and JSON only (no pickle): ``schema``, ``format_version``, ``times``,
-        ``points`` (concatenated, with ``n_points``), each set and tube as its defining arrays
+        ``points`` (concatenated, with ``n_points``; omitted with ``points_from_trajectories`` when
+        they are the columns of ``trajectories``), each set and tube as its defining arrays
         (described by ``sets_json`` / ``tubes_json``, see :mod:`ocreach.sets.serialize`),
         ``controls``, ``trajectories`` and ``meta_json``.
         """
@@ -214,7 +215,9 @@ class ReachResult:
 
         arrays: dict[str, np.ndarray] = {"schema": np.array(SCHEMA), "times": self.times,
                                           "format_version": np.array(FORMAT_VERSION)}
-        if self.points is not None:
+        if self.points is not None and self._points_are_trajectories():
+            arrays["points_from_trajectories"] = np.array(True)  # not stored twice
+        elif self.points is not None:
             arrays["n_points"] = np.array([len(p) for p in self.points])
             arrays["points"] = np.concatenate([np.asarray(p, dtype=float) for p in self.points])
         for name, seq in (("sets", self.sets), ("tubes", self.tubes)):
@@ -234,6 +237,13 @@ class ReachResult:
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
         return atomic_write_bytes(path, buf.getvalue())
+
+    def _points_are_trajectories(self) -> bool:
+        """Whether ``points[k] == trajectories[:, k]`` for every k (then only one is written)."""
+        tr = self.trajectories
+        if tr is None or tr.ndim != 3 or tr.shape[1] != len(self.points):
+            return False
+        return all(np.array_equal(np.asarray(p), tr[:, k]) for k, p in enumerate(self.points))
 
     def __repr__(self) -> str:
         """A short description (``print(result)`` must not dump the arrays)."""
@@ -313,7 +323,10 @@ def _read(z: Any, path: Path) -> ReachResult:
                            f"reads version {FORMAT_VERSION}"
                            + (" (upgrade ocreach)" if version > FORMAT_VERSION else ""))
     points = None
-    if "points" in names:
+    if "points_from_trajectories" in names:
+        traj = z["trajectories"]
+        points = [traj[:, k] for k in range(traj.shape[1])]
+    elif "points" in names:
         split = np.cumsum(z["n_points"])[:-1]
         points = np.split(z["points"], split)
     seqs = {}
