@@ -409,19 +409,27 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _interrupted_elsewhere(command: str | None) -> str:
+    if command in ("run", "compare"):
+        return "interrupted (Ctrl-C) before the output folder was created; nothing kept"
+    return f"interrupted (Ctrl-C){f' during {command!r}' if command else ''}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; exit code 0 done, 1 compare with failed methods, 2 bad input or solver
     error (message on stderr), 3 a diverged run (partial result kept), 130 Ctrl-C."""
     previous = install_interrupt_handler()
+    command = None
     try:
         args = build_parser().parse_args(argv)
+        command = args.command
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:  # before any output folder existed (commands handle their own)
-        print("interrupted (Ctrl-C) before any file was written; nothing kept", file=sys.stderr)
+    except KeyboardInterrupt:  # run/compare handle their own output folders before this
+        print(_interrupted_elsewhere(command), file=sys.stderr)
         return 130
     except OcreachError as exc:
         if interrupt_requested():
-            print("interrupted (Ctrl-C) before any file was written; nothing kept", file=sys.stderr)
+            print(_interrupted_elsewhere(command), file=sys.stderr)
             return 130
         print(f"error: {exc}", file=sys.stderr)
         return 2
