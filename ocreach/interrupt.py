@@ -39,7 +39,9 @@ def install():
 
 
 def restore(previous) -> None:
-    """Put back the handler :func:`install` replaced."""
+    """Put back the handler :func:`install` replaced and clear the flag (the command that
+    installed it has handled the interruption), so later calls in the process are not affected."""
+    _STATE["requested"] = False
     if previous is not None:
         try:
             signal.signal(signal.SIGINT, previous)
@@ -72,8 +74,7 @@ def deferred() -> Iterator[None]:
     monitor -- is held back too.)"""
     got: list[int] = []
 
-    def hold(signum, frame) -> None:  # noqa: ARG001
-        _STATE["requested"] = True
+    def hold(signum, frame) -> None:  # noqa: ARG001 (raised below, nothing can swallow it)
         got.append(signum)
 
     try:

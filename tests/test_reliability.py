@@ -281,6 +281,9 @@ def test_output_dir_commit_is_a_unit_even_with_sigint_during_the_renames(tmp_pat
     assert len(calls) == 2 and out.done == "committed"
     assert sorted(p.name for p in target.iterdir()) == ["new.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["d"]  # no temporary or old folder left
+    from ocreach.interrupt import interrupt_requested
+
+    assert not interrupt_requested()  # handled: later work in this process is not interrupted
 
 
 def test_output_dir_partial_and_nothing(tmp_path):
