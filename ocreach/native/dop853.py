@@ -1,12 +1,78 @@
-"""C source of the adaptive DOP853 driver loop used by :mod:`ocreach.flow`.
+"""The Dormand-Prince 8(5,3) step as a CasADi Function and the C driver loop around it.
 
-Kept as a Python string so it ships with the package without package-data settings.
+Hairer, Norsett & Wanner, *Solving ODEs I*, Sec. II.10, with SciPy's ``DOP853`` tableau, error
+norm, step-size controller and initial-step rule.  One step (12 stages, FSAL derivative, error
+norm) is one CasADi Function built from the right-hand side (:func:`build_step`); the driver
+(:data:`DRIVER_SRC`) is included after CasADi's generated code and loops over samples and steps
+in C with one step size per sample.
 """
+from __future__ import annotations
 
-DRIVER_SRC = r'''/* Adaptive Dormand-Prince 8(5,3) driver for ocreach.flow.integrate_batch.
+import casadi as ca
+from scipy.integrate._ivp import dop853_coefficients as _dop
+
+__all__ = ["DRIVER_SRC", "ERR_EXP", "MAX_FACTOR", "MIN_FACTOR", "SAFETY", "build_step", "dense_rhs"]
+
+# --------------------------------------------------------------------------- DOP853 constants
+_NS = _dop.N_STAGES  # 12
+_A = _dop.A[:_NS, :_NS]
+_B = _dop.B
+_C = _dop.C[:_NS]
+_E3 = _dop.E3
+_E5 = _dop.E5
+ERR_EXP = -1.0 / 8.0  # -1 / (error estimator order + 1), as SciPy's DOP853
+SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
+
+
+def dense_rhs(rhs: ca.Function) -> ca.Function:
+    """``rhs`` with a dense output.  A structurally zero derivative (e.g. ``dlam_p/dt = 0`` of a
+    double integrator) makes CasADi's generated C write only the non-zeros, which the native
+    driver would read as a dense vector of length ``n_y``."""
+    if rhs.sparsity_out(0).is_dense():
+        return rhs
+    y, t, a = (ca.MX.sym(rhs.name_in(i), rhs.sparsity_in(i)) for i in range(3))
+    return ca.Function(rhs.name(), [y, t, a], [ca.densify(rhs(y, t, a))],
+                       rhs.name_in(), rhs.name_out())
+
+
+def build_step(rhs: ca.Function) -> ca.Function:
+    """One DOP853 step ``(y, f0, t, h, a, rtol, atol) -> (y_new, f_new, err)``.
+
+    ``err`` is SciPy's DOP853 error norm (Hairer's combined 5th/3rd order estimate);
+    a step is accepted when ``err < 1``.  ``h = 0`` returns ``y`` with ``err = 0``.
+    """
+    n_y = rhs.size1_in(0)
+    n_a = rhs.size1_in(2)
+    y = ca.MX.sym("y", n_y)
+    f0 = ca.MX.sym("f0", n_y)
+    t = ca.MX.sym("t")
+    h = ca.MX.sym("h")
+    a = ca.MX.sym("a", n_a)
+    rtol = ca.MX.sym("rtol", n_y)
+    atol = ca.MX.sym("atol", n_y)
+    K = [f0]
+    for s in range(1, _NS):
+        dy = sum(float(_A[s, j]) * K[j] for j in range(s) if _A[s, j] != 0.0)
+        K.append(rhs(y + h * dy, t + float(_C[s]) * h, a))
+    y_new = y + h * sum(float(_B[j]) * K[j] for j in range(_NS))
+    f_new = rhs(y_new, t + h, a)
+    K.append(f_new)
+    scale = atol + ca.fmax(ca.fabs(y), ca.fabs(y_new)) * rtol
+    e5 = sum(float(_E5[j]) * K[j] for j in range(_NS + 1) if _E5[j] != 0.0) / scale
+    e3 = sum(float(_E3[j]) * K[j] for j in range(_NS + 1) if _E3[j] != 0.0) / scale
+    n5 = ca.sumsqr(e5)
+    n3 = ca.sumsqr(e3)
+    denom = ca.fmax(n5 + 0.01 * n3, 1e-300)
+    err = ca.fabs(h) * n5 / ca.sqrt(denom * n_y)
+    y_new, f_new = ca.densify(y_new), ca.densify(f_new)
+    return ca.Function(f"dop853_{rhs.name()}", [y, f0, t, h, a, rtol, atol], [y_new, f_new, err],
+                       ["y", "f0", "t", "h", "a", "rtol", "atol"], ["y_new", "f_new", "err"])
+
+
+DRIVER_SRC = r'''/* Adaptive Dormand-Prince 8(5,3) driver for ocreach.native.integrator.integrate_batch.
  *
  * Included after the CasADi-generated code of STEP (one DOP853 step with error norm, see
- * ocreach.flow._build_step) and RHS.  Loops over samples and steps in C; the step-size
+ * ocreach.native.dop853.build_step) and RHS.  Loops over samples and steps in C; the step-size
  * controller matches SciPy's DOP853 (safety 0.9, factors in [0.2, 10], exponent -1/8) and the
  * initial step follows Hairer's algorithm as SciPy's select_initial_step.
  * Status per sample: 0 ok, 1 max_steps exceeded, 2 step-size underflow, 3 non-finite value.

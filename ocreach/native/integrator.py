@@ -1,0 +1,267 @@
+"""The adaptive batch integrator :func:`integrate_batch` (Dormand-Prince 8(5,3), one step size per sample).
+
+The step Function of :mod:`ocreach.native.dop853` is generated as C together with the driver loop
+over samples and steps, compiled once (:func:`ocreach.native.compile.compile_source`, ``-O2``;
+``-O0`` for sources over 400 kB such as spatial order-3 STTs) and cached on disk, then called
+through ctypes.  Without a compiler (or with ``OCREACH_JIT=0``) the same algorithm runs as a
+NumPy loop over steps, vectorised over samples with ``Function.map``; results agree to round-off,
+only slower.  Neither path has a Python loop over samples.
+"""
+from __future__ import annotations
+
+import ctypes
+import warnings
+
+import casadi as ca
+import numpy as np
+
+from ocreach.errors import ProblemError, SolverError, check_count
+from ocreach.native.codegen import generate_c
+from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library, opt_flags
+from ocreach.native.dop853 import (DRIVER_SRC, ERR_EXP, MAX_FACTOR, MIN_FACTOR, SAFETY, build_step,
+                                   dense_rhs)
+
+__all__ = ["integrate_batch", "stepper"]
+
+class _Stepper:
+    """Everything integrate_batch needs for one rhs: the native C driver (or None) and the
+    CasADi step Function with its mapped versions for the NumPy fallback loop."""
+
+    def __init__(self, rhs: ca.Function):
+        self.source = rhs  # keeps the caller's Function alive (ids in _STEPPERS stay unique)
+        rhs = dense_rhs(rhs)
+        self.rhs = rhs
+        self.step = build_step(rhs)
+        self.native = None
+        self.maps: dict = {}
+        if jit_enabled():
+            try:
+                self.native = self._build_native()
+            except COMPILE_ERRORS as exc:
+                warnings.warn(f"ocreach.native: compiling the DOP853 driver for {rhs.name()} failed "
+                              f"({exc}); falling back to CasADi's VM (same results, slower)",
+                              RuntimeWarning, stacklevel=4)
+        if self.native is None:
+            self.step = self.step.expand()
+
+    def _build_native(self):
+        gen = generate_c([self.step, self.rhs])
+        main = (f"#define STEP {self.step.name()}\n#define RHS {self.rhs.name()}\n"
+                "#include \"gen.c\"\n#include \"driver.c\"\n").encode()
+        flags = opt_flags(len(gen))
+        lib = compile_source(f"ocr_{self.rhs.name()}",
+                              {"gen.c": gen, "driver.c": DRIVER_SRC.encode(), "main.c": main},
+                              "main.c", flags)
+        dll = load_library(lib)
+        fn = dll.ocreach_integrate
+        dp = ctypes.POINTER(ctypes.c_double)
+        fn.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_long, dp, dp, dp, dp, dp, dp,
+                       ctypes.c_long, ctypes.POINTER(ctypes.c_int), dp, ctypes.POINTER(ctypes.c_long)]
+        fn.restype = ctypes.c_int
+        self._dll = dll  # keep the library loaded
+        return fn
+
+    def mapped(self, fun: ca.Function, n: int) -> ca.Function:
+        key = (fun.name(), n)
+        if key not in self.maps:
+            self.maps[key] = fun.map(n, "serial") if n > 1 else fun
+        return self.maps[key]
+
+
+_STEPPERS: dict[int, _Stepper] = {}
+
+
+def stepper(rhs: ca.Function) -> _Stepper:
+    st = _STEPPERS.get(id(rhs))
+    if st is None or st.source is not rhs:  # the stepper keeps rhs alive, so ids stay unique
+        st = _STEPPERS[id(rhs)] = _Stepper(rhs)
+    return st
+
+
+def _as_batch_times(value, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise ProblemError(f"{name} must be a scalar or an array of shape ({n},); got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ProblemError(f"{name} must be finite; got {arr!r}")
+    return arr
+
+
+def _tol_vector(value, n_y: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(n_y, float(arr))
+    if arr.shape != (n_y,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ProblemError(f"{name} must be a finite number >= 0 or an array of {n_y} of them; got {value!r}")
+    return arr
+
+
+def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray | None = None, *,
+                    rtol: float = 1e-10, atol: float = 1e-12, max_steps: int = 100000) -> np.ndarray:
+    """Integrate ``dy/dt = rhs(y, t, a)`` for a batch of samples from ``t0`` to ``t1``.
+
+    Parameters
+    ----------
+    rhs : CasADi Function ``(y (n_y,), t, a (n_a,)) -> ydot (n_y,)``.
+    y0 : initial states, shape ``(N, n_y)``.
+    t0, t1 : scalars or ``(N,)`` arrays; ``t1 < t0`` integrates backward in time.
+    args : ``(N, n_a)`` (or ``(n_a,)`` shared by all samples), constant over ``[t0, t1]``.
+    rtol, atol : tolerances of the error norm (SciPy's DOP853 definition, per component scale
+        ``atol + rtol * max(|y|, |y_new|)``).
+    max_steps : maximum number of attempted steps per sample.
+
+    Returns ``y(t1)`` of shape ``(N, n_y)``.  Dormand-Prince 8(5,3) with per-sample adaptive steps
+    (see module docstring).  Raises :class:`SolverError` naming the failed samples if ``max_steps``
+    is exceeded, the step size underflows or a non-finite value appears.
+    """
+    if not isinstance(rhs, ca.Function) or rhs.n_in() != 3:
+        raise ProblemError(f"rhs must be a casadi.Function (y, t, a) -> ydot; got {rhs!r}")
+    n_y, n_a = rhs.size1_in(0), rhs.size1_in(2)
+    y0 = np.asarray(y0, dtype=float)
+    if y0.ndim != 2 or y0.shape[1] != n_y:
+        raise ProblemError(f"y0 must have shape (N, {n_y}); got {y0.shape}")
+    if not np.all(np.isfinite(y0)):
+        bad = np.flatnonzero(~np.all(np.isfinite(y0), axis=1))
+        raise ProblemError(f"y0 must be finite; samples {bad[:10].tolist()} are not")
+    n = y0.shape[0]
+    if n == 0:
+        return y0.copy()
+    t0 = _as_batch_times(t0, n, "t0")
+    t1 = _as_batch_times(t1, n, "t1")
+    if args is None:
+        args = np.zeros((n, n_a))
+    args = np.asarray(args, dtype=float)
+    if args.ndim == 1 and args.shape == (n_a,):
+        args = np.broadcast_to(args, (n, n_a))
+    if args.shape != (n, n_a):
+        raise ProblemError(f"args must have shape ({n}, {n_a}) or ({n_a},); got {args.shape}")
+    if not np.all(np.isfinite(args)):
+        raise ProblemError("args must be finite")
+    max_steps = check_count("max_steps", max_steps, 1)
+    rtol_v = _tol_vector(rtol, n_y, "rtol")
+    atol_v = _tol_vector(atol, n_y, "atol")
+
+    st = stepper(rhs)
+    if st.native is not None:
+        return _integrate_native(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
+    return _integrate_numpy(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
+
+
+def _fail_message(kind: str, bad: np.ndarray, n: int, t: np.ndarray, t1: np.ndarray) -> str:
+    more = " ..." if bad.size > 10 else ""
+    return (f"integrate_batch: {kind} for samples {bad[:10].tolist()}{more} (of {n}); "
+            f"they stopped at t = {t[bad[:5]].tolist()} of t1 = {t1[bad[:5]].tolist()}")
+
+
+_STATUS = {1: "max_steps exceeded", 2: "step size underflow (stiff or singular dynamics?)",
+           3: "non-finite value of the state or rhs"}
+
+
+def _integrate_native(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
+    n, n_y = y0.shape
+    Y = np.array(y0, dtype=float, order="C", copy=True)
+    A = np.ascontiguousarray(args, dtype=float)
+    t0c, t1c = np.ascontiguousarray(t0), np.ascontiguousarray(t1)
+    status = np.zeros(n, dtype=np.intc)
+    t_reached = np.zeros(n)
+    n_steps = np.zeros(n, dtype=np.int_)
+    dp = ctypes.POINTER(ctypes.c_double)
+
+    def ptr(a):
+        return a.ctypes.data_as(dp)
+
+    rc = st.native(n, n_y, A.shape[1], ptr(Y), ptr(t0c), ptr(t1c), ptr(A), ptr(rtol_v), ptr(atol_v),
+                   max_steps, status.ctypes.data_as(ctypes.POINTER(ctypes.c_int)), ptr(t_reached),
+                   n_steps.ctypes.data_as(ctypes.POINTER(ctypes.c_long)))
+    if rc < 0:
+        raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
+    if rc > 0:
+        msgs = []
+        for code, kind in _STATUS.items():
+            bad = np.flatnonzero(status == code)
+            if bad.size:
+                if code == 1:
+                    kind = f"max_steps = {max_steps} exceeded"
+                msgs.append(_fail_message(kind, bad, n, t_reached, t1))
+        raise SolverError("; ".join(msgs))
+    return Y
+
+
+def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
+    """The same algorithm as the C driver, vectorised over samples in NumPy (fallback)."""
+    n = y0.shape[0]
+    rhs = st.rhs
+    step = st.mapped(st.step, n)
+    rhs_n = st.mapped(rhs, n)
+
+    Y = np.array(y0.T, order="C", copy=True)  # (n_y, N): one column per sample (never alias y0)
+    A = np.ascontiguousarray(args.T)
+    t = t0.copy()
+    direction = np.where(t1 >= t0, 1.0, -1.0)
+    span = np.abs(t1 - t0)
+    done = span == 0.0
+
+    F = rhs_n(Y, t[None, :], A).full()
+    if not np.all(np.isfinite(F)):
+        bad = np.flatnonzero(~np.all(np.isfinite(F), axis=0))
+        raise SolverError(f"integrate_batch: rhs is not finite at the initial state of samples "
+                          f"{bad[:10].tolist()}")
+    # initial step (Hairer's algorithm, as SciPy's select_initial_step), vectorised
+    scale = atol_v[:, None] + np.abs(Y) * rtol_v[:, None]
+    d0 = np.sqrt(np.mean((Y / scale) ** 2, axis=0))
+    d1 = np.sqrt(np.mean((F / scale) ** 2, axis=0))
+    h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / np.maximum(d1, 1e-300))
+    h0 = np.minimum(h0, np.where(span > 0, span, 1.0))
+    Y1 = Y + (h0 * direction)[None, :] * F
+    F1 = rhs_n(Y1, (t + h0 * direction)[None, :], A).full()
+    d2 = np.sqrt(np.mean(((F1 - F) / scale) ** 2, axis=0)) / h0
+    dmax = np.maximum(d1, d2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h1 = np.where(dmax <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dmax) ** (1.0 / 8.0))
+    h_abs = np.minimum(100 * h0, h1)
+    h_abs = np.where(np.isfinite(h_abs), h_abs, 1e-6)
+    rejected = np.zeros(n, dtype=bool)
+
+    steps = 0
+    while not done.all():
+        steps += 1
+        active = ~done
+        if steps > max_steps:
+            bad = np.flatnonzero(active)
+            raise SolverError(f"integrate_batch: max_steps = {max_steps} exceeded for samples "
+                              f"{bad[:10].tolist()}{' ...' if bad.size > 10 else ''} (of {n}); "
+                              f"they reached t = {t[bad[:5]].tolist()} of t1 = {t1[bad[:5]].tolist()}")
+        min_step = 10 * np.abs(np.nextafter(t, t + direction) - t)
+        tiny = active & (h_abs < min_step)
+        if tiny.any():
+            bad = np.flatnonzero(tiny)
+            raise SolverError(f"integrate_batch: step size underflow for samples {bad[:10].tolist()} "
+                              f"at t = {t[bad[:5]].tolist()} (stiff or singular dynamics?)")
+        t_new = t + direction * h_abs
+        last = active & (direction * (t_new - t1) >= 0)
+        t_new = np.where(last, t1, t_new)
+        h = np.where(active, t_new - t, 0.0)
+        Yn, Fn, err = step(Y, F, t[None, :], h[None, :], A, rtol_v, atol_v)
+        Yn, Fn, err = Yn.full(), Fn.full(), err.full().ravel()
+        finite = np.isfinite(err)
+        ok = active & finite & (err < 1.0)
+        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+            fac = SAFETY * err ** ERR_EXP
+        fac_ok = np.where(err == 0.0, MAX_FACTOR, np.minimum(MAX_FACTOR, fac))
+        fac_ok = np.where(rejected, np.minimum(1.0, fac_ok), fac_ok)
+        fac_bad = np.where(finite, np.maximum(MIN_FACTOR, fac), MIN_FACTOR)
+        h_abs = np.where(ok, np.abs(h) * fac_ok, np.where(active, h_abs * fac_bad, h_abs))
+        rejected = np.where(active, ~ok, rejected)
+        Y[:, ok] = Yn[:, ok]
+        F[:, ok] = Fn[:, ok]
+        t = np.where(ok, t_new, t)
+        done = done | (ok & last)
+        if ok.any() and not np.all(np.isfinite(Yn[:, ok])):
+            bad = np.flatnonzero(ok & ~np.all(np.isfinite(Yn), axis=0))
+            raise SolverError(f"integrate_batch: non-finite state for samples {bad[:10].tolist()} "
+                              f"at t = {t[bad[:5]].tolist()}")
+    return Y.T.copy()
+
+
