@@ -135,6 +135,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="ocreach", description="Reachability and optimal control "
                                  "of low-thrust spacecraft (CasADi).")
+    ap.add_argument("--threads", type=int, default=None, metavar="N",
+                    help="threads of the native batch kernels (default: $OCREACH_THREADS or all cores)")
     sub = ap.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list problems and methods").set_defaults(func=cmd_list)
 
@@ -172,7 +174,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        from ocreach import parallel
+
+        with parallel.settings(threads=args.threads):  # and the BLAS limit (ocreach.parallel)
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("interrupted; finished files are kept", file=sys.stderr)
         return 130

@@ -151,22 +151,48 @@ def propagate(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike,
         raise ProblemError(f"substeps must be >= 0; got {substeps}")
     m = max(substeps, 1)
     times = np.concatenate([np.linspace(g[i], g[i + 1], m + 1)[:-1] for i in range(k)] + [g[-1:]])
-    rhs = flow_rhs(model)
     out = np.empty((n, times.size, model.n_x))
     out[:, 0] = X0
-    x = X0
-    for j in range(times.size - 1):
-        seg = j // m
-        args = np.concatenate([U[:, seg], P], axis=1)
-        x = integrate_batch(rhs, x, times[j], times[j + 1], args, rtol=rtol, atol=atol,
-                            max_steps=max_steps)
-        out[:, j + 1] = x
+    _propagate_segments(model, out, U, P, times, m, rtol, atol, max_steps)
     states = out[:, ::m]
     if single:
         states, out = states[0], out[0]
     if substeps > 0:
         return states, times, out
     return states
+
+
+def _propagate_segments(model: Model, out: np.ndarray, U: np.ndarray, P: np.ndarray,
+                        times: np.ndarray, m: int, rtol: float, atol: float, max_steps: int) -> None:
+    """Fill ``out[:, 1:]`` (``out[:, 0]`` holds the initial states) segment by segment.
+
+    Inputs are checked once here, not per segment (one :func:`integrate_inplace` call per segment;
+    the driver flags any non-finite state), and every sample's last step size carries over to the
+    next segment instead of restarting from Hairer's starting-step rule.
+    """
+    from ocreach import parallel
+    from ocreach.errors import check_count
+    from ocreach.native.integrator import _tol_vector, integrate_inplace, stepper
+
+    n = out.shape[0]
+    rhs = flow_rhs(model)
+    st = stepper(rhs)
+    rtol_v = _tol_vector(rtol, model.n_x, "rtol")
+    atol_v = _tol_vector(atol, model.n_x, "atol")
+    max_steps = int(check_count("max_steps", max_steps, 1))
+    threads = parallel.threads()
+    h = np.zeros(n)
+    t0 = np.empty(n)
+    t1 = np.empty(n)
+    args = np.empty((n, model.n_u + model.n_p))
+    args[:, model.n_u:] = P
+    x = np.array(out[:, 0], order="C")
+    for j in range(times.size - 1):
+        args[:, :model.n_u] = U[:, j // m]
+        t0.fill(times[j])
+        t1.fill(times[j + 1])
+        integrate_inplace(st, x, t0, t1, args, rtol_v, atol_v, max_steps, h, threads)
+        out[:, j + 1] = x
 
 
 # --------------------------------------------------------------------------- STT

@@ -76,6 +76,8 @@ DRIVER_SRC = r'''/* Adaptive Dormand-Prince 8(5,3) driver for ocreach.native.int
  * controller matches SciPy's DOP853 (safety 0.9, factors in [0.2, 10], exponent -1/8) and the
  * initial step follows Hairer's algorithm as SciPy's select_initial_step.
  * Status per sample: 0 ok, 1 max_steps exceeded, 2 step-size underflow, 3 non-finite value.
+ * H[s] > 0 on entry is the first step size to try (instead of Hairer's rule); on a sample's
+ * last step H[s] gets the step size the controller proposed before clipping it to t1.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -98,7 +100,7 @@ static double ocr_rms(const double* v, const double* scale, long n) {
 CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, const double* T0,
                                            const double* T1, const double* A, const double* rtol,
                                            const double* atol, long max_steps, int* status,
-                                           double* t_reached, long* n_steps) {
+                                           double* t_reached, long* n_steps, double* H) {
   casadi_int sa, sr, si, sw, sa2, sr2, si2, sw2;
   OCR_CAT(STEP, _work)(&sa, &sr, &si, &sw);
   OCR_CAT(RHS, _work)(&sa2, &sr2, &si2, &sw2);
@@ -127,9 +129,14 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
     arg[0] = y; arg[1] = &t; arg[2] = a; res[0] = f;
     RHS(arg, res, iw, w, 0);
     if (!ocr_all_finite(f, ny)) { status[s] = 3; ++n_fail; continue; }
+    double span = fabs(t1 - t);
+    if (H[s] > 0.0) {  /* the caller's guess (the last proposal of the previous segment) */
+      h_abs = H[s] < span ? H[s] : span;
+      goto stepping;
+    }
     /* initial step (Hairer, Norsett & Wanner II.4) */
     for (long i = 0; i < ny; ++i) sc[i] = atol[i] + fabs(y[i]) * rtol[i];
-    double d0 = ocr_rms(y, sc, ny), d1 = ocr_rms(f, sc, ny), span = fabs(t1 - t);
+    double d0 = ocr_rms(y, sc, ny), d1 = ocr_rms(f, sc, ny);
     double h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
     if (h0 > span) h0 = span;
     double th = t + dir * h0;
@@ -142,13 +149,14 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
     else h1 = pow(0.01 / dm, 1.0 / 8.0);
     h_abs = (100 * h0 < h1) ? 100 * h0 : h1;
     if (!isfinite(h_abs)) h_abs = 1e-6;
+  stepping:
     for (;;) {
       if (++steps > max_steps) { status[s] = 1; break; }
       double min_step = 10 * fabs(nextafter(t, dir * INFINITY) - t);
       if (h_abs < min_step) { status[s] = 2; break; }
       double t_new = t + dir * h_abs;
       int last = dir * (t_new - t1) >= 0;
-      if (last) t_new = t1;
+      if (last) { t_new = t1; H[s] = h_abs; }
       double h = t_new - t;
       arg[0] = y; arg[1] = f; arg[2] = &t; arg[3] = &h; arg[4] = a; arg[5] = rtol; arg[6] = atol;
       res[0] = yn; res[1] = fn; res[2] = &err;
@@ -176,6 +184,167 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
     if (status[s]) ++n_fail;
   }
   free(arg); free(res); free(iw); free(w); free(buf);
+  return n_fail;
+}
+'''
+
+
+DRIVER_LANES_SRC = r'''/* The same adaptive DOP853 driver with OCR_W samples in SIMD lanes.
+ *
+ * Included after the scalar CasADi code of RHS (initial step of each sample) and the lane code
+ * LSTEP of the step Function (ocreach.native.lanes: inputs y, f0, t, h, a, rtol, atol and outputs
+ * y_new, f_new, err, each component-major (n, OCR_W)).  Every lane has its own sample, time, step
+ * size and accept/reject history; a lane whose sample is done takes the next one from the
+ * queue, so the lanes stay busy until the batch runs dry (idle lanes step with h = 0).  The
+ * per-sample arithmetic and controller are the scalar driver's, so results do not depend on the
+ * lane a sample ran in.  Status per sample as the scalar driver.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define OCR_CAT2(a, b) a##b
+#define OCR_CAT(a, b) OCR_CAT2(a, b)
+
+typedef struct {
+  long s;          /* sample index, -1 if idle */
+  double t, t1, dir, h_abs, t_new;
+  long steps;
+  int rejected, last;
+} ocr_lane;
+
+static double ocr_rms_l(const double* v, const double* scale, long n) {
+  double s = 0.0;
+  for (long i = 0; i < n; ++i) { double q = v[i] / scale[i]; s += q * q; }
+  return sqrt(s / (double)n);
+}
+
+CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, const double* T0,
+                                           const double* T1, const double* A, const double* rtol,
+                                           const double* atol, long max_steps, int* status,
+                                           double* t_reached, long* n_steps, double* H) {
+  const long W = OCR_W;
+  casadi_int sa, sr, si, sw;
+  OCR_CAT(RHS, _work)(&sa, &sr, &si, &sw);
+  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + 8));
+  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + 8));
+  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
+  casadi_real* w = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
+  long nbuf = W * (4 * ny + 2 * ny + na + ny + 3) + 5 * ny;
+  double* buf = (double*)calloc(nbuf, sizeof(double));
+  ocr_lane* lane = (ocr_lane*)calloc(W, sizeof(ocr_lane));
+  if (!arg || !res || !iw || !w || !buf || !lane) {
+    free(arg); free(res); free(iw); free(w); free(buf); free(lane); return -1;
+  }
+  double *Ly = buf, *Lf = Ly + W * ny, *Lyn = Lf + W * ny, *Lfn = Lyn + W * ny;
+  double *Lrt = Lfn + W * ny, *Lat = Lrt + W * ny, *La = Lat + W * ny, *Lt = La + W * na;
+  double *Lh = Lt + W, *Lerr = Lh + W;
+  double *y = Lerr + W, *f = y + ny, *sc = f + ny, *y1 = sc + ny, *f1 = y1 + ny;
+  for (long i = 0; i < ny; ++i)
+    for (long l = 0; l < W; ++l) { Lrt[i * W + l] = rtol[i]; Lat[i * W + l] = atol[i]; }
+  const double* lin[7] = {Ly, Lf, Lt, Lh, La, Lrt, Lat};
+  double* lout[3] = {Lyn, Lfn, Lerr};
+  long next = 0, active = 0;
+  int n_fail = 0;
+  for (long l = 0; l < W; ++l) lane[l].s = -1;
+  for (;;) {
+    /* fill idle lanes from the queue (initial derivative and step as the scalar driver) */
+    for (long l = 0; l < W; ++l) {
+      while (lane[l].s < 0 && next < N) {
+        long s = next++;
+        double t = T0[s], t1 = T1[s];
+        const double* a = A + s * na;
+        status[s] = 0; n_steps[s] = 0; t_reached[s] = t;
+        if (t == t1) continue;
+        double dir = (t1 >= t) ? 1.0 : -1.0, span = fabs(t1 - t), h_abs;
+        memcpy(y, Y + s * ny, sizeof(double) * ny);
+        arg[0] = y; arg[1] = &t; arg[2] = a; res[0] = f;
+        RHS(arg, res, iw, w, 0);
+        int ok = 1;
+        for (long i = 0; i < ny; ++i) ok &= isfinite(f[i]) ? 1 : 0;
+        if (!ok) { status[s] = 3; ++n_fail; continue; }
+        if (H[s] > 0.0) { h_abs = H[s] < span ? H[s] : span; goto start; }
+        for (long i = 0; i < ny; ++i) sc[i] = atol[i] + fabs(y[i]) * rtol[i];
+        double d0 = ocr_rms_l(y, sc, ny), d1 = ocr_rms_l(f, sc, ny);
+        double h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
+        if (h0 > span) h0 = span;
+        double th = t + dir * h0;
+        for (long i = 0; i < ny; ++i) y1[i] = y[i] + dir * h0 * f[i];
+        arg[0] = y1; arg[1] = &th; arg[2] = a; res[0] = f1;
+        RHS(arg, res, iw, w, 0);
+        for (long i = 0; i < ny; ++i) y1[i] = f1[i] - f[i];
+        double d2 = ocr_rms_l(y1, sc, ny) / h0, dm = d1 > d2 ? d1 : d2, h1;
+        if (dm <= 1e-15) h1 = (1e-6 > h0 * 1e-3) ? 1e-6 : h0 * 1e-3;
+        else h1 = pow(0.01 / dm, 1.0 / 8.0);
+        h_abs = (100 * h0 < h1) ? 100 * h0 : h1;
+        if (!isfinite(h_abs)) h_abs = 1e-6;
+      start:;
+        ocr_lane* L = lane + l;
+        L->s = s; L->t = t; L->t1 = t1; L->dir = dir; L->h_abs = h_abs; L->steps = 0;
+        L->rejected = 0;
+        for (long i = 0; i < ny; ++i) { Ly[i * W + l] = y[i]; Lf[i * W + l] = f[i]; }
+        for (long i = 0; i < na; ++i) La[i * W + l] = a[i];
+        ++active;
+      }
+    }
+    if (active == 0) break;
+    /* step sizes of the busy lanes; a lane that fails here is finished and refilled next round */
+    for (long l = 0; l < W; ++l) {
+      ocr_lane* L = lane + l;
+      Lh[l] = 0.0;
+      if (L->s < 0) continue;
+      int st = 0;
+      if (++L->steps > max_steps) st = 1;
+      else if (L->h_abs < 10 * fabs(nextafter(L->t, L->dir * INFINITY) - L->t)) st = 2;
+      if (st) {
+        long s = L->s;
+        status[s] = st; ++n_fail;
+        for (long i = 0; i < ny; ++i) Y[s * ny + i] = Ly[i * W + l];
+        t_reached[s] = L->t; n_steps[s] = L->steps; L->s = -1; --active;
+        continue;
+      }
+      double t_new = L->t + L->dir * L->h_abs;
+      L->last = L->dir * (t_new - L->t1) >= 0;
+      if (L->last) { t_new = L->t1; H[L->s] = L->h_abs; }
+      L->t_new = t_new;
+      Lt[l] = L->t;
+      Lh[l] = t_new - L->t;
+    }
+    LSTEP(lin, lout);
+    for (long l = 0; l < W; ++l) {
+      ocr_lane* L = lane + l;
+      if (L->s < 0) continue;
+      double err = Lerr[l], h = Lh[l];
+      if (isfinite(err) && err < 1.0) {
+        double fac = (err == 0.0) ? 10.0 : 0.9 * pow(err, -1.0 / 8.0);
+        if (fac > 10.0) fac = 10.0;
+        if (L->rejected && fac > 1.0) fac = 1.0;
+        L->h_abs = fabs(h) * fac;
+        L->rejected = 0;
+        int ok = 1;
+        for (long i = 0; i < ny; ++i) ok &= isfinite(Lyn[i * W + l]) ? 1 : 0;
+        long s = L->s;
+        if (!ok) {
+          status[s] = 3; ++n_fail;
+          for (long i = 0; i < ny; ++i) Y[s * ny + i] = Ly[i * W + l];
+          t_reached[s] = L->t; n_steps[s] = L->steps; L->s = -1; --active;
+          continue;
+        }
+        for (long i = 0; i < ny; ++i) { Ly[i * W + l] = Lyn[i * W + l]; Lf[i * W + l] = Lfn[i * W + l]; }
+        L->t = L->t_new;
+        if (L->last) {
+          for (long i = 0; i < ny; ++i) Y[s * ny + i] = Ly[i * W + l];
+          t_reached[s] = L->t; n_steps[s] = L->steps; L->s = -1; --active;
+        }
+      } else {
+        double fac = isfinite(err) ? 0.9 * pow(err, -1.0 / 8.0) : 0.2;
+        if (fac < 0.2) fac = 0.2;
+        L->h_abs *= fac;
+        L->rejected = 1;
+      }
+    }
+  }
+  free(arg); free(res); free(iw); free(w); free(buf); free(lane);
   return n_fail;
 }
 '''

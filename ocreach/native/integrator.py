@@ -10,18 +10,30 @@ only slower.  Neither path has a Python loop over samples.
 from __future__ import annotations
 
 import ctypes
+import functools
+import os
+import threading
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 
 import casadi as ca
 import numpy as np
 
+from ocreach import parallel
 from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.native.codegen import generate_c
 from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library, opt_flags
-from ocreach.native.dop853 import (DRIVER_SRC, ERR_EXP, MAX_FACTOR, MIN_FACTOR, SAFETY, build_step,
-                                   dense_rhs)
+from ocreach.native.dop853 import (DRIVER_LANES_SRC, DRIVER_SRC, ERR_EXP, MAX_FACTOR, MIN_FACTOR,
+                                   SAFETY, build_step, dense_rhs)
+from ocreach.native.lanes import LANE_FLAGS, LaneCodegenError, lane_source
 
-__all__ = ["integrate_batch", "stepper"]
+#: samples per SIMD step of the native driver (``OCREACH_LANES`` overrides; 1 = scalar driver)
+LANES = 8
+#: larger expanded steps (STT right-hand sides) use the scalar driver: their lane code would be
+#: slow to generate and compile, and their cost is the rhs, not the per-sample overhead
+MAX_LANE_INSTRUCTIONS = 20000
+
+__all__ = ["integrate_batch", "integrate_inplace", "stepper"]
 
 class _Stepper:
     """Everything integrate_batch needs for one rhs: the native C driver (or None) and the
@@ -34,6 +46,8 @@ class _Stepper:
         self.step = build_step(rhs)
         self.native = None
         self.maps: dict = {}
+        self._sx: ca.Function | None = None
+        self.lane_width = 1  # samples per SIMD step of the native driver (1: scalar driver)
         if jit_enabled():
             try:
                 self.native = self._build_native()
@@ -45,18 +59,49 @@ class _Stepper:
             self.step = self.step.expand()
 
     def _build_native(self):
+        lanes = self._lane_width()
+        if lanes > 1:
+            try:
+                fn = self._load(*self._lane_sources(lanes))
+                self.lane_width = lanes
+                return fn
+            except LaneCodegenError:
+                pass  # an operation without a lane form: the scalar driver below
         gen = generate_c([self.step, self.rhs])
         main = (f"#define STEP {self.step.name()}\n#define RHS {self.rhs.name()}\n"
                 "#include \"gen.c\"\n#include \"driver.c\"\n").encode()
-        flags = opt_flags(len(gen))
-        lib = compile_source(f"ocr_{self.rhs.name()}",
-                              {"gen.c": gen, "driver.c": DRIVER_SRC.encode(), "main.c": main},
-                              "main.c", flags)
+        return self._load({"gen.c": gen, "driver.c": DRIVER_SRC.encode(), "main.c": main},
+                          opt_flags(len(gen)))
+
+    def _lane_width(self) -> int:
+        """SIMD lanes for this step (1 = the scalar driver): ``OCREACH_LANES`` or 8, and 1 for
+        steps too large to unroll into lane code (STT right-hand sides)."""
+        width = int(os.environ.get("OCREACH_LANES", LANES))
+        return width if width > 1 and self._sx_size() <= MAX_LANE_INSTRUCTIONS else 1
+
+    def _sx_size(self) -> int:
+        if self._sx is None:
+            try:
+                self._sx = self.step.expand()
+            except RuntimeError:  # not expandable to SX (an MX-only operation): scalar driver
+                return MAX_LANE_INSTRUCTIONS + 1
+        return self._sx.n_instructions()
+
+    def _lane_sources(self, width: int) -> tuple[dict[str, bytes], tuple[str, ...]]:
+        lane = lane_source(self._sx, "ocr_lstep", width)
+        main = (f"#define RHS {self.rhs.name()}\n#define OCR_W {width}\n#define LSTEP ocr_lstep\n"
+                "#define LSTEP_SZW 0\n"
+                "#include \"gen.c\"\n#include \"lanes.c\"\n#include \"driver.c\"\n").encode()
+        return ({"gen.c": generate_c([self.rhs]), "lanes.c": lane.encode(),
+                 "driver.c": DRIVER_LANES_SRC.encode(), "main.c": main}, LANE_FLAGS)
+
+    def _load(self, sources: dict[str, bytes], flags: tuple[str, ...]):
+        lib = compile_source(f"ocr_{self.rhs.name()}", sources, "main.c", flags)
         dll = load_library(lib)
         fn = dll.ocreach_integrate
-        dp = ctypes.POINTER(ctypes.c_double)
-        fn.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_long, dp, dp, dp, dp, dp, dp,
-                       ctypes.c_long, ctypes.POINTER(ctypes.c_int), dp, ctypes.POINTER(ctypes.c_long)]
+        vp = ctypes.c_void_p  # addresses passed as ints: cheaper than ctypes pointer casts
+        fn.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_long, vp, vp, vp, vp, vp, vp,
+                       ctypes.c_long, vp, vp, vp, vp]
         fn.restype = ctypes.c_int
         self._dll = dll  # keep the library loaded
         return fn
@@ -90,16 +135,29 @@ def _as_batch_times(value, n: int, name: str) -> np.ndarray:
 
 
 def _tol_vector(value, n_y: int, name: str) -> np.ndarray:
+    if isinstance(value, float | int) and not isinstance(value, bool):
+        return _tol_scalar(float(value), n_y, name)
     arr = np.asarray(value, dtype=float)
     if arr.ndim == 0:
-        arr = np.full(n_y, float(arr))
+        return _tol_scalar(float(arr), n_y, name)
     if arr.shape != (n_y,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ProblemError(f"{name} must be a finite number >= 0 or an array of {n_y} of them; got {value!r}")
+    return np.ascontiguousarray(arr)
+
+
+@functools.lru_cache(maxsize=64)
+def _tol_scalar(value: float, n_y: int, name: str) -> np.ndarray:
+    """Tolerance vector of a scalar tolerance, built once per (value, size) (read-only)."""
+    if not (np.isfinite(value) and value >= 0):
+        raise ProblemError(f"{name} must be a finite number >= 0 or an array of {n_y} of them; got {value!r}")
+    arr = np.full(n_y, value)
+    arr.flags.writeable = False
     return arr
 
 
 def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray | None = None, *,
-                    rtol: float = 1e-10, atol: float = 1e-12, max_steps: int = 100000) -> np.ndarray:
+                    rtol: float = 1e-10, atol: float = 1e-12, max_steps: int = 100000,
+                    h_init: np.ndarray | None = None, threads: int | None = None) -> np.ndarray:
     """Integrate ``dy/dt = rhs(y, t, a)`` for a batch of samples from ``t0`` to ``t1``.
 
     Parameters
@@ -111,6 +169,13 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
     rtol, atol : tolerances of the error norm (SciPy's DOP853 definition, per component scale
         ``atol + rtol * max(|y|, |y_new|)``).
     max_steps : maximum number of attempted steps per sample.
+    h_init : optional ``(N,)`` float array, read and written: entries > 0 are the first step size
+        to try (instead of Hairer's starting-step rule); on return every integrated sample's entry
+        is the step size the controller proposed for its last step.  Passing the same array to
+        consecutive segments (as :func:`ocreach.flow.propagate` does) continues each sample's
+        step-size sequence across segment boundaries.
+    threads : split the batch over this many threads (default :func:`ocreach.parallel.threads`);
+        results are identical for every thread count.
 
     Returns ``y(t1)`` of shape ``(N, n_y)``.  Dormand-Prince 8(5,3) with per-sample adaptive steps
     (see module docstring).  Raises :class:`SolverError` naming the failed samples if ``max_steps``
@@ -122,7 +187,7 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
     y0 = np.asarray(y0, dtype=float)
     if y0.ndim != 2 or y0.shape[1] != n_y:
         raise ProblemError(f"y0 must have shape (N, {n_y}); got {y0.shape}")
-    if not np.all(np.isfinite(y0)):
+    if not np.isfinite(y0).all():
         bad = np.flatnonzero(~np.all(np.isfinite(y0), axis=1))
         raise ProblemError(f"y0 must be finite; samples {bad[:10].tolist()} are not")
     n = y0.shape[0]
@@ -137,16 +202,32 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
         args = np.broadcast_to(args, (n, n_a))
     if args.shape != (n, n_a):
         raise ProblemError(f"args must have shape ({n}, {n_a}) or ({n_a},); got {args.shape}")
-    if not np.all(np.isfinite(args)):
+    if not np.isfinite(args).all():
         raise ProblemError("args must be finite")
     max_steps = check_count("max_steps", max_steps, 1)
     rtol_v = _tol_vector(rtol, n_y, "rtol")
     atol_v = _tol_vector(atol, n_y, "atol")
+    if h_init is not None and (not isinstance(h_init, np.ndarray) or h_init.shape != (n,)
+                               or h_init.dtype != np.float64 or not h_init.flags.c_contiguous):
+        raise ProblemError(f"h_init must be a C-contiguous float64 array of shape ({n},); got "
+                           f"{getattr(h_init, 'shape', type(h_init).__name__)}")
+    n_threads = parallel.threads() if threads is None else check_count("threads", threads, 1)
+    Y = np.array(y0, dtype=float, order="C", copy=True)
+    integrate_inplace(stepper(rhs), Y, t0, t1, args, rtol_v, atol_v, int(max_steps),
+                      h_init, n_threads)
+    return Y
 
-    st = stepper(rhs)
-    if st.native is not None:
-        return _integrate_native(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
-    return _integrate_numpy(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
+
+def integrate_inplace(st: _Stepper, Y: np.ndarray, t0: np.ndarray, t1: np.ndarray,
+                      args: np.ndarray, rtol_v: np.ndarray, atol_v: np.ndarray, max_steps: int,
+                      h_init: np.ndarray | None = None, threads: int = 1) -> None:
+    """:func:`integrate_batch` without the argument checks, on validated inputs: ``Y`` (N, n_y)
+    C-contiguous float64 is advanced in place.  For callers that validated once and integrate
+    many segments (``propagate``)."""
+    if st.native is None:
+        Y[:] = _integrate_numpy(st, Y, t0, t1, args, rtol_v, atol_v, max_steps, h_init)
+        return
+    _integrate_native(st, Y, t0, t1, args, rtol_v, atol_v, max_steps, h_init, threads)
 
 
 def _fail_message(kind: str, bad: np.ndarray, n: int, t: np.ndarray, t1: np.ndarray) -> str:
@@ -158,26 +239,51 @@ def _fail_message(kind: str, bad: np.ndarray, n: int, t: np.ndarray, t1: np.ndar
 _STATUS = {1: "max_steps exceeded", 2: "step size underflow (stiff or singular dynamics?)",
            3: "non-finite value of the state or rhs"}
 
+#: a batch is split over threads only in parts of at least ``max(2, THREAD_WORK // n_y)``
+#: samples (a thread costs ~50 us; a 4-state sample segment ~1 us, an order-2 STT one ~50 us)
+THREAD_WORK = 1024
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
 
-def _integrate_native(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
-    n, n_y = y0.shape
-    Y = np.array(y0, dtype=float, order="C", copy=True)
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None or _POOL._max_workers < n:
+            _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="ocreach-native")
+        return _POOL
+
+
+def _integrate_native(st: _Stepper, Y, t0, t1, args, rtol_v, atol_v, max_steps, h_init,
+                      threads) -> None:
+    n, n_y = Y.shape
     A = np.ascontiguousarray(args, dtype=float)
     t0c, t1c = np.ascontiguousarray(t0), np.ascontiguousarray(t1)
     status = np.zeros(n, dtype=np.intc)
-    t_reached = np.zeros(n)
-    n_steps = np.zeros(n, dtype=np.int_)
-    dp = ctypes.POINTER(ctypes.c_double)
+    t_reached = np.empty(n)
+    n_steps = np.empty(n, dtype=np.int_)
+    H = np.zeros(n) if h_init is None else h_init
+    na = A.shape[1]
+    parts = min(int(threads), max(1, n // max(2, THREAD_WORK // n_y)))
+    cuts = [n * i // parts for i in range(parts + 1)]
+    fn = st.native
+    # base addresses once (each ``.ctypes`` access builds an object); part a starts a rows later
+    base = [(arr.ctypes.data, arr.strides[0]) for arr in
+            (Y, t0c, t1c, A, status, t_reached, n_steps, H)]
+    tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
 
-    def ptr(a):
-        return a.ctypes.data_as(dp)
+    def run(a: int, b: int) -> int:
+        y, ta, tb, aa, stt, tr, ns, hh = (adr + a * stride for adr, stride in base)
+        return fn(b - a, n_y, na, y, ta, tb, aa, *tol, max_steps, stt, tr, ns, hh)
 
-    rc = st.native(n, n_y, A.shape[1], ptr(Y), ptr(t0c), ptr(t1c), ptr(A), ptr(rtol_v), ptr(atol_v),
-                   max_steps, status.ctypes.data_as(ctypes.POINTER(ctypes.c_int)), ptr(t_reached),
-                   n_steps.ctypes.data_as(ctypes.POINTER(ctypes.c_long)))
-    if rc < 0:
+    if parts == 1:
+        rcs = [run(0, n)]
+    else:  # the C loop runs without the GIL (ctypes releases it): one contiguous part per thread
+        futures = [_pool(parts).submit(run, a, b) for a, b in zip(cuts[:-1], cuts[1:])]
+        rcs = [f.result() for f in futures]
+    if min(rcs) < 0:
         raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
-    if rc > 0:
+    if max(rcs) > 0:
         msgs = []
         for code, kind in _STATUS.items():
             bad = np.flatnonzero(status == code)
@@ -186,10 +292,10 @@ def _integrate_native(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps)
                     kind = f"max_steps = {max_steps} exceeded"
                 msgs.append(_fail_message(kind, bad, n, t_reached, t1))
         raise SolverError("; ".join(msgs))
-    return Y
 
 
-def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
+def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps,
+                     h_init=None) -> np.ndarray:
     """The same algorithm as the C driver, vectorised over samples in NumPy (fallback)."""
     n = y0.shape[0]
     rhs = st.rhs
@@ -222,6 +328,8 @@ def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) 
         h1 = np.where(dmax <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dmax) ** (1.0 / 8.0))
     h_abs = np.minimum(100 * h0, h1)
     h_abs = np.where(np.isfinite(h_abs), h_abs, 1e-6)
+    if h_init is not None:  # the caller's first step sizes, as the C driver
+        h_abs = np.where(h_init > 0, np.minimum(h_init, span), h_abs)
     rejected = np.zeros(n, dtype=bool)
 
     steps = 0
@@ -241,6 +349,8 @@ def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) 
                               f"at t = {t[bad[:5]].tolist()} (stiff or singular dynamics?)")
         t_new = t + direction * h_abs
         last = active & (direction * (t_new - t1) >= 0)
+        if h_init is not None:
+            h_init[last] = h_abs[last]
         t_new = np.where(last, t1, t_new)
         h = np.where(active, t_new - t, 0.0)
         Yn, Fn, err = step(Y, F, t[None, :], h[None, :], A, rtol_v, atol_v)
