@@ -193,10 +193,15 @@ def _raise_nonfinite(X: np.ndarray, samples: int, grid: np.ndarray, k: int) -> N
                       f"non-finite at t = {grid[k]:g} (step {k}); first {bad[:10].tolist()}")
 
 
-def time_indices(grid: np.ndarray, times: Sequence[float] | None) -> np.ndarray:
-    """Grid indices of ``times`` (each must be a grid time to 1e-9 relative); all if ``None``."""
-    if times is None:
+def time_indices(grid: np.ndarray, times: Sequence[float] | str | None) -> np.ndarray:
+    """Grid indices of ``times`` (each must be a grid time to 1e-9 relative); ``"all"``: every
+    grid index; ``None``: the final one."""
+    if isinstance(times, str):
+        if times != "all":
+            raise ProblemError(f"times must be grid times, None (the final time) or 'all'; got {times!r}")
         return np.arange(grid.size)
+    if times is None:
+        return np.array([grid.size - 1])
     t = np.atleast_1d(np.asarray(times, dtype=float))
     span = max(abs(grid[-1] - grid[0]), 1e-300)
     idx = np.abs(grid[None, :] - t[:, None]).argmin(axis=1)
@@ -207,8 +212,13 @@ def time_indices(grid: np.ndarray, times: Sequence[float] | None) -> np.ndarray:
     return idx
 
 
+#: bound on the standard normals drawn at once (doubles): the Monte Carlo's working memory is
+#: O(samples * n) plus this, whatever the horizon
+_DRAW_BLOCK = 1 << 21
+
+
 def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
-                           times: Sequence[float] | None = None, *, step: str = "euler",
+                           times: Sequence[float] | str | None = None, *, step: str = "euler",
                            keep_controls: bool = False, rtol: float = 1e-8,
                            atol: float = 1e-10) -> dict[str, Any]:
     """Monte Carlo of Jain et al.'s stochastic system (their ground truth, 10,000 samples).
@@ -219,11 +229,16 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
     continuous model over each segment with :func:`ocreach.flow.integrate_batch` (DOP853, ``rtol``,
     ``atol``) to measure the discretisation error.  Vectorised over samples.
 
-    Returns a dict: ``times`` (T,), ``index`` (grid indices), ``mean``, ``std`` (T, n) at the
-    requested ``times`` (default: every grid time; each must be a grid time), ``trajectories``
-    (samples, T, n), ``grid_mean``, ``grid_std`` (K+1, n) on the whole grid, ``samples``,
-    ``seed``, ``step``, and ``controls`` (samples, K, n_u) if ``keep_controls``.  Memory of
-    ``trajectories`` is ``samples * T * n * 8`` bytes: pass ``times`` for long grids.
+    Only what is asked for is kept: the sample mean and std at every grid time (``grid_mean``,
+    ``grid_std``, (K+1, n)), the samples at ``times`` (default ``None``: the final time only; a
+    list of grid times; ``"all"`` for full state histories) and the sampled controls only with
+    ``keep_controls``.  Memory is ``samples * (T n + [K m]) * 8`` bytes for what is kept plus
+    O(samples * n) working memory (the normals are drawn in blocks of at most ~16 MB; the random
+    stream is the same as one ``(samples, m)`` draw per step).
+
+    Returns a dict: ``times`` (T,), ``index`` (grid indices), ``mean``, ``std`` (T, n) at
+    ``times``, ``trajectories`` (samples, T, n), ``grid_mean``, ``grid_std``, ``samples``,
+    ``seed``, ``step``, and ``controls`` (samples, K, n_u) if ``keep_controls``.
     Raises :class:`SolverError` if a sample becomes non-finite.
     """
     samples = check_count("samples", samples, 2)
@@ -260,10 +275,12 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
     record(0, X)
     kern = mc_kernel(sm) if step == "euler" else None
     if kern is not None:
-        # blocks of <= 64 steps ending at every recorded index: one C call per block, controls
-        # drawn per block (the same random stream as one (samples, m) draw per step)
+        # blocks of <= 64 steps (fewer for large batches) ending at every recorded index: one C
+        # call per block, controls drawn per block (the same random stream as one (samples, m)
+        # draw per step)
         X = np.ascontiguousarray(X)
-        stops = sorted(set(range(64, K, 64)) | {int(k) for k in idx if 0 < k < K} | {K})
+        block = int(max(1, min(64, _DRAW_BLOCK // max(1, samples * m))))
+        stops = sorted(set(range(block, K, block)) | {int(k) for k in idx if 0 < k < K} | {K})
         k0 = 0
         for k1 in stops:
             Z = rng.standard_normal((k1 - k0, samples, m))
