@@ -150,10 +150,11 @@ def propagate(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike,
     if substeps < 0:
         raise ProblemError(f"substeps must be >= 0; got {substeps}")
     m = max(substeps, 1)
-    times = np.concatenate([np.linspace(g[i], g[i + 1], m + 1)[:-1] for i in range(k)] + [g[-1:]])
-    out = np.empty((n, times.size, model.n_x))
-    out[:, 0] = X0
-    _propagate_segments(model, out, U, P, times, m, rtol, atol, max_steps)
+    if m == 1:
+        times = g.copy()
+    else:
+        times = np.concatenate([np.linspace(g[i], g[i + 1], m + 1)[:-1] for i in range(k)] + [g[-1:]])
+    out = _propagate_segments(model, X0, U, P, times, m, rtol, atol, max_steps)
     states = out[:, ::m]
     if single:
         states, out = states[0], out[0]
@@ -162,37 +163,34 @@ def propagate(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike,
     return states
 
 
-def _propagate_segments(model: Model, out: np.ndarray, U: np.ndarray, P: np.ndarray,
-                        times: np.ndarray, m: int, rtol: float, atol: float, max_steps: int) -> None:
-    """Fill ``out[:, 1:]`` (``out[:, 0]`` holds the initial states) segment by segment.
+def _propagate_segments(model: Model, X0: np.ndarray, U: np.ndarray, P: np.ndarray,
+                        times: np.ndarray, m: int, rtol: float, atol: float,
+                        max_steps: int) -> np.ndarray:
+    """States ``(N, len(times), n_x)`` from ``X0`` under ``U[:, j // m]`` on ``[times[j], times[j+1]]``.
 
-    Inputs are checked once here, not per segment (one :func:`integrate_inplace` call per segment;
-    the driver flags any non-finite state), and every sample's last step size carries over to the
-    next segment instead of restarting from Hairer's starting-step rule.
+    Inputs are checked once here, not per segment (one :class:`~ocreach.native.integrator.Batch`
+    run per segment; the driver flags any non-finite state), and every sample's last step size
+    carries over to the next segment instead of restarting from Hairer's starting-step rule.
     """
     from ocreach import parallel
     from ocreach.errors import check_count
-    from ocreach.native.integrator import _tol_vector, integrate_inplace, stepper
+    from ocreach.native.integrator import Batch, stepper, tol_vector
 
-    n = out.shape[0]
-    rhs = flow_rhs(model)
-    st = stepper(rhs)
-    rtol_v = _tol_vector(rtol, model.n_x, "rtol")
-    atol_v = _tol_vector(atol, model.n_x, "atol")
-    max_steps = int(check_count("max_steps", max_steps, 1))
-    threads = parallel.threads()
-    h = np.zeros(n)
-    t0 = np.empty(n)
-    t1 = np.empty(n)
-    args = np.empty((n, model.n_u + model.n_p))
-    args[:, model.n_u:] = P
-    x = np.array(out[:, 0], order="C")
+    nu = model.n_u
+    batch = Batch(stepper(flow_rhs(model)), np.array(X0, dtype=float, order="C"), nu + model.n_p,
+                  tol_vector(rtol, model.n_x, "rtol"), tol_vector(atol, model.n_x, "atol"),
+                  int(check_count("max_steps", max_steps, 1)), parallel.threads())
+    batch.A[:, nu:] = P
+    Ut = np.ascontiguousarray(np.moveaxis(U, 1, 0))  # (K, N, n_u): one contiguous block per segment
+    out = np.empty((times.size,) + batch.Y.shape)  # time-major while filling (contiguous copies)
+    out[0] = batch.Y
     for j in range(times.size - 1):
-        args[:, :model.n_u] = U[:, j // m]
-        t0.fill(times[j])
-        t1.fill(times[j + 1])
-        integrate_inplace(st, x, t0, t1, args, rtol_v, atol_v, max_steps, h, threads)
-        out[:, j + 1] = x
+        batch.A[:, :nu] = Ut[j // m]
+        batch.t0.fill(times[j])
+        batch.t1.fill(times[j + 1])
+        batch.run()
+        out[j + 1] = batch.Y
+    return np.ascontiguousarray(np.moveaxis(out, 0, 1))
 
 
 # --------------------------------------------------------------------------- STT

@@ -23,7 +23,7 @@ from ocreach import parallel
 from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.native.codegen import generate_c
 from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library, opt_flags
-from ocreach.native.dop853 import (DRIVER_LANES_SRC, DRIVER_SRC, ERR_EXP, MAX_FACTOR, MIN_FACTOR,
+from ocreach.native.dop853 import (DRIVER_LANES_SRC, DRIVER_SRC, MAX_FACTOR, MIN_FACTOR,
                                    SAFETY, build_step, dense_rhs)
 from ocreach.native.lanes import LANE_FLAGS, LaneCodegenError, lane_source
 
@@ -33,7 +33,7 @@ LANES = 8
 #: slow to generate and compile, and their cost is the rhs, not the per-sample overhead
 MAX_LANE_INSTRUCTIONS = 20000
 
-__all__ = ["integrate_batch", "integrate_inplace", "stepper"]
+__all__ = ["Batch", "integrate_batch", "stepper", "tol_vector"]
 
 class _Stepper:
     """Everything integrate_batch needs for one rhs: the native C driver (or None) and the
@@ -134,7 +134,8 @@ def _as_batch_times(value, n: int, name: str) -> np.ndarray:
     return arr
 
 
-def _tol_vector(value, n_y: int, name: str) -> np.ndarray:
+def tol_vector(value, n_y: int, name: str) -> np.ndarray:
+    """``rtol`` or ``atol`` as a vector of ``n_y`` (scalars: one cached read-only vector)."""
     if isinstance(value, float | int) and not isinstance(value, bool):
         return _tol_scalar(float(value), n_y, name)
     arr = np.asarray(value, dtype=float)
@@ -205,29 +206,18 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
     if not np.isfinite(args).all():
         raise ProblemError("args must be finite")
     max_steps = check_count("max_steps", max_steps, 1)
-    rtol_v = _tol_vector(rtol, n_y, "rtol")
-    atol_v = _tol_vector(atol, n_y, "atol")
+    rtol_v = tol_vector(rtol, n_y, "rtol")
+    atol_v = tol_vector(atol, n_y, "atol")
     if h_init is not None and (not isinstance(h_init, np.ndarray) or h_init.shape != (n,)
                                or h_init.dtype != np.float64 or not h_init.flags.c_contiguous):
         raise ProblemError(f"h_init must be a C-contiguous float64 array of shape ({n},); got "
                            f"{getattr(h_init, 'shape', type(h_init).__name__)}")
     n_threads = parallel.threads() if threads is None else check_count("threads", threads, 1)
-    Y = np.array(y0, dtype=float, order="C", copy=True)
-    integrate_inplace(stepper(rhs), Y, t0, t1, args, rtol_v, atol_v, int(max_steps),
-                      h_init, n_threads)
-    return Y
-
-
-def integrate_inplace(st: _Stepper, Y: np.ndarray, t0: np.ndarray, t1: np.ndarray,
-                      args: np.ndarray, rtol_v: np.ndarray, atol_v: np.ndarray, max_steps: int,
-                      h_init: np.ndarray | None = None, threads: int = 1) -> None:
-    """:func:`integrate_batch` without the argument checks, on validated inputs: ``Y`` (N, n_y)
-    C-contiguous float64 is advanced in place.  For callers that validated once and integrate
-    many segments (``propagate``)."""
-    if st.native is None:
-        Y[:] = _integrate_numpy(st, Y, t0, t1, args, rtol_v, atol_v, max_steps, h_init)
-        return
-    _integrate_native(st, Y, t0, t1, args, rtol_v, atol_v, max_steps, h_init, threads)
+    batch = Batch(stepper(rhs), np.array(y0, dtype=float, order="C", copy=True), n_a, rtol_v,
+                  atol_v, int(max_steps), n_threads, h_init)
+    batch.t0[:], batch.t1[:], batch.A[:] = t0, t1, args
+    batch.run()
+    return batch.Y
 
 
 def _fail_message(kind: str, bad: np.ndarray, n: int, t: np.ndarray, t1: np.ndarray) -> str:
@@ -254,44 +244,62 @@ def _pool(n: int) -> ThreadPoolExecutor:
         return _POOL
 
 
-def _integrate_native(st: _Stepper, Y, t0, t1, args, rtol_v, atol_v, max_steps, h_init,
-                      threads) -> None:
-    n, n_y = Y.shape
-    A = np.ascontiguousarray(args, dtype=float)
-    t0c, t1c = np.ascontiguousarray(t0), np.ascontiguousarray(t1)
-    status = np.zeros(n, dtype=np.intc)
-    t_reached = np.empty(n)
-    n_steps = np.empty(n, dtype=np.int_)
-    H = np.zeros(n) if h_init is None else h_init
-    na = A.shape[1]
-    parts = min(int(threads), max(1, n // max(2, THREAD_WORK // n_y)))
-    cuts = [n * i // parts for i in range(parts + 1)]
-    fn = st.native
-    # base addresses once (each ``.ctypes`` access builds an object); part a starts a rows later
-    base = [(arr.ctypes.data, arr.strides[0]) for arr in
-            (Y, t0c, t1c, A, status, t_reached, n_steps, H)]
-    tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
+class Batch:
+    """The arrays of one batch integration, allocated once and re-used over many segments.
 
-    def run(a: int, b: int) -> int:
-        y, ta, tb, aa, stt, tr, ns, hh = (adr + a * stride for adr, stride in base)
-        return fn(b - a, n_y, na, y, ta, tb, aa, *tol, max_steps, stt, tr, ns, hh)
+    ``Y`` (N, n_y) C-contiguous is advanced in place by :meth:`run` from ``t0`` to ``t1`` (N,)
+    with constant arguments ``A`` (N, n_a); the caller fills ``t0``, ``t1``, ``A`` (validated
+    values: :func:`integrate_batch` checks them, :func:`ocreach.flow.propagate` checks its inputs
+    once).  ``H`` carries each sample's step size from one run to the next.  The native call
+    gets plain addresses computed here once, so a segment costs one ctypes call per thread.
+    """
 
-    if parts == 1:
-        rcs = [run(0, n)]
-    else:  # the C loop runs without the GIL (ctypes releases it): one contiguous part per thread
-        futures = [_pool(parts).submit(run, a, b) for a, b in zip(cuts[:-1], cuts[1:])]
-        rcs = [f.result() for f in futures]
-    if min(rcs) < 0:
-        raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
-    if max(rcs) > 0:
-        msgs = []
-        for code, kind in _STATUS.items():
-            bad = np.flatnonzero(status == code)
-            if bad.size:
-                if code == 1:
-                    kind = f"max_steps = {max_steps} exceeded"
-                msgs.append(_fail_message(kind, bad, n, t_reached, t1))
-        raise SolverError("; ".join(msgs))
+    def __init__(self, st: _Stepper, Y: np.ndarray, n_a: int, rtol_v: np.ndarray,
+                 atol_v: np.ndarray, max_steps: int, threads: int = 1,
+                 H: np.ndarray | None = None):
+        n, n_y = Y.shape
+        self.st, self.Y, self.rtol_v, self.atol_v, self.max_steps = st, Y, rtol_v, atol_v, max_steps
+        self.t0, self.t1 = np.zeros(n), np.zeros(n)
+        self.A = np.zeros((n, n_a))
+        self.H = np.zeros(n) if H is None else H
+        self.status = np.zeros(n, dtype=np.intc)
+        self.t_reached = np.zeros(n)
+        self.n_steps = np.zeros(n, dtype=np.int_)
+        parts = min(int(threads), max(1, n // max(2, THREAD_WORK // n_y)))
+        cuts = [n * i // parts for i in range(parts + 1)]
+        arrays = (Y, self.t0, self.t1, self.A, self.status, self.t_reached, self.n_steps, self.H)
+        base = [(arr.ctypes.data, arr.strides[0]) for arr in arrays]
+        tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
+        self._calls = []
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            y, ta, tb, aa, stt, tr, ns, hh = (adr + a * stride for adr, stride in base)
+            self._calls.append((b - a, n_y, n_a, y, ta, tb, aa, *tol, max_steps, stt, tr, ns, hh))
+
+    def run(self) -> None:
+        """Integrate every sample from ``t0`` to ``t1`` (raises :class:`SolverError` naming the
+        samples that failed)."""
+        st = self.st
+        if st.native is None:
+            self.Y[:] = _integrate_numpy(st, self.Y, self.t0, self.t1, self.A, self.rtol_v,
+                                         self.atol_v, self.max_steps, self.H)
+            return
+        fn = st.native
+        if len(self._calls) == 1:
+            rcs = [fn(*self._calls[0])]
+        else:  # the C loop runs without the GIL (ctypes releases it): one part per thread
+            pool = _pool(len(self._calls))
+            rcs = [f.result() for f in [pool.submit(fn, *c) for c in self._calls]]
+        if min(rcs) < 0:
+            raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
+        if max(rcs) > 0:
+            msgs = []
+            for code, kind in _STATUS.items():
+                bad = np.flatnonzero(self.status == code)
+                if bad.size:
+                    if code == 1:
+                        kind = f"max_steps = {self.max_steps} exceeded"
+                    msgs.append(_fail_message(kind, bad, self.Y.shape[0], self.t_reached, self.t1))
+            raise SolverError("; ".join(msgs))
 
 
 def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps,
@@ -358,7 +366,7 @@ def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps,
         finite = np.isfinite(err)
         ok = active & finite & (err < 1.0)
         with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-            fac = SAFETY * err ** ERR_EXP
+            fac = SAFETY / np.sqrt(np.sqrt(np.sqrt(err)))  # err ** ERR_EXP as the C driver
         fac_ok = np.where(err == 0.0, MAX_FACTOR, np.minimum(MAX_FACTOR, fac))
         fac_ok = np.where(rejected, np.minimum(1.0, fac_ok), fac_ok)
         fac_bad = np.where(finite, np.maximum(MIN_FACTOR, fac), MIN_FACTOR)
