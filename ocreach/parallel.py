@@ -25,12 +25,14 @@ from collections.abc import Iterator
 
 from ocreach.errors import ProblemError, check_count
 
-__all__ = ["blas_limit", "blas_info", "default_threads", "set_threads", "settings", "threads"]
+__all__ = ["blas_default", "blas_info", "blas_limit", "default_threads", "env_count", "set_threads",
+           "settings", "threads"]
 
 _state = threading.local()
 
 
-def _env_count(name: str) -> int | None:
+def env_count(name: str) -> int | None:
+    """The integer >= 1 in environment variable ``name``, None if unset (ProblemError if bad)."""
     raw = os.environ.get(name)
     if raw is None or raw == "":
         return None
@@ -49,7 +51,7 @@ def _check(name: str, value) -> int:
 
 def default_threads() -> int:
     """``$OCREACH_THREADS`` or the number of cores available to this process."""
-    env = _env_count("OCREACH_THREADS")
+    env = env_count("OCREACH_THREADS")
     if env is not None:
         return env
     try:
@@ -72,7 +74,7 @@ def set_threads(value: int | None) -> None:
 
 def blas_default() -> int:
     """``$OCREACH_BLAS_THREADS`` or 1 (see the module docstring)."""
-    env = _env_count("OCREACH_BLAS_THREADS")
+    env = env_count("OCREACH_BLAS_THREADS")
     return 1 if env is None else env
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import os
 import threading
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -34,6 +33,7 @@ LANES = 8
 MAX_LANE_INSTRUCTIONS = 20000
 
 __all__ = ["Batch", "integrate_batch", "stepper", "tol_vector"]
+
 
 class _Stepper:
     """Everything integrate_batch needs for one rhs: the native C driver (or None) and the
@@ -76,11 +76,17 @@ class _Stepper:
     def _lane_width(self) -> int:
         """SIMD lanes for this step (1 = the scalar driver): ``OCREACH_LANES`` or 8, and 1 for
         steps too large to unroll into lane code (STT right-hand sides)."""
-        width = int(os.environ.get("OCREACH_LANES", LANES))
+        width = parallel.env_count("OCREACH_LANES")
+        width = LANES if width is None else width
         return width if width > 1 and self._sx_size() <= MAX_LANE_INSTRUCTIONS else 1
 
     def _sx_size(self) -> int:
+        """Instructions of the step as one SX Function (expanded only when the rhs is small)."""
         if self._sx is None:
+            rhs = self.source
+            n_rhs = rhs.n_instructions() if rhs.is_a("SXFunction") else 0
+            if 13 * n_rhs > MAX_LANE_INSTRUCTIONS:  # 12 stages + the final derivative
+                return MAX_LANE_INSTRUCTIONS + 1
             try:
                 self._sx = self.step.expand()
             except RuntimeError:  # not expandable to SX (an MX-only operation): scalar driver
@@ -90,7 +96,6 @@ class _Stepper:
     def _lane_sources(self, width: int) -> tuple[dict[str, bytes], tuple[str, ...]]:
         lane = lane_source(self._sx, "ocr_lstep", width)
         main = (f"#define RHS {self.rhs.name()}\n#define OCR_W {width}\n#define LSTEP ocr_lstep\n"
-                "#define LSTEP_SZW 0\n"
                 "#include \"gen.c\"\n#include \"lanes.c\"\n#include \"driver.c\"\n").encode()
         return ({"gen.c": generate_c([self.rhs]), "lanes.c": lane.encode(),
                  "driver.c": DRIVER_LANES_SRC.encode(), "main.c": main}, LANE_FLAGS)
@@ -117,6 +122,7 @@ _STEPPERS: dict[int, _Stepper] = {}
 
 
 def stepper(rhs: ca.Function) -> _Stepper:
+    """The compiled (or NumPy-fallback) DOP853 stepper of ``rhs``, built once per Function."""
     st = _STEPPERS.get(id(rhs))
     if st is None or st.source is not rhs:  # the stepper keeps rhs alive, so ids stay unique
         st = _STEPPERS[id(rhs)] = _Stepper(rhs)
