@@ -273,8 +273,11 @@ measurement, which would put ocreach at about 0.6x heyoka's batch 64, but that w
 measured on this machine.  heyoka's JIT time is small here because it caches compiled systems
 within the process (the first build of this system took ~0.5 s earlier).  The "limit lifted" row
 did not reproduce the 2-5x slowdown issue #16 reports for 2-thread OpenBLAS under contention
-(the machine was already oversubscribed by other work); the default environment is within the
-1.3x target of single-threaded BLAS in every run.
+(the machine was already oversubscribed by other work).  Default environment / single-threaded
+BLAS over three runs of this benchmark: 0.76 (load 16), 1.58 (load 15) and 0.98 (load 2.4);
+at load 15-16 a single `stt` run took 5-8 s instead of 0.6 s and the spread swamps the ratio.
+In one process at load 2, threadpoolctl reported 1 BLAS thread inside `reach()` and the default
+environment ran `stt` on `dro` in 0.58-0.64 s against 0.76-0.79 s with `OPENBLAS_NUM_THREADS=1`.
 """
 
 
