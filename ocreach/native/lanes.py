@@ -74,7 +74,6 @@ LANE_FLAGS = LANE_FLAGS_BASE + _cpu_flags()
 _PRELUDE = r"""
 #include <math.h>
 #include <string.h>
-typedef double ocr_v __attribute__((vector_size(8 * OCR_LW)));
 typedef long long ocr_m __attribute__((vector_size(8 * OCR_LW)));
 #define OCR_ABSMASK 0x7fffffffffffffffLL
 static inline ocr_v ocr_sel(ocr_m m, ocr_v a, ocr_v b) {
@@ -118,11 +117,9 @@ def lane_source(fun: ca.Function, name: str, width: int) -> str:
         fun = fun.expand()
     W = int(width)
     bc = ", ".join(["c"] * W)
-    lines = [f"#define OCR_LW {W}", "typedef double ocr_v_ __attribute__((vector_size(8 * OCR_LW)));",
-             f"static inline ocr_v_ ocr_bc(double c) {{ return (ocr_v_){{{bc}}}; }}",
-             _PRELUDE.replace("typedef double ocr_v __attribute__((vector_size(8 * OCR_LW)));",
-                              "typedef ocr_v_ ocr_v;"),
-             f"static void {name}(const double** in, double** out) {{"]
+    lines = [f"#define OCR_LW {W}", "typedef double ocr_v __attribute__((vector_size(8 * OCR_LW)));",
+             f"static inline ocr_v ocr_bc(double c) {{ return (ocr_v){{{bc}}}; }}",  # broadcast
+             _PRELUDE, f"static void {name}(const double** in, double** out) {{"]
     if fun.sz_w():
         lines.append("  ocr_v " + ", ".join(f"w{i}" for i in range(fun.sz_w())) + ";")
     const: dict[int, float] = {}
