@@ -39,7 +39,9 @@ def timed(fun, repeat: int) -> tuple[float, object]:
 
 
 # ----------------------------------------------------------------------------- DRO batch
-def bench_dro(n: int = 1000, n_scipy: int = 50) -> dict:
+def dro_case(n: int) -> tuple:
+    """The DRO batch: ``(mu, a_max, model, x0, grid, U (n, K, 2), X0 (n, 4))``, random controls
+    in the unit disk (seed 0), grid 0:0.1:3 (also used by bench_speed.py)."""
     mu = 0.0122
     a_max = 1.1e-3 / 14 / (3.825e8 / 3.724e5**2)
     model = cr3bp(mu, planar=True, a_max=a_max)
@@ -50,7 +52,12 @@ def bench_dro(n: int = 1000, n_scipy: int = 50) -> dict:
     ang = rng.uniform(0, 2 * np.pi, (n, k))
     rad = np.sqrt(rng.uniform(0, 1, (n, k)))
     U = np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
-    X0 = np.tile(x0, (n, 1))
+    return mu, a_max, model, x0, grid, U, np.tile(x0, (n, 1))
+
+
+def bench_dro(n: int = 1000, n_scipy: int = 50) -> dict:
+    mu, a_max, model, x0, grid, U, X0 = dro_case(n)
+    k = grid.size - 1
 
     t_first = time.perf_counter()
     propagate(model, X0[:2], U[:2], grid, rtol=RTOL, atol=ATOL)  # compile / load once

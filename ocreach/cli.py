@@ -358,6 +358,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="ocreach", description="Reachability and optimal control "
                  "of low-thrust spacecraft (CasADi).")
+    ap.add_argument("--threads", type=int, default=None, metavar="N",
+                    help="threads of the native batch kernels (default: $OCREACH_THREADS or all cores)")
     sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
     ls = sub.add_parser("list", help="list problems, methods and which methods apply to each problem")
     ls.add_argument("--why", action="store_true", help="say why a method does not apply")
@@ -423,7 +425,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         command = args.command
-        return int(args.func(args) or 0)
+        from ocreach import parallel
+
+        with parallel.settings(threads=args.threads):  # and the BLAS limit (ocreach.parallel)
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:  # run/compare handle their own output folders before this
         print(_interrupted_elsewhere(command), file=sys.stderr)
         return 130

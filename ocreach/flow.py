@@ -2,17 +2,13 @@
 
 Integrator
 ----------
-:func:`integrate_batch` is an explicit adaptive Runge-Kutta integrator for batches: the
-Dormand-Prince 8(5,3) pair (Hairer, Norsett & Wanner, *Solving ODEs I*, Sec. II.10) with SciPy's
-``DOP853`` tableau, error norm, step-size controller and initial-step rule, and one step size per
-sample.  One step (12 stages, FSAL derivative, error norm) is a single CasADi Function built from
-the right-hand side; it is generated as C together with a small C driver loop over samples and
-steps (:mod:`ocreach._dop853_driver`), compiled once with the system C compiler (``cc -O2``; ``-O0`` for
-sources over 400 kB such as spatial order-3 STTs, see :func:`_opt_flags`) and
-cached on disk (``$OCREACH_CACHE_DIR`` or ``~/.cache/ocreach/jit``, keyed by a hash of the
-source), then called through ctypes.  Without a compiler (or with ``OCREACH_JIT=0``) the same
-algorithm runs as a NumPy loop over steps, vectorised over samples with ``Function.map``; results
-agree to round-off, only slower.  Neither path has a Python loop over samples.
+:func:`integrate_batch` (:mod:`ocreach.native.integrator`, re-exported here) is an explicit
+adaptive Runge-Kutta integrator for batches: the Dormand-Prince 8(5,3) pair (Hairer, Norsett &
+Wanner, *Solving ODEs I*, Sec. II.10) with SciPy's ``DOP853`` tableau, error norm, step-size
+controller and initial-step rule, and one step size per sample, generated as C from the
+right-hand side and cached on disk (see :mod:`ocreach.native`).  Without a compiler (or with
+``OCREACH_JIT=0``) the same algorithm runs as a NumPy loop over steps; results agree to
+round-off, only slower.
 
 Why not CVODES: its default BDF/Newton is a poor fit for non-stiff orbits.  CVODES Adams with
 functional iteration (reltol 1e-10, interpreted right-hand side) took ~49 ms for the order-2 STT
@@ -40,439 +36,21 @@ one :func:`integrate_batch` call as K independent samples.
 """
 from __future__ import annotations
 
-import hashlib
 import itertools
-import os
-import shutil
-import subprocess
-import tempfile
-import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.integrate._ivp import dop853_coefficients as _dop
 
-from ocreach._dop853_driver import DRIVER_SRC
-from ocreach.errors import ProblemError, SolverError, check_count
+from ocreach.errors import ProblemError
 from ocreach.model import Model
+# the compiled-code machinery lives in ocreach.native; these names stay importable from here
+from ocreach.native import (COMPILE_ERRORS, c_identifier, cache_dir, compile_function,  # noqa: F401
+                            compile_source, generate_c, jit_enabled)
+from ocreach.native.integrator import integrate_batch
 
 __all__ = ["STTResult", "flow_rhs", "integrate_batch", "propagate", "stm", "stt", "stt_rhs"]
-
-# --------------------------------------------------------------------------- DOP853 constants
-_NS = _dop.N_STAGES  # 12
-_A = _dop.A[:_NS, :_NS]
-_B = _dop.B
-_C = _dop.C[:_NS]
-_E3 = _dop.E3
-_E5 = _dop.E5
-_ERR_EXP = -1.0 / 8.0  # -1 / (error estimator order + 1), as SciPy's DOP853
-_SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0
-
-
-# --------------------------------------------------------------------------- C compilation
-#: What a failed C build raises (no compiler or a failing one: RuntimeError; unwritable cache or a
-#: library that will not load: OSError).  Callers fall back to CasADi's VM or NumPy on these and
-#: only these, so a programming error in a kernel builder is not hidden behind a warning.
-COMPILE_ERRORS: tuple[type[BaseException], ...] = (RuntimeError, OSError)
-
-def c_identifier(name: str) -> str:
-    """``name`` with every non-alphanumeric character replaced by ``_`` (``"anon"`` if empty), for
-    the names of generated C functions."""
-    return "".join(c if c.isalnum() else "_" for c in name) or "anon"
-
-
-def _jit_enabled() -> bool:
-    return os.environ.get("OCREACH_JIT", "1") not in ("0", "false", "no")
-
-
-def _cache_dir() -> Path:
-    root = os.environ.get("OCREACH_CACHE_DIR")
-    return Path(root) if root else Path.home() / ".cache" / "ocreach" / "jit"
-
-
-def _compile_source(name: str, sources: dict[str, bytes], main: str, flags: tuple[str, ...]) -> Path:
-    """Compile ``sources`` (file name -> text; ``main`` is the translation unit) into a shared
-    library cached on disk under a hash of the sources and flags; return its path."""
-    digest = hashlib.sha256()
-    for key in sorted(sources):
-        digest.update(key.encode() + b"\0" + sources[key] + b"\0")
-    digest.update(" ".join(flags).encode())
-    cache = _cache_dir()
-    cache.mkdir(parents=True, exist_ok=True)
-    lib = cache / f"{name}_{digest.hexdigest()[:20]}.so"
-    if lib.exists():
-        return lib
-    cc = shutil.which(os.environ.get("CC", "cc")) or shutil.which("gcc")
-    if cc is None:
-        raise RuntimeError("no C compiler found (set CC)")
-    with tempfile.TemporaryDirectory() as tmp:
-        for key, text in sources.items():
-            Path(tmp, key).write_bytes(text)
-        out = Path(tmp, "lib.so")
-        proc = subprocess.run([cc, *flags, "-shared", "-fPIC", "-o", str(out), str(Path(tmp, main)),
-                               "-lm"], capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise RuntimeError(f"{cc} failed: {proc.stderr[-2000:]}")
-        part = lib.with_name(f"{lib.name}.{os.getpid()}.part")
-        shutil.copyfile(out, part)
-        os.replace(part, lib)
-    return lib
-
-
-def _codegen(funs: list[ca.Function]) -> bytes:
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = ca.CodeGenerator("gen.c", {"with_header": False})
-        for fun in funs:
-            cg.add(fun)
-        cg.generate(tmp + os.sep)
-        return Path(tmp, "gen.c").read_bytes()
-
-
-# Public names of the C-compilation helpers, for modules that generate their own kernels
-# (ocreach.stochastic_mc, ocreach.reach.cut_kernel, the CUT rule cache of ocreach.quadrature).
-def jit_enabled() -> bool:
-    """True unless C compilation is switched off (environment ``OCREACH_JIT=0``)."""
-    return _jit_enabled()
-
-
-def cache_dir() -> Path:
-    """Directory of the on-disk cache of compiled libraries (``OCREACH_CACHE_DIR`` or
-    ``~/.cache/ocreach/jit``)."""
-    return _cache_dir()
-
-
-def compile_source(name: str, sources: dict[str, bytes], main: str, flags: tuple[str, ...]) -> Path:
-    """Compile C ``sources`` (file name -> bytes; ``main`` is the translation unit) into a shared
-    library cached on disk by a hash of sources and flags; returns its path."""
-    return _compile_source(name, sources, main, flags)
-
-
-def generate_c(funs: list[ca.Function]) -> bytes:
-    """C source (no header) of the CasADi Functions ``funs``, from CasADi's code generator."""
-    return _codegen(funs)
-
-
-def compile_function(fun: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.Function:
-    """Compile ``fun`` to C (cached on disk by source hash) and load it as a CasADi external.
-
-    Returns ``fun`` unchanged (with a warning) if compilation is disabled or fails.
-    """
-    if not _jit_enabled():
-        return fun
-    try:
-        lib = _compile_source(fun.name(), {"gen.c": _codegen([fun])}, "gen.c", flags)
-        return ca.external(fun.name(), str(lib))
-    except COMPILE_ERRORS as exc:  # compiler missing or failing: the VM gives the same numbers
-        warnings.warn(f"ocreach.flow: compiling {fun.name()} failed ({exc}); "
-                      "using CasADi's interpreted VM instead", RuntimeWarning, stacklevel=3)
-        return fun
-
-
-# --------------------------------------------------------------------------- step functions
-def _dense_rhs(rhs: ca.Function) -> ca.Function:
-    """``rhs`` with a dense output.  A structurally zero derivative (e.g. ``dlam_p/dt = 0`` of a
-    double integrator) makes CasADi's generated C write only the non-zeros, which the native
-    driver would read as a dense vector of length ``n_y``."""
-    if rhs.sparsity_out(0).is_dense():
-        return rhs
-    y, t, a = (ca.MX.sym(rhs.name_in(i), rhs.sparsity_in(i)) for i in range(3))
-    return ca.Function(rhs.name(), [y, t, a], [ca.densify(rhs(y, t, a))],
-                       rhs.name_in(), rhs.name_out())
-
-
-def _build_step(rhs: ca.Function) -> ca.Function:
-    """One DOP853 step ``(y, f0, t, h, a, rtol, atol) -> (y_new, f_new, err)``.
-
-    ``err`` is SciPy's DOP853 error norm (Hairer's combined 5th/3rd order estimate);
-    a step is accepted when ``err < 1``.  ``h = 0`` returns ``y`` with ``err = 0``.
-    """
-    n_y = rhs.size1_in(0)
-    n_a = rhs.size1_in(2)
-    y = ca.MX.sym("y", n_y)
-    f0 = ca.MX.sym("f0", n_y)
-    t = ca.MX.sym("t")
-    h = ca.MX.sym("h")
-    a = ca.MX.sym("a", n_a)
-    rtol = ca.MX.sym("rtol", n_y)
-    atol = ca.MX.sym("atol", n_y)
-    K = [f0]
-    for s in range(1, _NS):
-        dy = sum(float(_A[s, j]) * K[j] for j in range(s) if _A[s, j] != 0.0)
-        K.append(rhs(y + h * dy, t + float(_C[s]) * h, a))
-    y_new = y + h * sum(float(_B[j]) * K[j] for j in range(_NS))
-    f_new = rhs(y_new, t + h, a)
-    K.append(f_new)
-    scale = atol + ca.fmax(ca.fabs(y), ca.fabs(y_new)) * rtol
-    e5 = sum(float(_E5[j]) * K[j] for j in range(_NS + 1) if _E5[j] != 0.0) / scale
-    e3 = sum(float(_E3[j]) * K[j] for j in range(_NS + 1) if _E3[j] != 0.0) / scale
-    n5 = ca.sumsqr(e5)
-    n3 = ca.sumsqr(e3)
-    denom = ca.fmax(n5 + 0.01 * n3, 1e-300)
-    err = ca.fabs(h) * n5 / ca.sqrt(denom * n_y)
-    y_new, f_new = ca.densify(y_new), ca.densify(f_new)
-    return ca.Function(f"dop853_{rhs.name()}", [y, f0, t, h, a, rtol, atol], [y_new, f_new, err],
-                       ["y", "f0", "t", "h", "a", "rtol", "atol"], ["y_new", "f_new", "err"])
-
-
-def _opt_flags(source_size: int) -> tuple[str, ...]:
-    """Optimisation level: ``-O2`` for ordinary sources; huge generated sources (order-3 STTs of
-    the spatial CR3BP, ~1.5 MB of straight-line C) take minutes at -O1/-O2, so they get ``-O0``
-    (seconds).  ``OCREACH_JIT_FLAGS`` overrides (space separated)."""
-    env = os.environ.get("OCREACH_JIT_FLAGS")
-    if env:
-        return tuple(env.split())
-    return ("-O0",) if source_size > 400_000 else ("-O2",)
-
-
-class _Stepper:
-    """Everything integrate_batch needs for one rhs: the native C driver (or None) and the
-    CasADi step Function with its mapped versions for the NumPy fallback loop."""
-
-    def __init__(self, rhs: ca.Function):
-        self.source = rhs  # keeps the caller's Function alive (ids in _STEPPERS stay unique)
-        rhs = _dense_rhs(rhs)
-        self.rhs = rhs
-        self.step = _build_step(rhs)
-        self.native = None
-        self.maps: dict = {}
-        if _jit_enabled():
-            try:
-                self.native = self._build_native()
-            except COMPILE_ERRORS as exc:
-                warnings.warn(f"ocreach.flow: compiling the DOP853 driver for {rhs.name()} failed "
-                              f"({exc}); falling back to CasADi's VM (same results, slower)",
-                              RuntimeWarning, stacklevel=4)
-        if self.native is None:
-            self.step = self.step.expand()
-
-    def _build_native(self):
-        import ctypes
-
-        gen = _codegen([self.step, self.rhs])
-        main = (f"#define STEP {self.step.name()}\n#define RHS {self.rhs.name()}\n"
-                "#include \"gen.c\"\n#include \"driver.c\"\n").encode()
-        flags = _opt_flags(len(gen))
-        lib = _compile_source(f"ocr_{self.rhs.name()}",
-                              {"gen.c": gen, "driver.c": DRIVER_SRC.encode(), "main.c": main},
-                              "main.c", flags)
-        dll = ctypes.CDLL(str(lib))
-        fn = dll.ocreach_integrate
-        dp = ctypes.POINTER(ctypes.c_double)
-        fn.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_long, dp, dp, dp, dp, dp, dp,
-                       ctypes.c_long, ctypes.POINTER(ctypes.c_int), dp, ctypes.POINTER(ctypes.c_long)]
-        fn.restype = ctypes.c_int
-        self._dll = dll  # keep the library loaded
-        return fn
-
-    def mapped(self, fun: ca.Function, n: int) -> ca.Function:
-        key = (fun.name(), n)
-        if key not in self.maps:
-            self.maps[key] = fun.map(n, "serial") if n > 1 else fun
-        return self.maps[key]
-
-
-_STEPPERS: dict[int, _Stepper] = {}
-
-
-def _stepper(rhs: ca.Function) -> _Stepper:
-    st = _STEPPERS.get(id(rhs))
-    if st is None or st.source is not rhs:  # the stepper keeps rhs alive, so ids stay unique
-        st = _STEPPERS[id(rhs)] = _Stepper(rhs)
-    return st
-
-
-# --------------------------------------------------------------------------- integrate_batch
-def _as_batch_times(value, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    if arr.shape != (n,):
-        raise ProblemError(f"{name} must be a scalar or an array of shape ({n},); got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ProblemError(f"{name} must be finite; got {arr!r}")
-    return arr
-
-
-def _tol_vector(value, n_y: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(n_y, float(arr))
-    if arr.shape != (n_y,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise ProblemError(f"{name} must be a finite number >= 0 or an array of {n_y} of them; got {value!r}")
-    return arr
-
-
-def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray | None = None, *,
-                    rtol: float = 1e-10, atol: float = 1e-12, max_steps: int = 100000) -> np.ndarray:
-    """Integrate ``dy/dt = rhs(y, t, a)`` for a batch of samples from ``t0`` to ``t1``.
-
-    Parameters
-    ----------
-    rhs : CasADi Function ``(y (n_y,), t, a (n_a,)) -> ydot (n_y,)``.
-    y0 : initial states, shape ``(N, n_y)``.
-    t0, t1 : scalars or ``(N,)`` arrays; ``t1 < t0`` integrates backward in time.
-    args : ``(N, n_a)`` (or ``(n_a,)`` shared by all samples), constant over ``[t0, t1]``.
-    rtol, atol : tolerances of the error norm (SciPy's DOP853 definition, per component scale
-        ``atol + rtol * max(|y|, |y_new|)``).
-    max_steps : maximum number of attempted steps per sample.
-
-    Returns ``y(t1)`` of shape ``(N, n_y)``.  Dormand-Prince 8(5,3) with per-sample adaptive steps
-    (see module docstring).  Raises :class:`SolverError` naming the failed samples if ``max_steps``
-    is exceeded, the step size underflows or a non-finite value appears.
-    """
-    if not isinstance(rhs, ca.Function) or rhs.n_in() != 3:
-        raise ProblemError(f"rhs must be a casadi.Function (y, t, a) -> ydot; got {rhs!r}")
-    n_y, n_a = rhs.size1_in(0), rhs.size1_in(2)
-    y0 = np.asarray(y0, dtype=float)
-    if y0.ndim != 2 or y0.shape[1] != n_y:
-        raise ProblemError(f"y0 must have shape (N, {n_y}); got {y0.shape}")
-    if not np.all(np.isfinite(y0)):
-        bad = np.flatnonzero(~np.all(np.isfinite(y0), axis=1))
-        raise ProblemError(f"y0 must be finite; samples {bad[:10].tolist()} are not")
-    n = y0.shape[0]
-    if n == 0:
-        return y0.copy()
-    t0 = _as_batch_times(t0, n, "t0")
-    t1 = _as_batch_times(t1, n, "t1")
-    if args is None:
-        args = np.zeros((n, n_a))
-    args = np.asarray(args, dtype=float)
-    if args.ndim == 1 and args.shape == (n_a,):
-        args = np.broadcast_to(args, (n, n_a))
-    if args.shape != (n, n_a):
-        raise ProblemError(f"args must have shape ({n}, {n_a}) or ({n_a},); got {args.shape}")
-    if not np.all(np.isfinite(args)):
-        raise ProblemError("args must be finite")
-    max_steps = check_count("max_steps", max_steps, 1)
-    rtol_v = _tol_vector(rtol, n_y, "rtol")
-    atol_v = _tol_vector(atol, n_y, "atol")
-
-    st = _stepper(rhs)
-    if st.native is not None:
-        return _integrate_native(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
-    return _integrate_numpy(st, y0, t0, t1, args, rtol_v, atol_v, int(max_steps))
-
-
-def _fail_message(kind: str, bad: np.ndarray, n: int, t: np.ndarray, t1: np.ndarray) -> str:
-    more = " ..." if bad.size > 10 else ""
-    return (f"integrate_batch: {kind} for samples {bad[:10].tolist()}{more} (of {n}); "
-            f"they stopped at t = {t[bad[:5]].tolist()} of t1 = {t1[bad[:5]].tolist()}")
-
-
-_STATUS = {1: "max_steps exceeded", 2: "step size underflow (stiff or singular dynamics?)",
-           3: "non-finite value of the state or rhs"}
-
-
-def _integrate_native(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
-    import ctypes
-
-    n, n_y = y0.shape
-    Y = np.array(y0, dtype=float, order="C", copy=True)
-    A = np.ascontiguousarray(args, dtype=float)
-    t0c, t1c = np.ascontiguousarray(t0), np.ascontiguousarray(t1)
-    status = np.zeros(n, dtype=np.intc)
-    t_reached = np.zeros(n)
-    n_steps = np.zeros(n, dtype=np.int_)
-    dp = ctypes.POINTER(ctypes.c_double)
-
-    def ptr(a):
-        return a.ctypes.data_as(dp)
-
-    rc = st.native(n, n_y, A.shape[1], ptr(Y), ptr(t0c), ptr(t1c), ptr(A), ptr(rtol_v), ptr(atol_v),
-                   max_steps, status.ctypes.data_as(ctypes.POINTER(ctypes.c_int)), ptr(t_reached),
-                   n_steps.ctypes.data_as(ctypes.POINTER(ctypes.c_long)))
-    if rc < 0:
-        raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
-    if rc > 0:
-        msgs = []
-        for code, kind in _STATUS.items():
-            bad = np.flatnonzero(status == code)
-            if bad.size:
-                if code == 1:
-                    kind = f"max_steps = {max_steps} exceeded"
-                msgs.append(_fail_message(kind, bad, n, t_reached, t1))
-        raise SolverError("; ".join(msgs))
-    return Y
-
-
-def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps) -> np.ndarray:
-    """The same algorithm as the C driver, vectorised over samples in NumPy (fallback)."""
-    n = y0.shape[0]
-    rhs = st.rhs
-    step = st.mapped(st.step, n)
-    rhs_n = st.mapped(rhs, n)
-
-    Y = np.array(y0.T, order="C", copy=True)  # (n_y, N): one column per sample (never alias y0)
-    A = np.ascontiguousarray(args.T)
-    t = t0.copy()
-    direction = np.where(t1 >= t0, 1.0, -1.0)
-    span = np.abs(t1 - t0)
-    done = span == 0.0
-
-    F = rhs_n(Y, t[None, :], A).full()
-    if not np.all(np.isfinite(F)):
-        bad = np.flatnonzero(~np.all(np.isfinite(F), axis=0))
-        raise SolverError(f"integrate_batch: rhs is not finite at the initial state of samples "
-                          f"{bad[:10].tolist()}")
-    # initial step (Hairer's algorithm, as SciPy's select_initial_step), vectorised
-    scale = atol_v[:, None] + np.abs(Y) * rtol_v[:, None]
-    d0 = np.sqrt(np.mean((Y / scale) ** 2, axis=0))
-    d1 = np.sqrt(np.mean((F / scale) ** 2, axis=0))
-    h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / np.maximum(d1, 1e-300))
-    h0 = np.minimum(h0, np.where(span > 0, span, 1.0))
-    Y1 = Y + (h0 * direction)[None, :] * F
-    F1 = rhs_n(Y1, (t + h0 * direction)[None, :], A).full()
-    d2 = np.sqrt(np.mean(((F1 - F) / scale) ** 2, axis=0)) / h0
-    dmax = np.maximum(d1, d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        h1 = np.where(dmax <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dmax) ** (1.0 / 8.0))
-    h_abs = np.minimum(100 * h0, h1)
-    h_abs = np.where(np.isfinite(h_abs), h_abs, 1e-6)
-    rejected = np.zeros(n, dtype=bool)
-
-    steps = 0
-    while not done.all():
-        steps += 1
-        active = ~done
-        if steps > max_steps:
-            bad = np.flatnonzero(active)
-            raise SolverError(f"integrate_batch: max_steps = {max_steps} exceeded for samples "
-                              f"{bad[:10].tolist()}{' ...' if bad.size > 10 else ''} (of {n}); "
-                              f"they reached t = {t[bad[:5]].tolist()} of t1 = {t1[bad[:5]].tolist()}")
-        min_step = 10 * np.abs(np.nextafter(t, t + direction) - t)
-        tiny = active & (h_abs < min_step)
-        if tiny.any():
-            bad = np.flatnonzero(tiny)
-            raise SolverError(f"integrate_batch: step size underflow for samples {bad[:10].tolist()} "
-                              f"at t = {t[bad[:5]].tolist()} (stiff or singular dynamics?)")
-        t_new = t + direction * h_abs
-        last = active & (direction * (t_new - t1) >= 0)
-        t_new = np.where(last, t1, t_new)
-        h = np.where(active, t_new - t, 0.0)
-        Yn, Fn, err = step(Y, F, t[None, :], h[None, :], A, rtol_v, atol_v)
-        Yn, Fn, err = Yn.full(), Fn.full(), err.full().ravel()
-        finite = np.isfinite(err)
-        ok = active & finite & (err < 1.0)
-        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-            fac = _SAFETY * err ** _ERR_EXP
-        fac_ok = np.where(err == 0.0, _MAX_FACTOR, np.minimum(_MAX_FACTOR, fac))
-        fac_ok = np.where(rejected, np.minimum(1.0, fac_ok), fac_ok)
-        fac_bad = np.where(finite, np.maximum(_MIN_FACTOR, fac), _MIN_FACTOR)
-        h_abs = np.where(ok, np.abs(h) * fac_ok, np.where(active, h_abs * fac_bad, h_abs))
-        rejected = np.where(active, ~ok, rejected)
-        Y[:, ok] = Yn[:, ok]
-        F[:, ok] = Fn[:, ok]
-        t = np.where(ok, t_new, t)
-        done = done | (ok & last)
-        if ok.any() and not np.all(np.isfinite(Yn[:, ok])):
-            bad = np.flatnonzero(ok & ~np.all(np.isfinite(Yn), axis=0))
-            raise SolverError(f"integrate_batch: non-finite state for samples {bad[:10].tolist()} "
-                              f"at t = {t[bad[:5]].tolist()}")
-    return Y.T.copy()
-
 
 # --------------------------------------------------------------------------- model helpers
 def flow_rhs(model: Model) -> ca.Function:
@@ -572,23 +150,47 @@ def propagate(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike,
     if substeps < 0:
         raise ProblemError(f"substeps must be >= 0; got {substeps}")
     m = max(substeps, 1)
-    times = np.concatenate([np.linspace(g[i], g[i + 1], m + 1)[:-1] for i in range(k)] + [g[-1:]])
-    rhs = flow_rhs(model)
-    out = np.empty((n, times.size, model.n_x))
-    out[:, 0] = X0
-    x = X0
-    for j in range(times.size - 1):
-        seg = j // m
-        args = np.concatenate([U[:, seg], P], axis=1)
-        x = integrate_batch(rhs, x, times[j], times[j + 1], args, rtol=rtol, atol=atol,
-                            max_steps=max_steps)
-        out[:, j + 1] = x
+    if m == 1:
+        times = g.copy()
+    else:
+        times = np.concatenate([np.linspace(g[i], g[i + 1], m + 1)[:-1] for i in range(k)] + [g[-1:]])
+    out = _propagate_segments(model, X0, U, P, times, m, rtol, atol, max_steps)
     states = out[:, ::m]
     if single:
         states, out = states[0], out[0]
     if substeps > 0:
         return states, times, out
     return states
+
+
+def _propagate_segments(model: Model, X0: np.ndarray, U: np.ndarray, P: np.ndarray,
+                        times: np.ndarray, m: int, rtol: float, atol: float,
+                        max_steps: int) -> np.ndarray:
+    """States ``(N, len(times), n_x)`` from ``X0`` under ``U[:, j // m]`` on ``[times[j], times[j+1]]``.
+
+    Inputs are checked once here, not per segment (one :class:`~ocreach.native.integrator.Batch`
+    run per segment; the driver flags any non-finite state), and every sample's last step size
+    carries over to the next segment instead of restarting from Hairer's starting-step rule.
+    """
+    from ocreach import parallel
+    from ocreach.errors import check_count
+    from ocreach.native.integrator import Batch, stepper, tol_vector
+
+    nu = model.n_u
+    batch = Batch(stepper(flow_rhs(model)), np.array(X0, dtype=float, order="C"), nu + model.n_p,
+                  tol_vector(rtol, model.n_x, "rtol"), tol_vector(atol, model.n_x, "atol"),
+                  int(check_count("max_steps", max_steps, 1)), parallel.threads())
+    batch.A[:, nu:] = P
+    Ut = np.ascontiguousarray(np.moveaxis(U, 1, 0))  # (K, N, n_u): one contiguous block per segment
+    out = np.empty((times.size,) + batch.Y.shape)  # time-major while filling (contiguous copies)
+    out[0] = batch.Y
+    for j in range(times.size - 1):
+        batch.A[:, :nu] = Ut[j // m]
+        batch.t0.fill(times[j])
+        batch.t1.fill(times[j + 1])
+        batch.run()
+        out[j + 1] = batch.Y
+    return np.ascontiguousarray(np.moveaxis(out, 0, 1))
 
 
 # --------------------------------------------------------------------------- STT

@@ -360,13 +360,13 @@ _CACHE_VERSION = 1  # bump when the root selection of _solve_cut changes
 
 
 def _disk_cache_path(n: int, order: int, density: str):
-    from ocreach.flow import cache_dir
+    from ocreach.native.compile import cache_dir
 
-    return cache_dir() / "cut_rules" / f"cut{order}_{density}_n{n}_v{_CACHE_VERSION}.npy"  # inside OCREACH_CACHE_DIR
+    return cache_dir("cut_rules") / f"cut{order}_{density}_n{n}_v{_CACHE_VERSION}.npy"
 
 
 def _disk_cache_load(n: int, order: int, density: str, size: int) -> np.ndarray | None:
-    """The solved unknowns of a CUT rule from the on-disk cache (next to the JIT cache), or None."""
+    """The solved unknowns of a CUT rule from the on-disk cache (``$OCREACH_CACHE_DIR/cut_rules``), or None."""
     try:
         theta = np.load(_disk_cache_path(n, order, density))
     except (OSError, ValueError):
@@ -376,15 +376,14 @@ def _disk_cache_load(n: int, order: int, density: str, size: int) -> np.ndarray 
 
 def _disk_cache_store(n: int, order: int, density: str, theta: np.ndarray) -> None:
     """Store the unknowns atomically; an unwritable cache only costs the solve next time."""
-    import os
+    import io
 
-    path = _disk_cache_path(n, order, density)
+    from ocreach.native.compile import write_atomic
+
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(theta, dtype=float))
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        part = path.with_name(f"{path.name}.{os.getpid()}.part")
-        with open(part, "wb") as fh:
-            np.save(fh, np.asarray(theta, dtype=float))
-        os.replace(part, path)
+        write_atomic(_disk_cache_path(n, order, density), buf.getvalue())
     except OSError:
         pass
 
@@ -396,8 +395,8 @@ def _solve_cut(n: int, order: int, density: str) -> tuple[tuple[CutOrbit, ...], 
     Unknowns: per orbit a weight and a radius (two radii a, b for s^(n)). Equations: one per even
     partition of degree <= order with at most n parts (relative residuals). Solved by bounded
     nonlinear least squares (scipy TRF, exact Jacobian) from a deterministic sequence of starting
-    points, then polished by Gauss-Newton (the chosen root is cached on disk next to the JIT cache
-    and re-verified on load, so the solve is a one-off per machine). Several roots (or, where the system is
+    points, then polished by Gauss-Newton (the chosen root is cached on disk in
+    ``$OCREACH_CACHE_DIR/cut_rules`` and re-verified on load, so the solve is a one-off per machine). Several roots (or, where the system is
     underdetermined - CUT8, and CUT4 with a centre - a family) exist; among the first converged
     candidates with a smallest orbit weight within a factor 100 of the best one the most compact
     (smallest largest coordinate) is kept. Raises

@@ -23,7 +23,9 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError, check_count
-from ocreach.flow import c_identifier
+from ocreach.native.batch_eval import BatchFunction
+from ocreach.native.codegen import c_identifier
+from ocreach.native.mc_kernel import mc_kernel
 
 STEPS = ("euler", "flow")
 
@@ -81,12 +83,12 @@ class SplitStepMap:
 
     def cached(self, key: Any, build: Callable[[], Any]) -> Any:
         """``build()`` computed once per ``key`` and kept with this map (compiled kernels of
-        :mod:`ocreach.reach.cut_kernel` and of this module live as long as the map)."""
+        :mod:`ocreach.native` live as long as the map)."""
         if key not in self._maps:
             self._maps[key] = build()
         return self._maps[key]
 
-    def _fx(self) -> _BatchFunction:
+    def _fx(self) -> BatchFunction:
         if "fx" not in self._maps:
             x = ca.SX.sym("x", self.n_x)
             t = ca.SX.sym("t")
@@ -94,15 +96,15 @@ class SplitStepMap:
             G = self.G(x, t, p)
             fun = ca.Function(f"split_fx_{c_identifier(self.name)}", [x, t, p],
                               [ca.densify(self.f0(x, t, p)), ca.densify(ca.reshape(G.T, -1, 1))])
-            self._maps["fx"] = _BatchFunction(fun, batched=(True, False, False))
+            self._maps["fx"] = BatchFunction(fun, batched=(True, False, False))
         return self._maps["fx"]
 
-    def _hu(self) -> _BatchFunction:
+    def _hu(self) -> BatchFunction:
         if "hu" not in self._maps:
             u = ca.SX.sym("u", self.n_u)
             p = ca.SX.sym("p", self.hu.size1_in(1))
             fun = ca.Function(f"split_hu_{c_identifier(self.name)}", [u, p], [ca.densify(self.hu(u, p))])
-            self._maps["hu"] = _BatchFunction(fun, batched=(True, False))
+            self._maps["hu"] = BatchFunction(fun, batched=(True, False))
         return self._maps["hu"]
 
     def drift_gain(self, X: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -116,7 +118,7 @@ class SplitStepMap:
         (H,) = self._hu()(np.asarray(U, dtype=float), self.p)
         return H
 
-    def _step(self) -> _BatchFunction:
+    def _step(self) -> BatchFunction:
         if "step" not in self._maps:
             x = ca.SX.sym("x", self.n_x)
             u = ca.SX.sym("u", self.n_u)
@@ -126,7 +128,7 @@ class SplitStepMap:
             pu = ca.SX.sym("pu", self.hu.size1_in(1))
             xn = x + dt * (self.f0(x, t, p) + ca.mtimes(self.G(x, t, p), self.hu(u, pu)))
             fun = ca.Function(f"split_step_{c_identifier(self.name)}", [x, u, t, dt, p, pu], [ca.densify(xn)])
-            self._maps["step"] = _BatchFunction(fun, batched=(True, True, False, False, False, False))
+            self._maps["step"] = BatchFunction(fun, batched=(True, True, False, False, False, False))
         return self._maps["step"]
 
     def step(self, X: np.ndarray, U: np.ndarray, dt: float, t: float = 0.0) -> np.ndarray:
@@ -135,233 +137,6 @@ class SplitStepMap:
         (Xn,) = self._step()(np.asarray(X, dtype=float), np.asarray(U, dtype=float),
                              np.array([t], dtype=float), np.array([dt], dtype=float), self.p, self.p)
         return Xn
-
-
-#: C prelude shared by the generated kernels (this module's and ocreach.reach.cut_kernel's):
-#: ``OCR_WORK_ALLOC(n_arg, n_res)`` declares CasADi's work arrays ``arg``, ``res``, ``iw``, ``wk``
-#: of the Function ``OCR_FUN`` with ``n_arg`` / ``n_res`` spare slots; ``OCR_WORK_FREE`` frees them.
-C_WORK = r"""
-#include <stdlib.h>
-#define OCR_WORK_ALLOC(n_arg, n_res) \
-  casadi_int sa, sr, si, sw; \
-  OCR_FUN_work(&sa, &sr, &si, &sw); \
-  const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + (n_arg))); \
-  casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + (n_res))); \
-  casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1)); \
-  casadi_real* wk = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
-#define OCR_WORK_FREE free(arg); free(res); free(iw); free(wk);
-"""
-
-
-_BATCH_C = """
-#include <stdlib.h>
-CASADI_SYMBOL_EXPORT int ocr_batch(long N, long n_in, const double** in, const long* in_stride,
-                                   long n_out, double** out, const long* out_stride) {
-  OCR_WORK_ALLOC(n_in + 1, n_out + 1)
-  if (!arg || !res || !iw || !wk) { OCR_WORK_FREE return -1; }
-  int flag = 0;
-  for (long s = 0; s < N && !flag; ++s) {
-    for (long i = 0; i < n_in; ++i) arg[i] = in[i] + s * in_stride[i];
-    for (long j = 0; j < n_out; ++j) res[j] = out[j] + s * out_stride[j];
-    flag = OCR_FUN(arg, res, iw, wk, 0);
-  }
-  OCR_WORK_FREE
-  return flag;
-}
-"""
-
-
-class _BatchFunction:
-    """Evaluate a CasADi Function (dense column inputs/outputs) row-wise over a batch.
-
-    The Function is generated as C with a loop over samples (compiled once, cached on disk by
-    :mod:`ocreach.flow`), so a batch of 10^4 samples costs one C call; inputs flagged ``batched``
-    are ``(N, size)`` arrays, the others are shared.  Falls back to ``Function.map`` when no C
-    compiler is available (same numbers, slower).
-    """
-
-    def __init__(self, fun: ca.Function, batched: tuple[bool, ...]):
-        self.fun = fun
-        self.batched = batched
-        self.sizes_in = [fun.size1_in(i) for i in range(fun.n_in())]
-        self.sizes_out = [fun.size1_out(j) for j in range(fun.n_out())]
-        self.native = None
-        self.maps: dict[int, ca.Function] = {}
-        from ocreach.flow import COMPILE_ERRORS
-
-        try:
-            self.native = self._build()
-        except COMPILE_ERRORS as exc:  # no compiler: CasADi's VM gives the same numbers
-            import warnings
-
-            warnings.warn(f"ocreach.stochastic_mc: compiling {fun.name()} failed ({exc}); using "
-                          "CasADi's VM (slower)", RuntimeWarning, stacklevel=3)
-
-    def _build(self):
-        import ctypes
-
-        from ocreach.flow import compile_source, generate_c, jit_enabled
-
-        if not jit_enabled():
-            return None
-        main = (f"#define OCR_FUN {self.fun.name()}\n#define OCR_FUN_work {self.fun.name()}_work\n"
-                "#include \"gen.c\"\n#include \"work.h\"\n#include \"batch.c\"\n").encode()
-        lib = compile_source(f"ocr_batch_{self.fun.name()}",
-                              {"gen.c": generate_c([self.fun]), "work.h": C_WORK.encode(),
-                               "batch.c": _BATCH_C.encode(),
-                               "main.c": main}, "main.c", ("-O2",))
-        dll = ctypes.CDLL(str(lib))
-        fn = dll.ocr_batch
-        pp = ctypes.POINTER(ctypes.c_void_p)
-        fn.argtypes = [ctypes.c_long, ctypes.c_long, pp, ctypes.POINTER(ctypes.c_long),
-                       ctypes.c_long, pp, ctypes.POINTER(ctypes.c_long)]
-        fn.restype = ctypes.c_int
-        self._dll = dll
-        return fn
-
-    def __call__(self, *args: np.ndarray) -> list[np.ndarray]:
-        arrs = []
-        n = None
-        for a, b, size in zip(args, self.batched, self.sizes_in):
-            a = np.ascontiguousarray(a, dtype=float)
-            if b:
-                a = a.reshape(-1, size)
-                n = a.shape[0]
-            else:
-                a = a.reshape(size)
-            arrs.append(a)
-        n = 1 if n is None else n
-        if self.native is None:
-            fun = self.maps.get(n)
-            if fun is None:
-                fun = self.maps[n] = self.fun.map(n, "serial") if n > 1 else self.fun
-            res = fun(*[a.T if b else a for a, b in zip(arrs, self.batched)])
-            res = res if isinstance(res, (list, tuple)) else [res]
-            return [np.asarray(r.full()).T.reshape(n, s) for r, s in zip(res, self.sizes_out)]
-        import ctypes
-
-        outs = [np.empty((n, s)) for s in self.sizes_out]
-        in_ptr = (ctypes.c_void_p * len(arrs))(*[a.ctypes.data for a in arrs])
-        in_str = (ctypes.c_long * len(arrs))(*[s if b else 0 for s, b in
-                                               zip(self.sizes_in, self.batched)])
-        out_ptr = (ctypes.c_void_p * len(outs))(*[o.ctypes.data for o in outs])
-        out_str = (ctypes.c_long * len(outs))(*self.sizes_out)
-        flag = self.native(n, len(arrs), in_ptr, in_str, len(outs), out_ptr, out_str)
-        if flag != 0:
-            raise SolverError(f"evaluating {self.fun.name()} over a batch of {n} failed (flag {flag})")
-        return outs
-
-
-_MC_C = """
-#include <math.h>
-#include <stdlib.h>
-#include <string.h>
-/* Steps k0..k1-1 of the Monte Carlo for N samples X (N x n, updated in place) with controls
-   u = unom[k] + Lu z, z from Z ((k1-k0) x N x m standard normals); after every step the sample mean and std (ddof 1, two-pass) go to row k+1
-   of gmean/gstd.  Returns 0, 1 (non-finite sample at step fail[0]) or -1/2 (memory/evaluation). */
-CASADI_SYMBOL_EXPORT int ocr_mc_run(long N, long n, long m, long k0, long k1, const double* grid,
-                                    const double* Z, const double* unom, const double* Lu,
-                                    const double* p, double* X, double* gmean, double* gstd,
-                                    long* fail) {
-  OCR_WORK_ALLOC(7, 2)
-  double* xn = (double*)malloc(sizeof(double) * n);
-  double* u = (double*)malloc(sizeof(double) * (m + 1));
-  int flag = 0;
-  if (!arg || !res || !iw || !wk || !xn || !u) flag = -1;
-  for (long k = k0; k < k1 && !flag; ++k) {
-    double t = grid[k], dt = grid[k + 1] - grid[k];
-    const double* Zk = Z + (k - k0) * N * m;
-    for (long s = 0; s < N; ++s) {
-      double* x = X + s * n;
-      const double* z = Zk + s * m;
-      for (long i = 0; i < m; ++i) {
-        double v = unom[k * m + i];
-        for (long j = 0; j < m; ++j) v += Lu[i * m + j] * z[j];
-        u[i] = v;
-      }
-      arg[0] = x; arg[1] = u; arg[2] = &t; arg[3] = &dt; arg[4] = p; arg[5] = p;
-      res[0] = xn;
-      if (OCR_FUN(arg, res, iw, wk, 0)) { flag = 2; fail[0] = k + 1; break; }
-      int ok = 1;
-      for (long a = 0; a < n; ++a) { x[a] = xn[a]; ok &= isfinite(xn[a]) ? 1 : 0; }
-      if (!ok) { flag = 1; fail[0] = k + 1; }
-    }
-    if (flag) break;
-    double* mu = gmean + (k + 1) * n;
-    double* sd = gstd + (k + 1) * n;
-    for (long a = 0; a < n; ++a) { mu[a] = 0.0; sd[a] = 0.0; }
-    for (long s = 0; s < N; ++s)
-      for (long a = 0; a < n; ++a) mu[a] += X[s * n + a];
-    for (long a = 0; a < n; ++a) mu[a] /= (double)N;
-    for (long s = 0; s < N; ++s)
-      for (long a = 0; a < n; ++a) { double d = X[s * n + a] - mu[a]; sd[a] += d * d; }
-    for (long a = 0; a < n; ++a) sd[a] = sqrt(sd[a] / (double)(N - 1));
-  }
-  OCR_WORK_FREE free(xn); free(u);
-  return flag;
-}
-"""
-
-
-class _MCKernel:
-    """Compiled Monte Carlo run over a block of steps: the Euler step of every sample (the same
-    CasADi-generated step as :meth:`SplitStepMap.step`) and the per-step sample mean and std, with
-    no Python work per step (the peer of the ``cut`` kernel, so the benchmark ratio is fair)."""
-
-    def __init__(self, fun: ca.Function):
-        import ctypes
-
-        from ocreach.flow import compile_source, generate_c
-
-        main = (f"#define OCR_FUN {fun.name()}\n#define OCR_FUN_work {fun.name()}_work\n"
-                "#include \"gen.c\"\n#include \"work.h\"\n#include \"mc.c\"\n").encode()
-        sources = {"gen.c": generate_c([fun]), "work.h": C_WORK.encode(), "mc.c": _MC_C.encode(),
-                   "main.c": main}
-        lib = compile_source(f"ocr_mc_{fun.name()}", sources, "main.c", ("-O2",))
-        self._dll = ctypes.CDLL(str(lib))
-        self._fn = self._dll.ocr_mc_run
-        self._fn.restype = ctypes.c_int
-
-    def run(self, k0: int, k1: int, grid: np.ndarray, Z: np.ndarray, u_nom: np.ndarray,
-            Lu: np.ndarray, p: np.ndarray, X: np.ndarray, gmean: np.ndarray, gstd: np.ndarray) -> int:
-        """Advance ``X`` (C-contiguous, in place) over steps ``k0..k1-1`` with controls
-        ``u_nom[k] + Lu z`` (``Z`` the block's standard normals); returns the step at which a
-        sample became non-finite, or -1."""
-        import ctypes
-
-        N, n = X.shape
-        fail = np.zeros(1, dtype=np.int64)
-        grid = np.ascontiguousarray(grid, dtype=float)
-        p = np.ascontiguousarray(p, dtype=float)
-        u_nom = np.ascontiguousarray(u_nom, dtype=float)
-        Lu = np.ascontiguousarray(Lu, dtype=float)
-        L = ctypes.c_long
-        ptr = [a.ctypes.data_as(ctypes.c_void_p) for a in (grid, Z, u_nom, Lu, p, X, gmean, gstd, fail)]
-        flag = self._fn(L(N), L(n), L(Z.shape[-1]), L(k0), L(k1), *ptr)
-        if flag == 1:
-            return int(fail[0])
-        if flag != 0:
-            raise SolverError(f"stochastic_monte_carlo: the compiled step failed (flag {flag}, "
-                              f"step {int(fail[0])})")
-        return -1
-
-
-def _mc_kernel(sm: SplitStepMap) -> _MCKernel | None:
-    from ocreach.flow import COMPILE_ERRORS, jit_enabled
-
-    def build() -> _MCKernel | None:
-        if not jit_enabled():
-            return None
-        try:
-            return _MCKernel(sm._step().fun)
-        except COMPILE_ERRORS as exc:  # no compiler: the per-step batched path, same numbers
-            import warnings
-
-            warnings.warn(f"ocreach.stochastic_mc: compiling the Monte Carlo kernel failed "
-                          f"({exc}); using the per-step path (slower)", RuntimeWarning, stacklevel=4)
-            return None
-
-    return sm.cached("mc_kernel", build)
 
 
 def step_map_for(problem) -> SplitStepMap:
@@ -418,10 +193,15 @@ def _raise_nonfinite(X: np.ndarray, samples: int, grid: np.ndarray, k: int) -> N
                       f"non-finite at t = {grid[k]:g} (step {k}); first {bad[:10].tolist()}")
 
 
-def time_indices(grid: np.ndarray, times: Sequence[float] | None) -> np.ndarray:
-    """Grid indices of ``times`` (each must be a grid time to 1e-9 relative); all if ``None``."""
-    if times is None:
+def time_indices(grid: np.ndarray, times: Sequence[float] | str | None) -> np.ndarray:
+    """Grid indices of ``times`` (each must be a grid time to 1e-9 relative); ``"all"``: every
+    grid index; ``None``: the final one."""
+    if isinstance(times, str):
+        if times != "all":
+            raise ProblemError(f"times must be grid times, None (the final time) or 'all'; got {times!r}")
         return np.arange(grid.size)
+    if times is None:
+        return np.array([grid.size - 1])
     t = np.atleast_1d(np.asarray(times, dtype=float))
     span = max(abs(grid[-1] - grid[0]), 1e-300)
     idx = np.abs(grid[None, :] - t[:, None]).argmin(axis=1)
@@ -432,8 +212,13 @@ def time_indices(grid: np.ndarray, times: Sequence[float] | None) -> np.ndarray:
     return idx
 
 
+#: bound on the standard normals drawn at once (doubles): the Monte Carlo's working memory is
+#: O(samples * n) plus this, whatever the horizon
+_DRAW_BLOCK = 1 << 21
+
+
 def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
-                           times: Sequence[float] | None = None, *, step: str = "euler",
+                           times: Sequence[float] | str | None = None, *, step: str = "euler",
                            keep_controls: bool = False, rtol: float = 1e-8,
                            atol: float = 1e-10) -> dict[str, Any]:
     """Monte Carlo of Jain et al.'s stochastic system (their ground truth, 10,000 samples).
@@ -444,11 +229,16 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
     continuous model over each segment with :func:`ocreach.flow.integrate_batch` (DOP853, ``rtol``,
     ``atol``) to measure the discretisation error.  Vectorised over samples.
 
-    Returns a dict: ``times`` (T,), ``index`` (grid indices), ``mean``, ``std`` (T, n) at the
-    requested ``times`` (default: every grid time; each must be a grid time), ``trajectories``
-    (samples, T, n), ``grid_mean``, ``grid_std`` (K+1, n) on the whole grid, ``samples``,
-    ``seed``, ``step``, and ``controls`` (samples, K, n_u) if ``keep_controls``.  Memory of
-    ``trajectories`` is ``samples * T * n * 8`` bytes: pass ``times`` for long grids.
+    Only what is asked for is kept: the sample mean and std at every grid time (``grid_mean``,
+    ``grid_std``, (K+1, n)), the samples at ``times`` (default ``None``: the final time only; a
+    list of grid times; ``"all"`` for full state histories) and the sampled controls only with
+    ``keep_controls``.  Memory is ``samples * (T n + [K m]) * 8`` bytes for what is kept plus
+    O(samples * n) working memory (the normals are drawn in blocks of at most ~16 MB; the random
+    stream is the same as one ``(samples, m)`` draw per step).
+
+    Returns a dict: ``times`` (T,), ``index`` (grid indices), ``mean``, ``std`` (T, n) at
+    ``times``, ``trajectories`` (samples, T, n), ``grid_mean``, ``grid_std``, ``samples``,
+    ``seed``, ``step``, and ``controls`` (samples, K, n_u) if ``keep_controls``.
     Raises :class:`SolverError` if a sample becomes non-finite.
     """
     samples = check_count("samples", samples, 2)
@@ -483,12 +273,14 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
             out_traj[:, where[k]] = X
 
     record(0, X)
-    kern = _mc_kernel(sm) if step == "euler" else None
+    kern = mc_kernel(sm) if step == "euler" else None
     if kern is not None:
-        # blocks of <= 64 steps ending at every recorded index: one C call per block, controls
-        # drawn per block (the same random stream as one (samples, m) draw per step)
+        # blocks of <= 64 steps (fewer for large batches) ending at every recorded index: one C
+        # call per block, controls drawn per block (the same random stream as one (samples, m)
+        # draw per step)
         X = np.ascontiguousarray(X)
-        stops = sorted(set(range(64, K, 64)) | {int(k) for k in idx if 0 < k < K} | {K})
+        block = int(max(1, min(64, _DRAW_BLOCK // max(1, samples * m))))
+        stops = sorted(set(range(block, K, block)) | {int(k) for k in idx if 0 < k < K} | {K})
         k0 = 0
         for k1 in stops:
             Z = rng.standard_normal((k1 - k0, samples, m))

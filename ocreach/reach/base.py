@@ -278,17 +278,22 @@ def available_methods() -> dict[str, str]:
     return out
 
 
-def reach(problem: Problem | str, method: str, **options: Any) -> ReachResult:
+def reach(problem: Problem | str, method: str, *, threads: int | None = None,
+          **options: Any) -> ReachResult:
     """Solve ``problem`` (a :class:`Problem` or a problem id) with ``method``.
 
     Options not given fall back to the problem's ``method_options[method]`` and then to the
     method's defaults.  ``ocreach.reach(p, "stt", h_max=400)`` is sugar for
-    ``STTReach(h_max=400).solve(p)``.
+    ``STTReach(h_max=400).solve(p)``.  ``threads``: threads of the native batch kernels (default
+    :func:`ocreach.parallel.threads`); the method runs under the BLAS thread limit of
+    :func:`ocreach.parallel.blas_limit` (neither changes results).
     """
+    from ocreach import parallel
     from ocreach.problem import Problem, get_problem
 
     if not isinstance(problem, Problem):
         problem = get_problem(str(problem))
     cls = method_class(method)
     merged = {**problem.options_for(method), **options}
-    return cls(**merged).solve(problem)
+    with parallel.settings(threads=threads):
+        return cls(**merged).solve(problem)

@@ -94,7 +94,7 @@ def psd_cholesky(P: np.ndarray, k: int = 0) -> np.ndarray:
 
     A pivot whose remaining variance is <= 1e-12 of the state's own variance gets a zero column
     (that state is, to this precision, an affine function of the earlier ones); the same
-    algorithm as the compiled kernel (:mod:`ocreach.reach.cut_kernel`).  Raises
+    algorithm as the compiled kernel (:mod:`ocreach.native.cut_kernel`).  Raises
     :class:`SolverError` naming step ``k`` if ``P`` is indefinite or not finite.
     """
     n = P.shape[0]
@@ -133,7 +133,7 @@ def propagate_moments(step_map, grid: np.ndarray, mean0: np.ndarray, cov0: np.nd
                       perm: np.ndarray, third: bool = False) -> dict[str, np.ndarray]:
     """Propagate mean, covariance (and third central moment) of Jain et al. Eq. 1 on ``grid``.
 
-    NumPy reference of the compiled kernel (:mod:`ocreach.reach.cut_kernel`) and the path for
+    NumPy reference of the compiled kernel (:mod:`ocreach.native.cut_kernel`) and the path for
     ``third_moments``.  ``step_map`` is a :class:`ocreach.stochastic_mc.SplitStepMap` (Euler step
     ``dt f0``, ``dt G``); ``ctrl = (Eh, Ch[, M3h])`` from :func:`control_moments`; ``xi_x, w_x`` the
     standard-normal rule of dimension ``n_y``; ``perm`` the states with the ``n_y`` dependency
@@ -205,7 +205,7 @@ class CUTMoments(Method):
         ``sigma_level``-sigma (3); ``reduce``: integrate only over the states the step's increment
         depends on (exact under the Gaussian closure, see :func:`propagate_moments`; for re-entry
         the longitude drops out and CUT8 needs 355 instead of 745 points; ``False`` is the paper's
-        full 6-D rule); ``compiled``: run the fused C kernel (:mod:`ocreach.reach.cut_kernel`;
+        full 6-D rule); ``compiled``: run the fused C kernel (:mod:`ocreach.native.cut_kernel`;
         ``False`` or no C compiler: the NumPy reference, same numbers)."""
 
         order: int = 8
@@ -237,7 +237,7 @@ class CUTMoments(Method):
         return requirements(problem, stochastic=True)
 
     def solve(self, problem) -> ReachResult:
-        from ocreach.reach.cut_kernel import cut_kernel
+        from ocreach.native.cut_kernel import cut_kernel
         from ocreach.stochastic_mc import step_map_for, stochastic_spec
 
         opt = self.options

@@ -64,13 +64,22 @@ class MonteCarlo(Method):
     @dataclass
     class Options(SamplingOptions):
         """:class:`~ocreach.reach.base.SamplingOptions` (``samples`` default 1000, ``seed``,
-        ``rtol``, ``atol``) plus ``mix``: fractions of the random / constant / bang-bang laws."""
+        ``rtol``, ``atol``) plus ``mix``: fractions of the random / constant / bang-bang laws;
+        ``histories`` (stochastic problems): also keep every sample's states on ~200 grid times
+        and its controls on every segment (memory ``samples * (200 n_x + K n_u) * 8`` bytes);
+        by default only the samples at the report times and the final time are kept, with the
+        sample mean and std at every grid time in ``meta``.  Deterministic problems always keep
+        full histories."""
 
         samples: int = 1000
         mix: tuple = (0.4, 0.2, 0.4)
+        histories: bool = False
 
         def __post_init__(self) -> None:
             super().__post_init__()
+            if not isinstance(self.histories, (bool, np.bool_)):
+                raise ProblemError(f"histories must be True or False; got {self.histories!r}")
+            self.histories = bool(self.histories)
             try:
                 mix = np.asarray(self.mix, dtype=float)
             except (TypeError, ValueError):
@@ -106,8 +115,10 @@ class MonteCarlo(Method):
     def _solve_stochastic(self, problem: Problem) -> ReachResult:
         """Jain et al.'s Monte Carlo: Gaussian x0 and fresh Gaussian controls at every step.
 
-        States are kept at the problem's ``extra["report_times"]`` and at most ~200 evenly spaced
-        grid times (a 2000-step horizon with 10,000 samples would otherwise need ~1 GB).
+        States are kept at the start, the problem's ``extra["report_times"]`` and the final time;
+        with ``histories`` also at ~200 evenly spaced grid times, with every sample's controls
+        (a 2000-step horizon with 100,000 samples would otherwise need several GB).  The sample
+        mean and std at every grid time are in ``meta["grid_mean"]`` / ``meta["grid_std"]``.
         """
         import dataclasses
 
@@ -118,20 +129,25 @@ class MonteCarlo(Method):
         if ignored:
             raise ProblemError(f"option(s) {ignored} do not apply to the stochastic problem "
                                f"{problem.id!r} (Gaussian x0 and controls, the problem's own step "
-                               "map); allowed: samples, seed")
+                               "map); allowed: samples, seed, histories")
         grid = problem.grid
-        stride = max(1, int(np.ceil((grid.size - 1) / 200)))
-        keep = set(range(0, grid.size, stride)) | {grid.size - 1}
+        keep = {0, grid.size - 1}
+        if self.options.histories:
+            keep |= set(range(0, grid.size, max(1, int(np.ceil((grid.size - 1) / 200)))))
         for t in problem.extra.get("report_times", ()):
             keep.add(int(np.argmin(np.abs(grid - t))))
         times = grid[sorted(keep)]
         timer = Timer()
         with timer("propagation"):
             out = stochastic_monte_carlo(problem, samples=self.options.samples,
-                                         seed=self.options.seed, times=times, keep_controls=True)
+                                         seed=self.options.seed, times=times,
+                                         keep_controls=self.options.histories)
         traj = np.asarray(out["trajectories"])
         meta = self.base_meta(problem, timer.times)
         meta["stochastic"] = True
-        meta["controls_note"] = "controls are the sampled physical controls on every grid segment"
+        meta["grid_mean"], meta["grid_std"] = out["grid_mean"], out["grid_std"]
+        meta["controls_note"] = ("controls are the sampled physical controls on every grid segment"
+                                 if self.options.histories else
+                                 "controls not kept (option histories=True keeps them)")
         return ReachResult.from_trajectories(np.asarray(out["times"]), traj,
                                              controls=out.get("controls"), meta=meta)

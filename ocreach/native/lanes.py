@@ -1,0 +1,158 @@
+"""C code of an SX Function evaluated on ``W`` samples at once ("lanes", for SIMD).
+
+CasADi's code generator writes one scalar evaluation.  Here the SX instruction list of a Function
+(``Function.instruction_id`` / ``instruction_input`` / ``instruction_output``) is written out once
+more with every work variable a GCC/Clang vector of ``W`` doubles (``vector_size``), so every
+operation is one or two SIMD instructions on ``W`` samples, on inputs and outputs laid out
+component-major (entry ``i`` of lane ``l`` at ``i * W + l``).  Straight-line vector code compiles
+about as fast as CasADi's scalar code.  Every lane runs exactly the IEEE operations of the scalar
+code in the same order (no FMA contraction, ``fmax``/``fmin`` with C's NaN rules), so a lane's
+result does not depend on which lane or which other samples it ran with.  Integer and
+half-integer powers with a constant exponent are written as products and square roots (CasADi's
+generated C calls ``pow``; the results agree to the last bits, not bit for bit).
+
+An SX Function has elementwise operations only; one without a lane form raises
+:class:`LaneCodegenError` and the caller uses the scalar path.
+"""
+from __future__ import annotations
+
+import os
+
+import casadi as ca
+
+__all__ = ["LANE_FLAGS", "LaneCodegenError", "lane_source"]
+
+
+class LaneCodegenError(ValueError):
+    """The Function has an operation without a lane form (the caller falls back to scalar code)."""
+
+
+_LIBM1 = {ca.OP_SQRT: "sqrt", ca.OP_EXP: "exp", ca.OP_LOG: "log", ca.OP_SIN: "sin",
+          ca.OP_COS: "cos", ca.OP_TAN: "tan", ca.OP_ASIN: "asin", ca.OP_ACOS: "acos",
+          ca.OP_ATAN: "atan", ca.OP_SINH: "sinh", ca.OP_COSH: "cosh", ca.OP_TANH: "tanh",
+          ca.OP_ASINH: "asinh", ca.OP_ACOSH: "acosh", ca.OP_ATANH: "atanh", ca.OP_FLOOR: "floor",
+          ca.OP_CEIL: "ceil", ca.OP_ERF: "erf", ca.OP_EXPM1: "expm1", ca.OP_LOG1P: "log1p",
+          ca.OP_SIGN: "ocr_sign1"}
+_LIBM2 = {ca.OP_POW: "pow", ca.OP_CONSTPOW: "pow", ca.OP_ATAN2: "atan2", ca.OP_FMOD: "fmod",
+          ca.OP_COPYSIGN: "copysign", ca.OP_HYPOT: "hypot"}
+_UNARY = {ca.OP_ASSIGN: "{x}", ca.OP_NEG: "(-{x})", ca.OP_SQ: "({x}*{x})",
+          ca.OP_TWICE: "(2.0*{x})", ca.OP_INV: "(1.0/{x})",
+          ca.OP_FABS: "((ocr_v)((ocr_m){x} & OCR_ABSMASK))",
+          ca.OP_NOT: "ocr_b2d({x} == 0.0)"}
+_BINARY = {ca.OP_ADD: "({x}+{y})", ca.OP_SUB: "({x}-{y})", ca.OP_MUL: "({x}*{y})",
+           ca.OP_DIV: "({x}/{y})",
+           ca.OP_FMAX: "ocr_sel(({x} > {y}) | ({y} != {y}), {x}, {y})",
+           ca.OP_FMIN: "ocr_sel(({x} < {y}) | ({y} != {y}), {x}, {y})",
+           ca.OP_LT: "ocr_b2d({x} < {y})", ca.OP_LE: "ocr_b2d({x} <= {y})",
+           ca.OP_EQ: "ocr_b2d({x} == {y})", ca.OP_NE: "ocr_b2d({x} != {y})",
+           ca.OP_AND: "ocr_b2d(({x} != 0.0) & ({y} != 0.0))",
+           ca.OP_OR: "ocr_b2d(({x} != 0.0) | ({y} != 0.0))",
+           ca.OP_IF_ELSE_ZERO: "((ocr_v)(((ocr_m)({x} != 0.0)) & (ocr_m){y}))"}
+
+#: Compiler flags of lane code: no FMA contraction (each lane computes exactly the scalar
+#: operation sequence) and the vector extensions of this CPU named explicitly (never
+#: -march=native, whose meaning differs between hosts that share one cache).
+LANE_FLAGS_BASE = ("-O2", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi")
+
+
+def _cpu_flags() -> tuple[str, ...]:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            have = next((set(line.split(":", 1)[1].split()) for line in fh
+                         if line.startswith("flags")), set())
+    except OSError:
+        return ()
+    if {"avx512f", "avx512dq", "avx512vl"} <= have and os.environ.get("OCREACH_AVX512", "1") != "0":
+        return ("-mavx2", "-mfma", "-mavx512f", "-mavx512dq", "-mavx512vl")
+    if {"avx2", "fma"} <= have:
+        return ("-mavx2", "-mfma")
+    return ("-mavx",) if "avx" in have else ()
+
+
+LANE_FLAGS = LANE_FLAGS_BASE + _cpu_flags()
+
+_PRELUDE = r"""
+#include <math.h>
+#include <string.h>
+typedef long long ocr_m __attribute__((vector_size(8 * OCR_LW)));
+#define OCR_ABSMASK 0x7fffffffffffffffLL
+static inline ocr_v ocr_sel(ocr_m m, ocr_v a, ocr_v b) {
+  return (ocr_v)((m & (ocr_m)a) | (~m & (ocr_m)b));
+}
+static inline ocr_v ocr_b2d(ocr_m m) { ocr_v one = ocr_bc(1.0); return (ocr_v)(m & (ocr_m)one); }
+static inline double ocr_sign1(double x) { return x < 0 ? -1.0 : (x > 0 ? 1.0 : x); }
+static inline ocr_v ocr_ld(const double* p) { ocr_v v; memcpy(&v, p, sizeof v); return v; }
+static inline void ocr_st(double* p, ocr_v v) { memcpy(p, &v, sizeof v); }
+#define OCR_MAP1(f, x) ({ ocr_v _x = (x), _r; for (int _l = 0; _l < OCR_LW; ++_l) _r[_l] = f(_x[_l]); _r; })
+#define OCR_MAP2(f, x, y) ({ ocr_v _x = (x), _y = (y), _r; \
+  for (int _l = 0; _l < OCR_LW; ++_l) _r[_l] = f(_x[_l], _y[_l]); _r; })
+"""
+
+
+def _power(x: str, c: float) -> str | None:
+    """``x ** c`` as products / square roots for small integer and half-integer ``c``."""
+    if c == int(c) and 1 <= abs(c) <= 4:
+        prod = "*".join([x] * int(abs(c)))
+    elif 2 * c == int(2 * c) and 0.5 <= abs(c) <= 3.5:
+        prod = "*".join([x] * int(abs(c) - 0.5) + [f"OCR_MAP1(sqrt, {x})"])
+    else:
+        return None
+    return f"({prod})" if c > 0 else f"(1.0/({prod}))"
+
+
+def _const(c: float) -> str:
+    if c != c:
+        return "ocr_bc(NAN)"
+    if abs(c) == float("inf"):
+        return f"ocr_bc({'' if c > 0 else '-'}INFINITY)"
+    return f"ocr_bc({c!r})"
+
+
+def lane_source(fun: ca.Function, name: str, width: int) -> str:
+    """C source defining ``static void NAME(const double** in, double** out)``: the SX Function
+    ``fun`` (expanded if it is not one) on ``width`` lanes; ``in[i]`` / ``out[j]`` point to
+    component-major arrays ``(nnz_i, width)``.  Outputs are written for their structural
+    non-zeros only (callers pass dense outputs)."""
+    if not fun.is_a("SXFunction"):
+        fun = fun.expand()
+    W = int(width)
+    bc = ", ".join(["c"] * W)
+    lines = [f"#define OCR_LW {W}", "typedef double ocr_v __attribute__((vector_size(8 * OCR_LW)));",
+             f"static inline ocr_v ocr_bc(double c) {{ return (ocr_v){{{bc}}}; }}",  # broadcast
+             _PRELUDE, f"static void {name}(const double** in, double** out) {{"]
+    if fun.sz_w():
+        lines.append("  ocr_v " + ", ".join(f"w{i}" for i in range(fun.sz_w())) + ";")
+    const: dict[int, float] = {}
+    for k in range(fun.n_instructions()):
+        op = fun.instruction_id(k)
+        ins = fun.instruction_input(k)
+        outs = fun.instruction_output(k)
+        if op == ca.OP_OUTPUT:
+            lines.append(f"  ocr_st(out[{outs[0]}] + {outs[1] * W}, w{ins[0]});")
+            continue
+        o = outs[0]
+        const.pop(o, None)
+        if op == ca.OP_INPUT:
+            expr = f"ocr_ld(in[{ins[0]}] + {ins[1] * W})"
+        elif op == ca.OP_CONST:
+            c = float(fun.instruction_constant(k))
+            expr = _const(c)
+            lines.append(f"  w{o} = {expr};")
+            const[o] = c
+            continue
+        elif op in _UNARY:
+            expr = _UNARY[op].format(x=f"w{ins[0]}")
+        elif op in _LIBM1:
+            expr = f"OCR_MAP1({_LIBM1[op]}, w{ins[0]})"
+        elif op in _BINARY:
+            expr = _BINARY[op].format(x=f"w{ins[0]}", y=f"w{ins[1]}")
+        elif op in _LIBM2:
+            expr = None
+            if op in (ca.OP_POW, ca.OP_CONSTPOW) and ins[1] in const:
+                expr = _power(f"w{ins[0]}", const[ins[1]])
+            expr = expr or f"OCR_MAP2({_LIBM2[op]}, w{ins[0]}, w{ins[1]})"
+        else:
+            raise LaneCodegenError(f"operation {op} of {fun.name()} has no lane form")
+        lines.append(f"  w{o} = {expr};")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
