@@ -1,0 +1,833 @@
+"""Sound interval evaluation of CasADi SX Functions, vectorised over many boxes.
+
+CasADi has no interval arithmetic, so this module walks a Function's algorithm (the instruction
+list: ``n_instructions``, ``instruction_id``, ``instruction_input``, ``instruction_output``,
+``instruction_constant`` and the ``casadi.OP_*`` codes) once, renames CasADi's reused work slots
+into single-assignment values, groups the independent instructions by depth and operation code,
+and evaluates every group as one numpy operation on arrays of shape ``(n_values, B)``: ``B``
+boxes at once.  This is the bound the remainders of Patel & Subbarao's methods need (the Lagrange
+remainder of Method 1, Eq. 13-15, bounded by the interval Hessian over the interval hull of the
+reachable set; ``R_err`` of Method 2, Eq. 25, which the paper leaves undefined).
+
+Soundness (``docs/intervals.md`` has the argument)
+-------------------------------------------------
+* ``+ - * /`` and ``sqrt`` are correctly rounded in IEEE 754 (error <= 1/2 ulp), so every bound
+  they produce is moved one ulp outward with ``np.nextafter``.
+* libm/SIMD functions (``sin cos tan exp log pow atan2 ...``) are not correctly rounded; their
+  bounds are moved outward by ``LIBM_REL * |y| + LIBM_ABS`` and then one more ulp.  ``LIBM_REL =
+  2**-46`` is 64 ulps, sixteen times the 4-ulp bound of numpy's AVX-512 (SVML) kernels and far
+  above glibc's < 1 ulp (the measured errors are in ``docs/intervals.md``).
+* Non-monotone functions are bounded exactly: ``sin``/``cos`` detect the extrema inside the
+  interval (with a generous tolerance that can only make the bound wider), even powers and
+  ``fabs``/``cosh`` use the smallest and largest magnitude, ``fmin``/``fmax``/``sign``/``floor``
+  are monotone and exact.
+* Where no finite bound exists the evaluator raises :class:`IntervalDomainError`, naming the op
+  and the box: division by (or a negative power of) an interval containing 0 (a primary body may
+  lie inside the box), ``sqrt``/``log`` of negative numbers, a pole of ``tan``, and an
+  ``if_else`` whose condition is undecided on the box (or a comparison feeding one).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from ocreach.errors import ProblemError, SolverError, check_count
+
+#: Relative outward margin after a libm/SIMD function (64 ulps of the result).
+LIBM_REL = 2.0**-46
+#: Absolute outward margin after a libm/SIMD function (covers results in the subnormal range).
+LIBM_ABS = 2.0**-1000
+#: Memory budget (bytes) of the value arrays of one evaluation chunk.
+CHUNK_BYTES = 2**27
+
+_OP_NAMES = {getattr(ca, n): n[3:].lower() for n in dir(ca) if n.startswith("OP_")}
+_INF = np.inf
+_PI_LO = 3.141592653589793          # float(pi) < pi
+_PI_HI = np.nextafter(_PI_LO, _INF)
+_HALF_PI_LO = _PI_LO / 2            # exact halving
+_HALF_PI_HI = _PI_HI / 2
+
+
+class IntervalDomainError(SolverError):
+    """An interval bound does not exist (or is not decidable) on a box.
+
+    Attributes: ``op`` (CasADi operation name), ``box`` (index of the offending box among the
+    ``B`` evaluated), ``inputs`` (list of ``(lo, hi)`` of every Function input on that box).
+    """
+
+    def __init__(self, message: str, op: str = "", box: int = -1, inputs: list | None = None):
+        super().__init__(message)
+        self.op = op
+        self.box = box
+        self.inputs = inputs or []
+
+
+class _Fail(Exception):
+    """Raised inside an op kernel: ``mask`` (g, B) marks the entries that have no bound."""
+
+    def __init__(self, mask: np.ndarray, reason: str):
+        super().__init__(reason)
+        self.mask = mask
+        self.reason = reason
+
+
+# ---------------------------------------------------------------------------- rounding helpers
+def _dn(x):
+    return np.nextafter(x, -_INF)
+
+
+def _up(x):
+    return np.nextafter(x, _INF)
+
+
+_FMAX = np.finfo(float).max
+
+
+def _ldn(y):
+    """Lower bound of a true value whose libm approximation is ``y`` (``y = +inf`` from an
+    overflow gives the largest float, less the margin)."""
+    y = np.clip(y, -_FMAX, _FMAX)
+    return np.nextafter(y - (np.abs(y) * LIBM_REL + LIBM_ABS), -_INF)
+
+
+def _lup(y):
+    """Upper bound of a true value whose libm approximation is ``y``."""
+    y = np.clip(y, -_FMAX, _FMAX)
+    return np.nextafter(y + (np.abs(y) * LIBM_REL + LIBM_ABS), _INF)
+
+
+def _mono_inc(fn, lo, hi, rng=(-_INF, _INF)):
+    """Bound of a non-decreasing libm function, clipped to its true range ``rng``."""
+    with np.errstate(all="ignore"):
+        return (np.maximum(_ldn(fn(lo)), rng[0]), np.minimum(_lup(fn(hi)), rng[1]))
+
+
+def _mono_dec(fn, lo, hi, rng=(-_INF, _INF)):
+    with np.errstate(all="ignore"):
+        return (np.maximum(_ldn(fn(hi)), rng[0]), np.minimum(_lup(fn(lo)), rng[1]))
+
+
+def _mig_mag(lo, hi):
+    """Smallest and largest ``|x|`` over ``[lo, hi]``."""
+    mig = np.where((lo <= 0) & (hi >= 0), 0.0, np.minimum(np.abs(lo), np.abs(hi)))
+    return mig, np.maximum(np.abs(lo), np.abs(hi))
+
+
+def _require(mask, reason):
+    if np.any(mask):
+        raise _Fail(mask, reason)
+
+
+# ---------------------------------------------------------------------------- op kernels
+# Every kernel takes (alo, ahi, blo, bhi, aux, undecided) with arrays of shape (g, B) (b is None
+# for unary ops; aux is a per-row (g, 1) array or None) and returns (lo, hi).
+
+def _add(alo, ahi, blo, bhi, aux, und):
+    return _dn(alo + blo), _up(ahi + bhi)
+
+
+def _sub(alo, ahi, blo, bhi, aux, und):
+    return _dn(alo - bhi), _up(ahi - blo)
+
+
+def _mul(alo, ahi, blo, bhi, aux, und):
+    p = (alo * blo, alo * bhi, ahi * blo, ahi * bhi)
+    return _dn(np.minimum(np.minimum(p[0], p[1]), np.minimum(p[2], p[3]))), \
+        _up(np.maximum(np.maximum(p[0], p[1]), np.maximum(p[2], p[3])))
+
+
+def _div(alo, ahi, blo, bhi, aux, und):
+    _require((blo <= 0) & (bhi >= 0), "division by an interval containing 0")
+    q = (alo / blo, alo / bhi, ahi / blo, ahi / bhi)
+    return _dn(np.minimum(np.minimum(q[0], q[1]), np.minimum(q[2], q[3]))), \
+        _up(np.maximum(np.maximum(q[0], q[1]), np.maximum(q[2], q[3])))
+
+
+def _inv(alo, ahi, blo, bhi, aux, und):
+    _require((alo <= 0) & (ahi >= 0), "inverse (1/x) of an interval containing 0")
+    return _dn(1.0 / ahi), _up(1.0 / alo)
+
+
+def _neg(alo, ahi, blo, bhi, aux, und):
+    return -ahi, -alo
+
+
+def _twice(alo, ahi, blo, bhi, aux, und):
+    return 2.0 * alo, 2.0 * ahi   # exact (overflow gives inf, still a bound)
+
+
+def _assign(alo, ahi, blo, bhi, aux, und):
+    return alo.copy(), ahi.copy()
+
+
+def _sq(alo, ahi, blo, bhi, aux, und):
+    mig, mag = _mig_mag(alo, ahi)
+    return np.maximum(_dn(mig * mig), 0.0), _up(mag * mag)
+
+
+def _sqrt(alo, ahi, blo, bhi, aux, und):
+    _require(alo < 0, "sqrt of an interval with negative numbers")
+    return np.maximum(_dn(np.sqrt(alo)), 0.0), _up(np.sqrt(ahi))
+
+
+def _fabs(alo, ahi, blo, bhi, aux, und):
+    return _mig_mag(alo, ahi)
+
+
+def _sign(alo, ahi, blo, bhi, aux, und):
+    return np.sign(alo), np.sign(ahi)  # sign is non-decreasing
+
+
+def _floor(alo, ahi, blo, bhi, aux, und):
+    return np.floor(alo), np.floor(ahi)
+
+
+def _ceil(alo, ahi, blo, bhi, aux, und):
+    return np.ceil(alo), np.ceil(ahi)
+
+
+def _fmin(alo, ahi, blo, bhi, aux, und):
+    return np.minimum(alo, blo), np.minimum(ahi, bhi)
+
+
+def _fmax(alo, ahi, blo, bhi, aux, und):
+    return np.maximum(alo, blo), np.maximum(ahi, bhi)
+
+
+def _copysign(alo, ahi, blo, bhi, aux, und):
+    mig, mag = _mig_mag(alo, ahi)
+    pos, neg = blo >= 0, bhi < 0  # the real number 0 has a positive sign
+    return np.where(pos, mig, np.where(neg, -mag, -mag)), np.where(pos, mag, np.where(neg, -mig, mag))
+
+
+def _contains_point(lo, hi, c, period):
+    """True where ``[lo, hi]`` contains (or nearly contains) a point ``c + k * period``.
+
+    The test is loose by ``1e-9 (1 + |x|)``: rounding in the reduction can only produce a false
+    'contains', which widens the bound to the extremum (sound)."""
+    tol = (1e-9 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))) / period
+    return np.ceil((lo - c) / period - tol) <= np.floor((hi - c) / period + tol)
+
+
+def _trig(fn, c_max, c_min, alo, ahi):
+    with np.errstate(all="ignore"):
+        ya, yb = fn(alo), fn(ahi)
+    lo = _ldn(np.minimum(ya, yb))
+    hi = _lup(np.maximum(ya, yb))
+    full = (ahi - alo >= 6.0) | (np.maximum(np.abs(alo), np.abs(ahi)) > 1e12)
+    hi = np.where(full | _contains_point(alo, ahi, c_max, 2 * math.pi), 1.0, hi)
+    lo = np.where(full | _contains_point(alo, ahi, c_min, 2 * math.pi), -1.0, lo)
+    return np.maximum(lo, -1.0), np.minimum(hi, 1.0)
+
+
+def _sin(alo, ahi, blo, bhi, aux, und):
+    return _trig(np.sin, 0.5 * math.pi, -0.5 * math.pi, alo, ahi)
+
+
+def _cos(alo, ahi, blo, bhi, aux, und):
+    return _trig(np.cos, 0.0, math.pi, alo, ahi)
+
+
+def _tan(alo, ahi, blo, bhi, aux, und):
+    big = np.maximum(np.abs(alo), np.abs(ahi)) > 1e12
+    _require(big | (ahi - alo >= 3.0) | _contains_point(alo, ahi, 0.5 * math.pi, math.pi),
+             "tan over an interval containing a pole pi/2 + k pi")
+    return _mono_inc(np.tan, alo, ahi)
+
+
+def _exp(alo, ahi, blo, bhi, aux, und):
+    return _mono_inc(np.exp, alo, ahi, (0.0, _INF))
+
+
+def _expm1(alo, ahi, blo, bhi, aux, und):
+    return _mono_inc(np.expm1, alo, ahi, (-1.0, _INF))
+
+
+def _log(alo, ahi, blo, bhi, aux, und):
+    _require(alo <= 0, "log of an interval containing numbers <= 0")
+    return _mono_inc(np.log, alo, ahi)
+
+
+def _log1p(alo, ahi, blo, bhi, aux, und):
+    _require(alo <= -1, "log1p of an interval containing numbers <= -1")
+    return _mono_inc(np.log1p, alo, ahi)
+
+
+def _asin(alo, ahi, blo, bhi, aux, und):
+    _require((alo < -1) | (ahi > 1), "asin of an interval outside [-1, 1]")
+    return _mono_inc(np.arcsin, alo, ahi, (-_HALF_PI_HI, _HALF_PI_HI))
+
+
+def _acos(alo, ahi, blo, bhi, aux, und):
+    _require((alo < -1) | (ahi > 1), "acos of an interval outside [-1, 1]")
+    return _mono_dec(np.arccos, alo, ahi, (0.0, _PI_HI))
+
+
+def _atan(alo, ahi, blo, bhi, aux, und):
+    return _mono_inc(np.arctan, alo, ahi, (-_HALF_PI_HI, _HALF_PI_HI))
+
+
+def _sinh(alo, ahi, blo, bhi, aux, und):
+    return _mono_inc(np.sinh, alo, ahi)
+
+
+def _cosh(alo, ahi, blo, bhi, aux, und):
+    mig, mag = _mig_mag(alo, ahi)
+    lo, hi = _mono_inc(np.cosh, mig, mag, (1.0, _INF))
+    return lo, hi
+
+
+def _tanh(alo, ahi, blo, bhi, aux, und):
+    return _mono_inc(np.tanh, alo, ahi, (-1.0, 1.0))
+
+
+def _asinh(alo, ahi, blo, bhi, aux, und):
+    return _mono_inc(np.arcsinh, alo, ahi)
+
+
+def _acosh(alo, ahi, blo, bhi, aux, und):
+    _require(alo < 1, "acosh of an interval containing numbers < 1")
+    return _mono_inc(np.arccosh, alo, ahi, (0.0, _INF))
+
+
+def _atanh(alo, ahi, blo, bhi, aux, und):
+    _require((alo <= -1) | (ahi >= 1), "atanh of an interval not inside (-1, 1)")
+    return _mono_inc(np.arctanh, alo, ahi)
+
+
+def _erf(alo, ahi, blo, bhi, aux, und):
+    from scipy.special import erf
+
+    return _mono_inc(erf, alo, ahi, (-1.0, 1.0))
+
+
+def _hypot(alo, ahi, blo, bhi, aux, und):
+    amig, amag = _mig_mag(alo, ahi)
+    bmig, bmag = _mig_mag(blo, bhi)
+    with np.errstate(all="ignore"):
+        return np.maximum(_ldn(np.hypot(amig, bmig)), 0.0), _lup(np.hypot(amag, bmag))
+
+
+def _atan2(ylo, yhi, xlo, xhi, aux, und):
+    """atan2(y, x) over a box: the extreme angles are at corners unless the box meets the branch
+    cut (x < 0, y = 0) or the origin, where the range is [-pi, pi]."""
+    with np.errstate(all="ignore"):
+        c = (np.arctan2(ylo, xlo), np.arctan2(ylo, xhi), np.arctan2(yhi, xlo), np.arctan2(yhi, xhi))
+    lo = _ldn(np.minimum(np.minimum(c[0], c[1]), np.minimum(c[2], c[3])))
+    hi = _lup(np.maximum(np.maximum(c[0], c[1]), np.maximum(c[2], c[3])))
+    cut = (xlo <= 0) & (ylo <= 0) & (yhi >= 0)
+    return np.maximum(np.where(cut, -_PI_HI, lo), -_PI_HI), np.minimum(np.where(cut, _PI_HI, hi), _PI_HI)
+
+
+def _pow(alo, ahi, blo, bhi, aux, und):
+    """x**y.  A point integer exponent is an integer power (any sign of x; even powers use the
+    magnitude, negative powers need 0 outside x); otherwise x must be >= 0 (> 0 where y <= 0)
+    and x**y is monotone in each argument, so the range is spanned by the four corners."""
+    point_int = (blo == bhi) & (np.floor(blo) == blo) & (np.abs(blo) < 2**53)
+    n = np.where(point_int, blo, 0.0)
+    odd = point_int & (np.fmod(n, 2.0) != 0)
+    even = point_int & ~odd
+    zero_in = (alo <= 0) & (ahi >= 0)
+    _require(point_int & (n < 0) & zero_in, "negative integer power of an interval containing 0")
+    _require(~point_int & (alo < 0), "non-integer power of an interval with negative numbers")
+    _require(~point_int & (alo <= 0) & (blo <= 0),
+             "power with exponent <= 0 of an interval containing 0")
+    with np.errstate(all="ignore"):
+        # integer powers
+        mig, mag = _mig_mag(alo, ahi)
+        e_lo, e_hi = np.power(mig, n), np.power(mag, n)       # |x|**n, n even
+        e_lo, e_hi = np.minimum(e_lo, e_hi), np.maximum(e_lo, e_hi)
+        o_a, o_b = np.power(alo, n), np.power(ahi, n)          # odd: monotone (inc n>0, dec n<0)
+        o_lo, o_hi = np.minimum(o_a, o_b), np.maximum(o_a, o_b)
+        # general powers: the four corners (x >= 0)
+        xa, xb = np.maximum(alo, 0.0), np.maximum(ahi, 0.0)
+        c = (np.power(xa, blo), np.power(xa, bhi), np.power(xb, blo), np.power(xb, bhi))
+        g_lo = np.minimum(np.minimum(c[0], c[1]), np.minimum(c[2], c[3]))
+        g_hi = np.maximum(np.maximum(c[0], c[1]), np.maximum(c[2], c[3]))
+        lo = np.where(even, e_lo, np.where(odd, o_lo, g_lo))
+        hi = np.where(even, e_hi, np.where(odd, o_hi, g_hi))
+        lo, hi = _ldn(lo), _lup(hi)
+        nonneg = even | ~point_int
+        lo = np.where(nonneg, np.maximum(lo, 0.0), lo)
+        lo = np.where(point_int & (n == 0), 1.0, lo)
+        hi = np.where(point_int & (n == 0), 1.0, hi)
+    return lo, hi
+
+
+def _decided(lo, hi, true_mask, false_mask, und, what):
+    """0/1 result of a comparison: exact where decided, [0, 1] or an error where undecided."""
+    undecided = ~(true_mask | false_mask)
+    if und == "error":
+        _require(undecided, f"{what} undecided on the box (the two intervals overlap)")
+    return (np.where(true_mask, 1.0, 0.0), np.where(false_mask, 0.0, 1.0))
+
+
+def _lt(alo, ahi, blo, bhi, aux, und):
+    return _decided(alo, ahi, ahi < blo, alo >= bhi, und, "comparison a < b")
+
+
+def _le(alo, ahi, blo, bhi, aux, und):
+    return _decided(alo, ahi, ahi <= blo, alo > bhi, und, "comparison a <= b")
+
+
+def _eq(alo, ahi, blo, bhi, aux, und):
+    t = (alo == ahi) & (blo == bhi) & (alo == blo)
+    return _decided(alo, ahi, t, (ahi < blo) | (bhi < alo), und, "comparison a == b")
+
+
+def _ne(alo, ahi, blo, bhi, aux, und):
+    f = (alo == ahi) & (blo == bhi) & (alo == blo)
+    return _decided(alo, ahi, (ahi < blo) | (bhi < alo), f, und, "comparison a != b")
+
+
+def _truth(lo, hi):
+    """(surely nonzero, surely zero) of an interval."""
+    return (lo > 0) | (hi < 0), (lo == 0) & (hi == 0)
+
+
+def _not(alo, ahi, blo, bhi, aux, und):
+    nz, z = _truth(alo, ahi)
+    return _decided(alo, ahi, z, nz, und, "logical not")
+
+
+def _and(alo, ahi, blo, bhi, aux, und):
+    anz, az = _truth(alo, ahi)
+    bnz, bz = _truth(blo, bhi)
+    return _decided(alo, ahi, anz & bnz, az | bz, und, "logical and")
+
+
+def _or(alo, ahi, blo, bhi, aux, und):
+    anz, az = _truth(alo, ahi)
+    bnz, bz = _truth(blo, bhi)
+    return _decided(alo, ahi, anz | bnz, az & bz, und, "logical or")
+
+
+def _if_else_zero(clo, chi, xlo, xhi, aux, und):
+    nz, z = _truth(clo, chi)
+    if und == "error":
+        _require(~(nz | z), "if_else condition undecided on the box (both branches possible); "
+                 "split the box or use undecided='hull'")
+    lo = np.where(nz, xlo, np.where(z, 0.0, np.minimum(xlo, 0.0)))
+    hi = np.where(nz, xhi, np.where(z, 0.0, np.maximum(xhi, 0.0)))
+    return lo, hi
+
+
+_KERNELS: dict[int, tuple[int, Callable]] = {
+    ca.OP_ADD: (2, _add), ca.OP_SUB: (2, _sub), ca.OP_MUL: (2, _mul), ca.OP_DIV: (2, _div),
+    ca.OP_NEG: (1, _neg), ca.OP_TWICE: (1, _twice), ca.OP_INV: (1, _inv), ca.OP_SQ: (1, _sq),
+    ca.OP_SQRT: (1, _sqrt), ca.OP_ASSIGN: (1, _assign), ca.OP_FABS: (1, _fabs),
+    ca.OP_SIGN: (1, _sign), ca.OP_FLOOR: (1, _floor), ca.OP_CEIL: (1, _ceil),
+    ca.OP_FMIN: (2, _fmin), ca.OP_FMAX: (2, _fmax), ca.OP_COPYSIGN: (2, _copysign),
+    ca.OP_SIN: (1, _sin), ca.OP_COS: (1, _cos), ca.OP_TAN: (1, _tan), ca.OP_EXP: (1, _exp),
+    ca.OP_EXPM1: (1, _expm1), ca.OP_LOG: (1, _log), ca.OP_LOG1P: (1, _log1p),
+    ca.OP_ASIN: (1, _asin), ca.OP_ACOS: (1, _acos), ca.OP_ATAN: (1, _atan),
+    ca.OP_SINH: (1, _sinh), ca.OP_COSH: (1, _cosh), ca.OP_TANH: (1, _tanh),
+    ca.OP_ASINH: (1, _asinh), ca.OP_ACOSH: (1, _acosh), ca.OP_ATANH: (1, _atanh),
+    ca.OP_ERF: (1, _erf), ca.OP_HYPOT: (2, _hypot), ca.OP_ATAN2: (2, _atan2),
+    ca.OP_POW: (2, _pow), ca.OP_CONSTPOW: (2, _pow),
+    ca.OP_LT: (2, _lt), ca.OP_LE: (2, _le), ca.OP_EQ: (2, _eq), ca.OP_NE: (2, _ne),
+    ca.OP_NOT: (1, _not), ca.OP_AND: (2, _and), ca.OP_OR: (2, _or),
+    ca.OP_IF_ELSE_ZERO: (2, _if_else_zero),
+}
+
+#: CasADi operation codes the evaluator bounds (besides OP_INPUT, OP_OUTPUT, OP_CONST).
+SUPPORTED_OPS = tuple(sorted(_OP_NAMES[k] for k in _KERNELS))
+UNDECIDED = ("error", "hull")
+
+
+# ---------------------------------------------------------------------------- compilation
+@dataclass(frozen=True)
+class _Group:
+    op: int
+    start: int          # first value row written by the group
+    stop: int
+    a: np.ndarray       # value rows of the first argument
+    b: np.ndarray | None
+    instr: np.ndarray   # CasADi instruction index of each row (for messages)
+
+
+def _as_sx(fun: ca.Function) -> ca.Function:
+    if not isinstance(fun, ca.Function):
+        raise ProblemError(f"fun must be a casadi.Function; got {type(fun).__name__}")
+    if fun.is_a("SXFunction"):
+        return fun
+    try:
+        out = fun.expand()
+    except Exception as exc:  # noqa: BLE001 - CasADi raises RuntimeError with its own text
+        raise ProblemError(f"Function {fun.name()!r} ({fun.class_name()}) cannot be expanded to an "
+                           f"SX Function for interval evaluation: {exc}") from exc
+    if not out.is_a("SXFunction"):
+        raise ProblemError(f"Function {fun.name()!r} expanded to {out.class_name()}, not an SX "
+                           "Function; interval evaluation needs SX")
+    return out
+
+
+class IntervalFunction:
+    """Sound interval extension of a CasADi Function, evaluated over many boxes at once.
+
+    Built once per Function (the instruction list is analysed in ``__init__``); call with
+    ``lo``/``hi``: lists (one per Function input) of arrays of shape ``(numel_i,)`` or
+    ``(numel_i, B)`` (matrix inputs flattened column-major, as CasADi does).  Returns a list (one
+    per output) of ``(lo, hi)`` arrays of shape ``(numel_out, B)``, dense column-major (structural
+    zeros are exact zeros).  :meth:`reshape` turns one of them into ``(rows, cols, B)``.
+
+    ``undecided``: ``"error"`` (default) raises :class:`IntervalDomainError` where a comparison or
+    an ``if_else`` condition is undecided on a box; ``"hull"`` returns the sound hull of both
+    branches instead (wider, never wrong).
+    """
+
+    def __init__(self, fun: ca.Function, *, undecided: str = "error"):
+        if undecided not in UNDECIDED:
+            raise ProblemError(f"undecided must be one of {UNDECIDED}; got {undecided!r}")
+        self.undecided = undecided
+        self.fun = _as_sx(fun)
+        f = self.fun
+        self.n_in, self.n_out = f.n_in(), f.n_out()
+        self.in_numel = [f.sparsity_in(i).numel() for i in range(self.n_in)]
+        self.out_shape = [f.sparsity_out(i).shape for i in range(self.n_out)]
+        in_dense = [np.asarray(f.sparsity_in(i).find(), dtype=np.int64) for i in range(self.n_in)]
+        out_dense = [np.asarray(f.sparsity_out(i).find(), dtype=np.int64) for i in range(self.n_out)]
+
+        # --- pass 1: single assignment (one value per instruction result; inputs and constants
+        # deduplicated), depth of every value
+        slot: dict[int, int] = {}
+        kind: list[tuple] = []          # per value: ("in", i, dense) | ("const", v) | ("op", op, a, b, k)
+        depth: list[int] = []
+        in_vals: dict[tuple[int, int], int] = {}
+        const_vals: dict[float, int] = {}
+        outputs: list[tuple[int, int, int]] = []   # (output, dense index, value)
+        for k in range(f.n_instructions()):
+            op = f.instruction_id(k)
+            if op == ca.OP_INPUT:
+                i, nz = f.instruction_input(k)
+                key = (i, nz)
+                if key not in in_vals:
+                    in_vals[key] = len(kind)
+                    kind.append(("in", i, int(in_dense[i][nz])))
+                    depth.append(0)
+                slot[f.instruction_output(k)[0]] = in_vals[key]
+            elif op == ca.OP_CONST:
+                v = float(f.instruction_constant(k))
+                if v not in const_vals:   # -0.0 and 0.0 are the same real number
+                    const_vals[v] = len(kind)
+                    kind.append(("const", v))
+                    depth.append(0)
+                slot[f.instruction_output(k)[0]] = const_vals[v]
+            elif op == ca.OP_OUTPUT:
+                o, nz = f.instruction_output(k)
+                outputs.append((o, int(out_dense[o][nz]), slot[f.instruction_input(k)[0]]))
+            elif op in _KERNELS:
+                arity = _KERNELS[op][0]
+                args = [slot[s] for s in f.instruction_input(k)[:arity]]
+                a = args[0]
+                b = args[1] if arity == 2 else -1
+                kind.append(("op", op, a, b, k))
+                depth.append(1 + max(depth[a], depth[b] if b >= 0 else 0))
+                slot[f.instruction_output(k)[0]] = len(kind) - 1
+            else:
+                name = _OP_NAMES.get(op, f"code {op}")
+                hint = (" (a free SX symbol: make it a Function input)" if op == ca.OP_PARAMETER
+                        else " (a call node: build the Function with inlined subfunctions)"
+                        if op == ca.OP_CALL else "")
+                raise ProblemError(f"interval evaluation of Function {f.name()!r}: operation "
+                                   f"{name!r}{hint} (instruction {k}) is not supported; "
+                                   f"supported: {list(SUPPORTED_OPS)}")
+
+        # --- pass 2: layout.  Rows: inputs, constants, then op groups by (depth, op) so that
+        # every group writes a contiguous slice.
+        n_vals = len(kind)
+        order = [v for v in range(n_vals) if kind[v][0] == "in"]
+        order += [v for v in range(n_vals) if kind[v][0] == "const"]
+        ops = [v for v in range(n_vals) if kind[v][0] == "op"]
+        ops.sort(key=lambda v: (depth[v], kind[v][1], v))
+        order += ops
+        row = np.empty(n_vals, dtype=np.int64)
+        row[np.asarray(order, dtype=np.int64)] = np.arange(n_vals)
+        self.n_values = n_vals
+        n_in_vals = sum(1 for v in order if kind[v][0] == "in")
+        self._in_rows = np.arange(n_in_vals)
+        self._in_src = [(kind[v][1], kind[v][2]) for v in order[:n_in_vals]]
+        self._in_src_arg = np.asarray([s[0] for s in self._in_src], dtype=np.int64)
+        self._in_src_idx = np.asarray([s[1] for s in self._in_src], dtype=np.int64)
+        consts = [kind[v][1] for v in order if kind[v][0] == "const"]
+        self._const_rows = slice(n_in_vals, n_in_vals + len(consts))
+        self._const_vals = np.asarray(consts, dtype=float)[:, None]
+        groups: list[_Group] = []
+        for (_, op), members in itertools.groupby(ops, key=lambda v: (depth[v], kind[v][1])):
+            members = list(members)
+            a = np.asarray([row[kind[v][2]] for v in members], dtype=np.int64)
+            b = (np.asarray([row[kind[v][3]] for v in members], dtype=np.int64)
+                 if _KERNELS[op][0] == 2 else None)
+            start = int(row[members[0]])
+            groups.append(_Group(op, start, start + len(members), a, b,
+                                 np.asarray([kind[v][4] for v in members], dtype=np.int64)))
+        self._groups = groups
+        self._out_rows = [np.asarray([row[v] for (o, d, v) in outputs if o == i], dtype=np.int64)
+                          for i in range(self.n_out)]
+        self._out_dense = [np.asarray([d for (o, d, v) in outputs if o == i], dtype=np.int64)
+                           for i in range(self.n_out)]
+        self.depth = max(depth, default=0)
+
+    # ------------------------------------------------------------------ evaluation
+    @property
+    def n_groups(self) -> int:
+        """Number of vectorised numpy steps per evaluation."""
+        return len(self._groups)
+
+    def _check_inputs(self, lo, hi) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+        name = self.fun.name()
+        if not isinstance(lo, (list, tuple)) or not isinstance(hi, (list, tuple)) \
+                or len(lo) != self.n_in or len(hi) != self.n_in:
+            raise ProblemError(f"lo and hi must be lists of {self.n_in} arrays (one per input of "
+                               f"Function {name!r}: {self.fun.name_in()})")
+        los, his, widths = [], [], set()
+        for i in range(self.n_in):
+            arg = self.fun.name_in(i)
+            l = np.asarray(lo[i], dtype=float)
+            h = np.asarray(hi[i], dtype=float)
+            n = self.in_numel[i]
+            l = l.reshape(-1, 1) if l.ndim <= 1 else l
+            h = h.reshape(-1, 1) if h.ndim <= 1 else h
+            if l.ndim != 2 or h.ndim != 2 or l.shape[0] != n or h.shape != l.shape:
+                raise ProblemError(f"input {arg!r} of {name!r}: lo and hi must have shape ({n},) "
+                                   f"or ({n}, B); got {np.shape(lo[i])} and {np.shape(hi[i])}")
+            if not (np.all(np.isfinite(l)) and np.all(np.isfinite(h))):
+                raise ProblemError(f"input {arg!r} of {name!r}: box bounds must be finite; "
+                                   f"got lo={l.ravel()[:8]!r}, hi={h.ravel()[:8]!r}")
+            if np.any(l > h):
+                j, b = np.argwhere(l > h)[0]
+                raise ProblemError(f"input {arg!r} of {name!r}: inverted box (lo > hi) at entry "
+                                   f"{j} of box {b}: lo={l[j, b]!r} > hi={h[j, b]!r}")
+            if n:
+                widths.add(l.shape[1])
+            los.append(l)
+            his.append(h)
+        widths.discard(1)
+        if len(widths) > 1:
+            raise ProblemError(f"inputs of {name!r} have different numbers of boxes {sorted(widths)}; "
+                               "give each input B columns (or 1 to broadcast)")
+        B = widths.pop() if widths else 1
+        return los, his, B
+
+    def __call__(self, lo: Sequence, hi: Sequence) -> list[tuple[np.ndarray, np.ndarray]]:
+        los, his, B = self._check_inputs(lo, hi)
+        outs = [(np.zeros((int(np.prod(s)), B)), np.zeros((int(np.prod(s)), B))) for s in self.out_shape]
+        chunk = max(1, min(B, CHUNK_BYTES // (16 * max(self.n_values, 1))))
+        for s in range(0, B, chunk):
+            e = min(B, s + chunk)
+            self._eval_chunk(los, his, s, e, outs)
+        return outs
+
+    def _eval_chunk(self, los, his, s, e, outs):
+        nb = e - s
+        L = np.empty((self.n_values, nb))
+        H = np.empty((self.n_values, nb))
+        for i in range(self.n_in):
+            rows = self._in_rows[self._in_src_arg == i]
+            if rows.size:
+                idx = self._in_src_idx[rows]
+                li, hi_ = los[i], his[i]
+                L[rows] = li[idx] if li.shape[1] == 1 else li[idx, s:e]
+                H[rows] = hi_[idx] if hi_.shape[1] == 1 else hi_[idx, s:e]
+        L[self._const_rows] = self._const_vals
+        H[self._const_rows] = self._const_vals
+        und = self.undecided
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            for g in self._groups:
+                kern = _KERNELS[g.op][1]
+                alo, ahi = L[g.a], H[g.a]
+                blo, bhi = (L[g.b], H[g.b]) if g.b is not None else (None, None)
+                try:
+                    rlo, rhi = kern(alo, ahi, blo, bhi, None, und)
+                except _Fail as fail:
+                    self._raise(fail.mask, fail.reason, g, los, his, s)
+                bad = np.isnan(rlo) | np.isnan(rhi)
+                if bad.any():
+                    self._raise(bad, "the bound is not a number (overflow to inf, then inf - inf "
+                                "or 0 * inf)", g, los, his, s)
+                L[g.start:g.stop] = rlo
+                H[g.start:g.stop] = rhi
+        for i, (olo, ohi) in enumerate(outs):
+            olo[self._out_dense[i], s:e] = L[self._out_rows[i]]
+            ohi[self._out_dense[i], s:e] = H[self._out_rows[i]]
+
+    def _raise(self, mask, reason, g: _Group, los, his, offset):
+        r, c = np.argwhere(mask)[0]
+        box = int(offset + c)
+        inputs = [(l[:, 0 if l.shape[1] == 1 else box].copy(), h[:, 0 if h.shape[1] == 1 else box].copy())
+                  for l, h in zip(los, his)]
+        op = _OP_NAMES.get(g.op, str(g.op))
+        desc = "; ".join(f"{self.fun.name_in(i)}: lo={np.array2string(l, precision=17)} "
+                         f"hi={np.array2string(h, precision=17)}" for i, (l, h) in enumerate(inputs))
+        extra = (" A primary (a singularity of the dynamics, e.g. the centre of a body) may lie "
+                 "inside the box: shrink or split the box, or move it away from the singularity."
+                 if g.op in (ca.OP_DIV, ca.OP_INV, ca.OP_POW, ca.OP_CONSTPOW, ca.OP_LOG, ca.OP_TAN)
+                 else "")
+        raise IntervalDomainError(
+            f"interval evaluation of {self.fun.name()!r} failed at instruction {int(g.instr[r])} "
+            f"({op}): {reason}, on box {box}: {desc}.{extra}", op=op, box=box, inputs=inputs) from None
+
+    # ------------------------------------------------------------------ helpers
+    def reshape(self, out: tuple[np.ndarray, np.ndarray], i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Output ``i`` (as returned by ``__call__``) reshaped to ``(rows, cols, B)``."""
+        rows, cols = self.out_shape[i]
+        return tuple(np.reshape(a, (cols, rows, a.shape[-1])).transpose(1, 0, 2) for a in out)
+
+    def __repr__(self) -> str:
+        return (f"IntervalFunction({self.fun.name()!r}: {self.n_values} values, "
+                f"{len(self._groups)} groups, depth {self.depth})")
+
+
+def interval_function(fun: ca.Function, *, model: Any = None, key: Any = None,
+                      undecided: str = "error") -> IntervalFunction:
+    """:class:`IntervalFunction` of ``fun``, cached through ``model.cached`` when ``model`` is
+    given (``key`` defaults to the Function's name)."""
+    if model is None:
+        return IntervalFunction(fun, undecided=undecided)
+    k = ("intervals", key if key is not None else fun.name(), undecided)
+    return model.cached(k, lambda: IntervalFunction(fun, undecided=undecided))
+
+
+# ---------------------------------------------------------------------------- sub-box splitting
+def split_boxes(lo: Sequence, hi: Sequence, splits: int, *, max_boxes: int = 4096,
+                dims: Sequence[tuple[int, int]] | None = None) -> tuple[list, list, int]:
+    """Split one box (lists of ``(n_i,)`` arrays per input) into a uniform grid of sub-boxes.
+
+    The widest entries (over all inputs; or the ``(input, entry)`` pairs in ``dims``) are cut into
+    ``splits`` pieces each, as many entries as fit into ``max_boxes`` sub-boxes.  Neighbouring
+    sub-boxes share their cut points exactly, so the sub-boxes cover the box.  Returns
+    ``(lo_list, hi_list, S)`` with arrays of shape ``(n_i, S)``.
+    """
+    splits = check_count("splits", splits, 1)
+    max_boxes = check_count("max_boxes", max_boxes, 1)
+    lo = [np.asarray(a, dtype=float).ravel() for a in lo]
+    hi = [np.asarray(a, dtype=float).ravel() for a in hi]
+    if dims is None:
+        cand = sorted(((float(h[j] - l[j]), i, j) for i, (l, h) in enumerate(zip(lo, hi))
+                       for j in range(l.size) if h[j] > l[j]), reverse=True)
+        n_dims = 0 if splits == 1 else int(math.floor(math.log(max_boxes) / math.log(splits) + 1e-12))
+        dims = [(i, j) for (_, i, j) in cand[:n_dims]]
+    dims = list(dims)
+    if splits ** len(dims) > max_boxes:
+        raise ProblemError(f"splits={splits} over {len(dims)} dims gives {splits ** len(dims)} "
+                           f"sub-boxes > max_boxes={max_boxes}")
+    S = splits ** len(dims)
+    out_lo = [np.repeat(l[:, None], S, axis=1) for l in lo]
+    out_hi = [np.repeat(h[:, None], S, axis=1) for h in hi]
+    if dims:
+        grid = np.indices((splits,) * len(dims)).reshape(len(dims), S)
+        for d, (i, j) in enumerate(dims):
+            cuts = lo[i][j] + (hi[i][j] - lo[i][j]) * (np.arange(splits + 1) / splits)
+            cuts[0], cuts[-1] = lo[i][j], hi[i][j]
+            cuts = np.maximum.accumulate(np.clip(cuts, lo[i][j], hi[i][j]))
+            out_lo[i][j] = cuts[grid[d]]
+            out_hi[i][j] = cuts[grid[d] + 1]
+    return out_lo, out_hi, S
+
+
+def bound(fun: ca.Function | IntervalFunction, lo: Sequence, hi: Sequence, *, splits: int = 1,
+          max_boxes: int = 4096, dims: Sequence[tuple[int, int]] | None = None
+          ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Interval bound of ``fun`` over one box, tightened by splitting it into sub-boxes.
+
+    ``lo``/``hi``: lists of ``(n_i,)`` arrays (one per input).  With ``splits = k`` the widest
+    entries are each cut into ``k`` pieces (as many as fit into ``max_boxes`` sub-boxes, see
+    :func:`split_boxes`); the result is the union hull over the sub-boxes, as a list of
+    ``(lo, hi)`` arrays of shape ``(numel_out,)``.
+    """
+    ifun = fun if isinstance(fun, IntervalFunction) else IntervalFunction(fun)
+    ifun._check_inputs([np.asarray(a, dtype=float).ravel() for a in lo],
+                       [np.asarray(a, dtype=float).ravel() for a in hi])
+    slo, shi, _ = split_boxes(lo, hi, splits, max_boxes=max_boxes, dims=dims)
+    return [(l.min(axis=1), h.max(axis=1)) for (l, h) in ifun(slo, shi)]
+
+
+# ---------------------------------------------------------------------------- model bounds
+Box = tuple[Any, Any]
+
+
+class ModelIntervals:
+    """Interval bounds of a :class:`ocreach.model.Model`'s ``f``, Jacobians and Hessian tensor.
+
+    Every method takes boxes ``x = (lo, hi)``, ``u = (lo, hi)`` with arrays of shape ``(n,)`` or
+    ``(n, B)``; ``t`` a number or a box (default 0); ``p`` ``None`` (the model's defaults), a vector
+    or a box.  Get it with :func:`for_model` (cached on the model).
+    """
+
+    def __init__(self, model: Any, undecided: str = "error"):
+        self.model = model
+        self.undecided = undecided
+
+    def _fun(self, what: str) -> IntervalFunction:
+        m = self.model
+
+        def build() -> ca.Function:
+            args = [m.x, m.u, m.t, m.p]
+            names = ["x", "u", "t", "p"]
+            if what == "f":
+                return m.f_fun
+            if what == "jac":
+                return m.jac_fun
+            if what == "hessian":
+                return ca.Function("f_hessian", args, [m.derivative_expressions(2)[1]], names, ["H"])
+            if what == "all":
+                d1, d2 = m.derivative_expressions(2)[:2]
+                return ca.Function("f_jac_hess", args, [m.f, d1, d2], names, ["f", "J", "H"])
+            raise ProblemError(f"unknown model interval function {what!r}; allowed: "
+                               "'f', 'jac', 'hessian', 'all'")
+
+        return interval_function(build(), model=m, key=("model", what), undecided=self.undecided)
+
+    def _args(self, x: Box, u: Box | None, t, p) -> tuple[list, list]:
+        m = self.model
+        u = (np.zeros(m.n_u), np.zeros(m.n_u)) if u is None else u
+        t = (t, t) if np.ndim(t) == 0 or (not isinstance(t, tuple)) else t
+        if p is None:
+            p = (m.p_default, m.p_default)
+        elif not isinstance(p, tuple):
+            p = (p, p)
+        lo = [x[0], u[0], np.reshape(np.asarray(t[0], dtype=float), (1, -1)), p[0]]
+        hi = [x[1], u[1], np.reshape(np.asarray(t[1], dtype=float), (1, -1)), p[1]]
+        return lo, hi
+
+    def f(self, x: Box, u: Box | None = None, t=0.0, p=None) -> tuple[np.ndarray, np.ndarray]:
+        """Bound of ``f(x, u, t; p)``: ``(lo, hi)`` of shape ``(n_x, B)``."""
+        return self._fun("f")(*self._args(x, u, t, p))[0]
+
+    def jacobians(self, x: Box, u: Box | None = None, t=0.0, p=None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Bounds of ``[f, df/dx, df/du]``: shapes ``(n_x, B)``, ``(n_x, n_x, B)``, ``(n_x, n_u, B)``."""
+        F = self._fun("jac")
+        out = F(*self._args(x, u, t, p))
+        return [out[0], F.reshape(out[1], 1), F.reshape(out[2], 2)]
+
+    def hessian(self, x: Box, u: Box | None = None, t=0.0, p=None) -> tuple[np.ndarray, np.ndarray]:
+        """Bound of the Hessian tensor ``H[i, a, b] = d^2 f_i / dz_a dz_b``, ``z = (x, u)``:
+        ``(lo, hi)`` of shape ``(n_x, n_z, n_z, B)`` (Foss et al. Eq. 11 layout, as
+        :meth:`ocreach.model.Model.tensors`)."""
+        F = self._fun("hessian")
+        return self._hess(F, F(*self._args(x, u, t, p))[0])
+
+    def all(self, x: Box, u: Box | None = None, t=0.0, p=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """``f`` (n_x, B), ``J = df/dz`` (n_x, n_z, B) and ``H`` (n_x, n_z, n_z, B) in one pass."""
+        F = self._fun("all")
+        out = F(*self._args(x, u, t, p))
+        return {"f": out[0], "J": F.reshape(out[1], 1), "H": self._hess(F, out[2])}
+
+    def _hess(self, F: IntervalFunction, out, i: int = -1):
+        m = self.model
+        lo, hi = F.reshape(out, F.n_out - 1 if i < 0 else i)
+        B = lo.shape[-1]
+        return (lo.reshape(m.n_x, m.n_z, m.n_z, B), hi.reshape(m.n_x, m.n_z, m.n_z, B))
+
+
+def for_model(model: Any, *, undecided: str = "error") -> ModelIntervals:
+    """The :class:`ModelIntervals` of ``model`` (cached with ``model.cached``)."""
+    if undecided not in UNDECIDED:
+        raise ProblemError(f"undecided must be one of {UNDECIDED}; got {undecided!r}")
+    return model.cached(("intervals", "model", undecided), lambda: ModelIntervals(model, undecided))
