@@ -128,25 +128,47 @@ def _require(mask, reason):
 # Every kernel takes (alo, ahi, blo, bhi, aux, undecided) with arrays of shape (g, B) (b is None
 # for unary ops; aux is a per-row (g, 1) array or None) and returns (lo, hi).
 
+def _sum_dn(s):
+    """Lower bound of an exact sum whose rounded value is ``s``.  With gradual underflow a
+    float sum is 0 only if it is exactly 0, so 0 is kept (a sum of squares stays >= 0)."""
+    return np.where(s == 0, 0.0, _dn(s))
+
+
+def _sum_up(s):
+    return np.where(s == 0, 0.0, _up(s))
+
+
 def _add(alo, ahi, blo, bhi, aux, und):
-    return _dn(alo + blo), _up(ahi + bhi)
+    lo, hi = alo + blo, ahi + bhi
+    # x + 0 is exact: no widening where an addend end is 0 (e.g. the zero branch of if_else)
+    return (np.where((alo == 0) | (blo == 0), lo, _sum_dn(lo)),
+            np.where((ahi == 0) | (bhi == 0), hi, _sum_up(hi)))
 
 
 def _sub(alo, ahi, blo, bhi, aux, und):
-    return _dn(alo - bhi), _up(ahi - blo)
+    lo, hi = alo - bhi, ahi - blo
+    return (np.where((alo == 0) | (bhi == 0), lo, _sum_dn(lo)),
+            np.where((ahi == 0) | (blo == 0), hi, _sum_up(hi)))
+
+
+def _corners(p):
+    """Hull of four corner values.  ``fmin``/``fmax`` skip a NaN corner: one from ``0 * inf``
+    (an overflowed bound is 'unbounded', and 0 times a finite number is the 0 corner, which
+    another corner holds) or ``inf / inf`` (the other corners hold 0 and inf)."""
+    return (np.fmin(np.fmin(p[0], p[1]), np.fmin(p[2], p[3])),
+            np.fmax(np.fmax(p[0], p[1]), np.fmax(p[2], p[3])))
 
 
 def _mul(alo, ahi, blo, bhi, aux, und):
-    p = (alo * blo, alo * bhi, ahi * blo, ahi * bhi)
-    return _dn(np.minimum(np.minimum(p[0], p[1]), np.minimum(p[2], p[3]))), \
-        _up(np.maximum(np.maximum(p[0], p[1]), np.maximum(p[2], p[3])))
+    lo, hi = _corners((alo * blo, alo * bhi, ahi * blo, ahi * bhi))
+    exact0 = (alo == 0) & (ahi == 0) | (blo == 0) & (bhi == 0)   # a factor is exactly 0
+    return np.where(exact0, 0.0, _dn(lo)), np.where(exact0, 0.0, _up(hi))
 
 
 def _div(alo, ahi, blo, bhi, aux, und):
     _require((blo <= 0) & (bhi >= 0), "division by an interval containing 0")
-    q = (alo / blo, alo / bhi, ahi / blo, ahi / bhi)
-    return _dn(np.minimum(np.minimum(q[0], q[1]), np.minimum(q[2], q[3]))), \
-        _up(np.maximum(np.maximum(q[0], q[1]), np.maximum(q[2], q[3])))
+    lo, hi = _corners((alo / blo, alo / bhi, ahi / blo, ahi / bhi))
+    return _dn(lo), _up(hi)
 
 
 def _inv(alo, ahi, blo, bhi, aux, und):
@@ -473,7 +495,8 @@ class IntervalFunction:
 
     Built once per Function (the instruction list is analysed in ``__init__``); call with
     ``lo``/``hi``: lists (one per Function input) of arrays of shape ``(numel_i,)`` or
-    ``(numel_i, B)`` (matrix inputs flattened column-major, as CasADi does).  Returns a list (one
+    ``(numel_i, B)`` (matrix inputs flattened column-major, as CasADi does; a scalar input also
+    takes shape ``(B,)``; a single column broadcasts over the ``B`` boxes).  Returns a list (one
     per output) of ``(lo, hi)`` arrays of shape ``(numel_out, B)``, dense column-major (structural
     zeros are exact zeros).  :meth:`reshape` turns one of them into ``(rows, cols, B)``.
 
@@ -533,7 +556,8 @@ class IntervalFunction:
             else:
                 name = _OP_NAMES.get(op, f"code {op}")
                 hint = (" (a free SX symbol: make it a Function input)" if op == ca.OP_PARAMETER
-                        else " (a call node: build the Function with inlined subfunctions)"
+                        else " (a call node, e.g. a Callback or external Function whose graph "
+                        "the evaluator cannot see: inline it or write it in SX)"
                         if op == ca.OP_CALL else "")
                 raise ProblemError(f"interval evaluation of Function {f.name()!r}: operation "
                                    f"{name!r}{hint} (instruction {k}) is not supported; "
@@ -592,8 +616,9 @@ class IntervalFunction:
             l = np.asarray(lo[i], dtype=float)
             h = np.asarray(hi[i], dtype=float)
             n = self.in_numel[i]
-            l = l.reshape(-1, 1) if l.ndim <= 1 else l
-            h = h.reshape(-1, 1) if h.ndim <= 1 else h
+            shape_1d = (1, -1) if n == 1 else (-1, 1)   # a scalar input: (B,) is B boxes
+            l = l.reshape(shape_1d) if l.ndim <= 1 else l
+            h = h.reshape(shape_1d) if h.ndim <= 1 else h
             if l.ndim != 2 or h.ndim != 2 or l.shape[0] != n or h.shape != l.shape:
                 raise ProblemError(f"input {arg!r} of {name!r}: lo and hi must have shape ({n},) "
                                    f"or ({n}, B); got {np.shape(lo[i])} and {np.shape(hi[i])}")
@@ -663,8 +688,11 @@ class IntervalFunction:
         inputs = [(l[:, 0 if l.shape[1] == 1 else box].copy(), h[:, 0 if h.shape[1] == 1 else box].copy())
                   for l, h in zip(los, his)]
         op = _OP_NAMES.get(g.op, str(g.op))
-        desc = "; ".join(f"{self.fun.name_in(i)}: lo={np.array2string(l, precision=17)} "
-                         f"hi={np.array2string(h, precision=17)}" for i, (l, h) in enumerate(inputs))
+        def fmt(a):
+            return np.array2string(a, precision=17, separator=", ", max_line_width=10**6)
+
+        desc = "; ".join(f"{self.fun.name_in(i)}: lo={fmt(l)} hi={fmt(h)}"
+                         for i, (l, h) in enumerate(inputs))
         extra = (" A primary (a singularity of the dynamics, e.g. the centre of a body) may lie "
                  "inside the box: shrink or split the box, or move it away from the singularity."
                  if g.op in (ca.OP_DIV, ca.OP_INV, ca.OP_POW, ca.OP_CONSTPOW, ca.OP_LOG, ca.OP_TAN)
