@@ -413,7 +413,7 @@ def test_overflow_is_unbounded_not_nan(monkeypatch):
     assert (l2, h2) == (0.0, 0.0)                 # exp(x) * 0 is 0, not 0 * inf = NaN
     assert l3 <= 1 <= h3
     # a kernel that returns NaN is caught and named (the guard behind every group)
-    nan_kernel = (1, lambda alo, ahi, blo, bhi, aux, und: (np.where(alo > 0.5, np.nan, alo), ahi))
+    nan_kernel = (1, lambda alo, ahi, blo, bhi, und: (np.where(alo > 0.5, np.nan, alo), ahi))
     monkeypatch.setitem(iv._KERNELS, ca.OP_SIN, nan_kernel)
     G = IntervalFunction(ca.Function("n", [_X], [ca.sin(_X)]))
     with pytest.raises(IntervalDomainError, match=r"\(sin\).*not a number.*box 1"):
