@@ -80,12 +80,25 @@ class _Fail(Exception):
 
 
 # ---------------------------------------------------------------------------- rounding helpers
+_ULP_REL = 2.0**-52     # |x| * 2**-52 >= ulp(x) for every finite x (and exact for normal x)
+_ETA = 2.0**-1074       # the smallest subnormal
+
+
 def _dn(x):
-    return np.nextafter(x, -_INF)
+    """A float <= the predecessor of ``x`` (so below every real that rounds to ``x``).
+
+    ``x - (|x| 2**-52 + 2**-1074)`` in round-to-nearest: the subtracted amount is at least
+    ulp(x) (the product is a power-of-two scaling, exact unless it underflows, and then still
+    >= the power of two ulp(x) by monotone rounding), so the exact difference is <= pred(x) and
+    rounding to nearest (monotone, pred(x) is a float) cannot go above pred(x).  Cf. Rump,
+    Zimmermann, Boldo & Melquiond, BIT 49 (2009).  About 5x faster than ``np.nextafter``, which
+    numpy does not vectorise.  ``x = +inf`` gives NaN (caught by the NaN guard: an overflow)."""
+    return x - (np.abs(x) * _ULP_REL + _ETA)
 
 
 def _up(x):
-    return np.nextafter(x, _INF)
+    """A float >= the successor of ``x`` (see :func:`_dn`)."""
+    return x + (np.abs(x) * _ULP_REL + _ETA)
 
 
 _FMAX = np.finfo(float).max
@@ -165,6 +178,12 @@ def _mul(alo, ahi, blo, bhi, und):
     lo, hi = _corners((alo * blo, alo * bhi, ahi * blo, ahi * bhi))
     exact0 = (alo == 0) & (ahi == 0) | (blo == 0) & (bhi == 0)   # a factor is exactly 0
     return np.where(exact0, 0.0, _dn(lo)), np.where(exact0, 0.0, _up(hi))
+
+
+def _mulc(alo, ahi, c, _, und):
+    """``x * c`` with a constant ``c`` (a pseudo op made at compile time): two products."""
+    p, q = alo * c, ahi * c
+    return _dn(np.minimum(p, q)), _up(np.maximum(p, q))
 
 
 def _div(alo, ahi, blo, bhi, und):
@@ -460,9 +479,13 @@ _KERNELS: dict[int, tuple[int, Callable]] = {
     ca.OP_NOT: (1, _not), ca.OP_AND: (2, _and), ca.OP_OR: (2, _or),
     ca.OP_IF_ELSE_ZERO: (2, _if_else_zero),
 }
+#: Pseudo op code: a multiplication whose second argument is a constant.
+_OP_MULC = -1
+_KERNELS[_OP_MULC] = (2, _mulc)
+_OP_NAMES[_OP_MULC] = "mul"
 
 #: CasADi operation codes the evaluator bounds (besides OP_INPUT, OP_OUTPUT, OP_CONST).
-SUPPORTED_OPS = tuple(sorted(_OP_NAMES[k] for k in _KERNELS))
+SUPPORTED_OPS = tuple(sorted({_OP_NAMES[k] for k in _KERNELS}))
 UNDECIDED = ("error", "hull")
 
 
@@ -580,7 +603,11 @@ class IntervalFunction:
                 outputs.append((o, int(out_dense[o][nz]), slot[f.instruction_input(k)[0]]))
             elif op in _KERNELS:
                 arity = _KERNELS[op][0]
-                node_args.append(tuple(slot[s] for s in f.instruction_input(k)[:arity]))
+                args = tuple(slot[s] for s in f.instruction_input(k)[:arity])
+                if op == ca.OP_MUL and "const" in (args[0][0], args[1][0]):
+                    op = _OP_MULC                      # constant second: 2 products, not 4
+                    args = args if args[1][0] == "const" else (args[1], args[0])
+                node_args.append(args)
                 node_op.append(op)
                 node_instr.append(k)
                 slot[f.instruction_output(k)[0]] = ("op", len(node_op) - 1)

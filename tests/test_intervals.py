@@ -168,6 +168,25 @@ def test_model_helpers_shapes_and_cache():
     assert lo.shape == (6, 5)
 
 
+def test_outward_rounding_steps_pass_the_neighbouring_float():
+    """_dn(x) <= pred(x) and _up(x) >= succ(x) for floats of every magnitude (subnormals, powers
+    of two and their neighbours, the largest floats): every real that rounds to x is inside."""
+    rng = np.random.default_rng(0)
+    e = rng.integers(-1074, 1024, 200_000)
+    x = np.ldexp(rng.uniform(1, 2, e.size), e) * rng.choice([-1, 1], e.size)
+    p2 = np.ldexp(1.0, np.arange(-1074, 1024))
+    x = np.concatenate([x, p2, -p2, np.nextafter(p2, 0), -np.nextafter(p2, 0),
+                        [0.0, -0.0, np.finfo(float).max, -np.finfo(float).max]])
+    x = x[np.isfinite(x)]
+    with np.errstate(over="ignore"):
+        assert np.all(iv._up(x) >= np.nextafter(x, np.inf))
+        assert np.all(iv._dn(x) <= np.nextafter(x, -np.inf))
+        # and by at most 3 ulps of |x| (2 in general, 3 where |x| 2**-52 underflows)
+        fin = np.abs(x) < 2.0**1023
+        assert np.all((iv._up(x) - x)[fin] <= 3 * np.spacing(np.abs(x[fin])))
+        assert np.all((x - iv._dn(x))[fin] <= 3 * np.spacing(np.abs(x[fin])))
+
+
 # ---------------------------------------------------------------------------- single ops
 _X, _Y = ca.SX.sym("x"), ca.SX.sym("y")
 
