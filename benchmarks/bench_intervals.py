@@ -44,11 +44,13 @@ def _boxes(rng, model, centre, spread, ubox, n):
 
 
 def _median_time(fn, reps):
+    """Median CPU time of this process (``time.process_time``: both sides are single-threaded,
+    and CPU time is robust to the other work on the shared machine, unlike wall time)."""
     ts = []
     for _ in range(reps):
-        t = time.perf_counter()
+        t = time.process_time()
         fn()
-        ts.append(time.perf_counter() - t)
+        ts.append(time.process_time() - t)
     return float(np.median(ts))
 
 
@@ -62,9 +64,9 @@ def run_case(label, model, centre, spread, ubox, what, n_ours=10_000, n_peer=100
     ours = F(lo, hi)
     ref = Reference(F.fun)
     escapes, excess, ratios = 0, 0.0, []
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     outs = [ref([a[:, b] for a in lo], [a[:, b] for a in hi]) for b in range(n_peer)]
-    t_peer = (time.perf_counter() - t0) / n_peer
+    t_peer = (time.process_time() - t0) / n_peer
     for b, out in enumerate(outs):
         for o, (olo, ohi) in enumerate(ours):
             rl, rh = as_arrays(out[o])
@@ -108,7 +110,8 @@ def main() -> None:
         "## Interval evaluator",
         "",
         f"`python benchmarks/bench_intervals.py` ({time.strftime('%Y-%m-%d')}; the machine was shared "
-        "with other developers' work, so absolute times are noisy).  ocreach: one vectorised call "
+        "with other developers' work, so times are CPU times of the benchmark process, both sides "
+        "single-threaded).  ocreach: one vectorised call "
         f"over {args.boxes:,} random boxes (median of 3), per box; peer: the same CasADi graph walked "
         "instruction by instruction with `mpmath.iv` (53-bit directed rounding), per box, on the "
         "first N boxes.  Soundness on those N boxes: mpmath intervals outside ours (must be 0); "

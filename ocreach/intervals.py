@@ -3,20 +3,21 @@
 CasADi has no interval arithmetic, so this module walks a Function's algorithm (the instruction
 list: ``n_instructions``, ``instruction_id``, ``instruction_input``, ``instruction_output``,
 ``instruction_constant`` and the ``casadi.OP_*`` codes) once, renames CasADi's reused work slots
-into single-assignment values, groups the independent instructions by depth and operation code,
-and evaluates every group as one numpy operation on arrays of shape ``(n_values, B)``: ``B``
-boxes at once.  This is the bound the remainders of Patel & Subbarao's methods need (the Lagrange
-remainder of Method 1, Eq. 13-15, bounded by the interval Hessian over the interval hull of the
-reachable set; ``R_err`` of Method 2, Eq. 25, which the paper leaves undefined).
+into single-assignment values, groups independent instructions of one operation code (list
+scheduling on the graph, fewer groups than grouping by depth), and evaluates every group as one
+numpy operation on arrays of shape ``(n_values, B)``: ``B`` boxes at once.  This is the bound
+the remainders of Patel & Subbarao's methods need (the Lagrange remainder of Method 1, Eq.
+13-15, bounded by the interval Hessian over the interval hull of the reachable set; ``R_err`` of
+Method 2, Eq. 25, which the paper leaves undefined).
 
 Soundness (``docs/intervals.md`` has the argument)
 -------------------------------------------------
 * ``+ - * /`` and ``sqrt`` are correctly rounded in IEEE 754 (error <= 1/2 ulp), so every bound
-  they produce is moved one ulp outward with ``np.nextafter``.
+  they produce is moved outward past the neighbouring float (:func:`_dn`, :func:`_up`).
 * libm/SIMD functions (``sin cos tan exp log pow atan2 ...``) are not correctly rounded; their
   bounds are moved outward by ``LIBM_REL * |y| + LIBM_ABS`` and then one more ulp.  ``LIBM_REL =
-  2**-46`` is 64 ulps, sixteen times the 4-ulp bound of numpy's AVX-512 (SVML) kernels and far
-  above glibc's < 1 ulp (the measured errors are in ``docs/intervals.md``).
+  2**-46`` is 64 ulps, 32 times the worst error measured for numpy's kernels (AVX-512 SVML and
+  glibc; the measurements are in ``docs/intervals.md``).
 * Non-monotone functions are bounded exactly: ``sin``/``cos`` detect the extrema inside the
   interval (with a generous tolerance that can only make the bound wider), even powers and
   ``fabs``/``cosh`` use the smallest and largest magnitude, ``fmin``/``fmax``/``sign``/``floor``
@@ -82,6 +83,7 @@ class _Fail(Exception):
 # ---------------------------------------------------------------------------- rounding helpers
 _ULP_REL = 2.0**-52     # |x| * 2**-52 >= ulp(x) for every finite x (and exact for normal x)
 _ETA = 2.0**-1074       # the smallest subnormal
+_FMAX = np.finfo(float).max
 
 
 def _dn(x):
@@ -91,30 +93,30 @@ def _dn(x):
     ulp(x) (the product is a power-of-two scaling, exact unless it underflows, and then still
     >= the power of two ulp(x) by monotone rounding), so the exact difference is <= pred(x) and
     rounding to nearest (monotone, pred(x) is a float) cannot go above pred(x).  Cf. Rump,
-    Zimmermann, Boldo & Melquiond, BIT 49 (2009).  About 5x faster than ``np.nextafter``, which
-    numpy does not vectorise.  ``x = +inf`` gives NaN (caught by the NaN guard: an overflow)."""
+    Zimmermann, Boldo & Melquiond, BIT 49 (2009).  About 4x faster than ``np.nextafter``, which
+    numpy does not vectorise.  An overflowed ``x = +inf`` (the exact value is a finite number
+    above the largest float) gives a float just below the largest float; NaN stays NaN."""
+    x = np.minimum(x, _FMAX)
     return x - (np.abs(x) * _ULP_REL + _ETA)
 
 
 def _up(x):
-    """A float >= the successor of ``x`` (see :func:`_dn`)."""
+    """A float >= the successor of ``x`` (see :func:`_dn`); ``-inf`` gives about ``-FMAX``."""
+    x = np.maximum(x, -_FMAX)
     return x + (np.abs(x) * _ULP_REL + _ETA)
-
-
-_FMAX = np.finfo(float).max
 
 
 def _ldn(y):
     """Lower bound of a true value whose libm approximation is ``y`` (``y = +inf`` from an
     overflow gives the largest float, less the margin)."""
     y = np.clip(y, -_FMAX, _FMAX)
-    return np.nextafter(y - (np.abs(y) * LIBM_REL + LIBM_ABS), -_INF)
+    return _dn(y - (np.abs(y) * LIBM_REL + LIBM_ABS))
 
 
 def _lup(y):
     """Upper bound of a true value whose libm approximation is ``y``."""
     y = np.clip(y, -_FMAX, _FMAX)
-    return np.nextafter(y + (np.abs(y) * LIBM_REL + LIBM_ABS), _INF)
+    return _up(y + (np.abs(y) * LIBM_REL + LIBM_ABS))
 
 
 def _mono_inc(fn, lo, hi, rng=(-_INF, _INF)):
@@ -247,7 +249,7 @@ def _fmax(alo, ahi, blo, bhi, und):
 def _copysign(alo, ahi, blo, bhi, und):
     mig, mag = _mig_mag(alo, ahi)
     pos, neg = blo >= 0, bhi < 0  # the real number 0 has a positive sign
-    return np.where(pos, mig, np.where(neg, -mag, -mag)), np.where(pos, mag, np.where(neg, -mig, mag))
+    return np.where(pos, mig, -mag), np.where(pos, mag, np.where(neg, -mig, mag))
 
 
 def _contains_point(lo, hi, c, period):

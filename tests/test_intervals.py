@@ -181,6 +181,9 @@ def test_outward_rounding_steps_pass_the_neighbouring_float():
     with np.errstate(over="ignore"):
         assert np.all(iv._up(x) >= np.nextafter(x, np.inf))
         assert np.all(iv._dn(x) <= np.nextafter(x, -np.inf))
+        assert iv._up(np.inf) == np.inf and iv._dn(-np.inf) == -np.inf
+        assert 1e308 < iv._dn(np.inf) < np.inf and -np.inf < iv._up(-np.inf) < -1e308
+        assert np.isnan(iv._dn(np.nan)) and np.isnan(iv._up(np.nan))
         # and by at most 3 ulps of |x| (2 in general, 3 where |x| 2**-52 underflows)
         fin = np.abs(x) < 2.0**1023
         assert np.all((iv._up(x) - x)[fin] <= 3 * np.spacing(np.abs(x[fin])))
@@ -423,10 +426,13 @@ def test_singularity_in_model_box_is_named():
 def test_overflow_is_unbounded_not_nan(monkeypatch):
     z = ca.SX.sym("z")
     F = IntervalFunction(ca.Function("o", [_X, _Y, z], [ca.exp(_X), ca.exp(_X) - ca.exp(z),
-                                                        ca.exp(_X) * _Y, ca.exp(_X) / ca.exp(z)]))
+                                                        ca.exp(_X) * _Y, ca.exp(_X) / ca.exp(z),
+                                                        ca.exp(_X) + ca.exp(z), (_X * 1e306)**2]))
     big = [np.array([800.0]), np.array([0.0]), np.array([800.0])]
     out = F(big, [np.array([801.0]), np.array([0.0]), np.array([801.0])])
-    (l0, h0), (l1, h1), (l2, h2), (l3, h3) = [(a[0, 0], b[0, 0]) for a, b in out]
+    (l0, h0), (l1, h1), (l2, h2), (l3, h3), (l4, h4), (l5, h5) = [(a[0, 0], b[0, 0]) for a, b in out]
+    assert 1e307 < l4 < np.inf and h4 == np.inf     # a lower bound past the largest float
+    assert 1e307 < l5 < np.inf and h5 == np.inf
     assert h0 == np.inf and 1e300 < l0 < np.inf
     assert (l1, h1) == (-np.inf, np.inf)
     assert (l2, h2) == (0.0, 0.0)                 # exp(x) * 0 is 0, not 0 * inf = NaN
