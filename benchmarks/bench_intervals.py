@@ -56,7 +56,7 @@ def _median_time(fn, reps):
 
 def run_case(label, model, centre, spread, ubox, what, n_ours=10_000, n_peer=100, seed=0):
     rng = np.random.default_rng(seed)
-    F = iv.for_model(model)._fun(what)
+    F = iv.for_model(model).function(what)
     lo, hi = _boxes(rng, model, centre, spread, ubox, n_ours)
     t_ours = _median_time(lambda: F(lo, hi), 3) / n_ours
     one = ([a[:, :1] for a in lo], [a[:, :1] for a in hi])

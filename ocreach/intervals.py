@@ -856,15 +856,24 @@ class ModelIntervals:
     """Interval bounds of a :class:`ocreach.model.Model`'s ``f``, Jacobians and Hessian tensor.
 
     Every method takes boxes ``x = (lo, hi)``, ``u = (lo, hi)`` with arrays of shape ``(n,)`` or
-    ``(n, B)``; ``t`` a number or a box (default 0); ``p`` ``None`` (the model's defaults), a vector
-    or a box.  Get it with :func:`for_model` (cached on the model).
+    ``(n, B)`` (``u`` is required: the control set enters every remainder); ``t`` a number, a
+    ``(B,)`` array or a box ``(lo, hi)`` (default 0); ``p`` ``None`` (the model's defaults), a
+    vector or a box.  Get it with :func:`for_model` (cached on the model).
     """
 
     def __init__(self, model: Any, undecided: str = "error"):
         self.model = model
         self.undecided = undecided
 
-    def _fun(self, what: str) -> IntervalFunction:
+    FUNCTIONS = ("f", "jac", "hessian", "all")
+
+    def function(self, what: str) -> IntervalFunction:
+        """The :class:`IntervalFunction` behind :meth:`f` (``"f"``, the model's ``f_fun``),
+        :meth:`jacobians` (``"jac"``, ``jac_fun``), :meth:`hessian` (``"hessian"``) and
+        :meth:`all` (``"all"``), built once per model (``Model.cached``); inputs ``(x, u, t, p)``."""
+        if what not in self.FUNCTIONS:
+            raise ProblemError(f"unknown model interval function {what!r}; allowed: "
+                               f"{list(self.FUNCTIONS)}")
         m = self.model
 
         def build() -> ca.Function:
@@ -876,17 +885,14 @@ class ModelIntervals:
                 return m.jac_fun
             if what == "hessian":
                 return ca.Function("f_hessian", args, [m.derivative_expressions(2)[1]], names, ["H"])
-            if what == "all":
-                d1, d2 = m.derivative_expressions(2)[:2]
-                return ca.Function("f_jac_hess", args, [m.f, d1, d2], names, ["f", "J", "H"])
-            raise ProblemError(f"unknown model interval function {what!r}; allowed: "
-                               "'f', 'jac', 'hessian', 'all'")
+            d1, d2 = m.derivative_expressions(2)[:2]
+            return ca.Function("f_jac_hess", args, [m.f, d1, d2], names, ["f", "J", "H"])
 
-        return interval_function(build(), model=m, key=("model", what), undecided=self.undecided)
+        return m.cached(("intervals", "model", what, self.undecided),
+                        lambda: IntervalFunction(build(), undecided=self.undecided))
 
-    def _args(self, x: Box, u: Box | None, t, p) -> tuple[list, list]:
+    def _args(self, x: Box, u: Box, t, p) -> tuple[list, list]:
         m = self.model
-        u = (np.zeros(m.n_u), np.zeros(m.n_u)) if u is None else u
         t = (t, t) if np.ndim(t) == 0 or (not isinstance(t, tuple)) else t
         if p is None:
             p = (m.p_default, m.p_default)
@@ -896,26 +902,26 @@ class ModelIntervals:
         hi = [x[1], u[1], np.reshape(np.asarray(t[1], dtype=float), (1, -1)), p[1]]
         return lo, hi
 
-    def f(self, x: Box, u: Box | None = None, t=0.0, p=None) -> tuple[np.ndarray, np.ndarray]:
+    def f(self, x: Box, u: Box, t=0.0, p=None) -> tuple[np.ndarray, np.ndarray]:
         """Bound of ``f(x, u, t; p)``: ``(lo, hi)`` of shape ``(n_x, B)``."""
-        return self._fun("f")(*self._args(x, u, t, p))[0]
+        return self.function("f")(*self._args(x, u, t, p))[0]
 
-    def jacobians(self, x: Box, u: Box | None = None, t=0.0, p=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    def jacobians(self, x: Box, u: Box, t=0.0, p=None) -> list[tuple[np.ndarray, np.ndarray]]:
         """Bounds of ``[f, df/dx, df/du]``: shapes ``(n_x, B)``, ``(n_x, n_x, B)``, ``(n_x, n_u, B)``."""
-        F = self._fun("jac")
+        F = self.function("jac")
         out = F(*self._args(x, u, t, p))
         return [out[0], F.reshape(out[1], 1), F.reshape(out[2], 2)]
 
-    def hessian(self, x: Box, u: Box | None = None, t=0.0, p=None) -> tuple[np.ndarray, np.ndarray]:
+    def hessian(self, x: Box, u: Box, t=0.0, p=None) -> tuple[np.ndarray, np.ndarray]:
         """Bound of the Hessian tensor ``H[i, a, b] = d^2 f_i / dz_a dz_b``, ``z = (x, u)``:
         ``(lo, hi)`` of shape ``(n_x, n_z, n_z, B)`` (Foss et al. Eq. 11 layout, as
         :meth:`ocreach.model.Model.tensors`)."""
-        F = self._fun("hessian")
+        F = self.function("hessian")
         return self._hess(F, F(*self._args(x, u, t, p))[0])
 
-    def all(self, x: Box, u: Box | None = None, t=0.0, p=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    def all(self, x: Box, u: Box, t=0.0, p=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """``f`` (n_x, B), ``J = df/dz`` (n_x, n_z, B) and ``H`` (n_x, n_z, n_z, B) in one pass."""
-        F = self._fun("all")
+        F = self.function("all")
         out = F(*self._args(x, u, t, p))
         return {"f": out[0], "J": F.reshape(out[1], 1), "H": self._hess(F, out[2])}
 

@@ -108,7 +108,7 @@ def test_models_against_mpmath(name):
     rng = np.random.default_rng(zlib.crc32(name.encode()))
     mi = iv.for_model(model)
     for what, n in zip(("f", "jac", "all"), counts):
-        F = mi._fun(what)
+        F = mi.function(what)
         lo, hi = _boxes(rng, model, centre, spread, ubox, tbox, n)
         res = _compare(F, lo, hi)
         assert res["escapes"] == 0, (name, what, res)
@@ -120,7 +120,7 @@ def test_models_against_mpmath(name):
 def test_point_boxes_match_casadi(name):
     model, centre, spread, ubox, tbox, _ = MODELS[name]
     rng = np.random.default_rng(5)
-    F = iv.for_model(model)._fun("all")
+    F = iv.for_model(model).function("all")
     lo, _ = _boxes(rng, model, centre, spread, ubox, tbox, 200)
     lo[1] = np.clip(lo[1] + 0.05, *map(lambda a: np.asarray(a, float)[:, None], ubox))
     out = F(lo, lo)
@@ -138,7 +138,12 @@ def test_point_boxes_match_casadi(name):
 def test_model_helpers_shapes_and_cache():
     model = MODELS["cr3bp-spatial"][0]
     mi = iv.for_model(model)
-    assert iv.for_model(model) is mi and mi._fun("hessian") is mi._fun("hessian")
+    assert iv.for_model(model) is mi and mi.function("hessian") is mi.function("hessian")
+    assert mi.function("f").fun is model.f_fun and mi.function("jac").fun is model.jac_fun
+    with pytest.raises(ProblemError, match=r"'hess'.*allowed.*'hessian'"):
+        mi.function("hess")
+    with pytest.raises(ProblemError, match="undecided must be one of"):
+        iv.for_model(model, undecided="no")
     x = np.array([0.9, 0.1, 0.05, 0.0, 0.2, 0.0])
     box = (x - 1e-3, x + 1e-3)
     ubox = (-np.ones(3), np.ones(3))
