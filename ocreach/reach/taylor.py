@@ -403,7 +403,9 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
         try:
             err = ctx.err.bound(tube, xs, vs, Vbox, t_box)
         except OcreachError as exc:  # e.g. IntervalDomainError: a singularity inside the box
-            return StepFail(f"remainder bound failed: {exc}", need)
+            msg = str(exc)
+            return StepFail("remainder bound failed: " + (msg if len(msg) < 300 else msg[:300] + " ..."),
+                            need)
         hull = err.interval_hull()
         need = np.maximum(np.abs(hull.lo), np.abs(hull.hi))
         if not np.all(np.isfinite(need)):

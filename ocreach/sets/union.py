@@ -106,6 +106,16 @@ class ZonotopeUnion(SetBase):
         """The parts' 2-D outlines (a list of polygons, as :meth:`PolyZonotope.outline` gives)."""
         return [p.outline(dims) for p in self.parts]
 
+    def plot(self, ax, dims=(0, 1), **kw):
+        """Draw every part's projection on ``dims`` (one label for the union)."""
+        from ocreach.sets.plot import plot_set
+
+        label = kw.pop("label", None)
+        out = None
+        for i, p in enumerate(self.parts):
+            out = plot_set(p, ax, dims=dims, label=label if i == 0 else None, **kw)
+        return out
+
     def volume_bound(self) -> float:
         """Sum of the parts' volumes: an upper bound of the union's volume (exact if disjoint)."""
         return float(sum(p.volume() for p in self.parts))
