@@ -126,9 +126,11 @@ def main() -> None:
                      f"{r['t_one'] * 1e3:.2f} ms | {r['t_peer'] * 1e3:.2f} ms | {r['ratio']:.0f}x | "
                      f"{r['ratio_one']:.1f}x | {r['n_peer']} | {r['escapes']} | {r['excess']:.1e} | "
                      f"{r['width_ratio']:.12f} |")
-    lines += ["", "Target: >= 100x faster per box (vectorised).  A single box pays the Python "
-              "overhead of one numpy call per operation group; batch the boxes (or parts) when "
-              "bounding many sets."]
+    lines += ["", "Target: >= 100x faster per box (vectorised).  On the loaded machine the ratios "
+              "move by tens of percent between runs (CPU time is still affected by the other "
+              "jobs' use of the caches).  A single box pays the Python overhead of one numpy call "
+              "per operation group, so it is only 1-6x faster than mpmath; batch the boxes (or "
+              "the parts of a split set) into one call."]
     text = "\n".join(lines)
     print()
     print(text)
