@@ -760,8 +760,9 @@ class IntervalFunction:
                   for l, h in zip(los, his)]
         op = _OP_NAMES.get(g.op, str(g.op))
 
-        def fmt(a):
-            return np.array2string(a, precision=17, separator=", ", max_line_width=10**6)
+        def fmt(a):   # repr of each float (exact, round-trips); cheap, unlike array2string
+            items = [repr(float(v)) for v in a[:24]]
+            return "[" + ", ".join(items) + (", ..." if a.size > 24 else "") + "]"
 
         desc = "; ".join(f"{self.names_in[i]}: lo={fmt(l)} hi={fmt(h)}"
                          for i, (l, h) in enumerate(inputs))
