@@ -489,6 +489,27 @@ _OP_NAMES[_OP_MULC] = "mul"
 #: CasADi operation codes the evaluator bounds (besides OP_INPUT, OP_OUTPUT, OP_CONST).
 SUPPORTED_OPS = tuple(sorted({_OP_NAMES[k] for k in _KERNELS}))
 UNDECIDED = ("error", "hull")
+KINKS = ("bound", "error")
+
+
+def _strictly_inside0(lo, hi):
+    return (lo < 0) & (hi > 0)
+
+
+def _touches0(lo, hi):   # a jump at 0 inside or at an end (sign(0) = 0 differs from both sides)
+    return (lo <= 0) & (hi >= 0) & ~((lo == 0) & (hi == 0))
+
+
+#: Where an op is not differentiable (a kink or a jump) inside the box: (alo, ahi, blo, bhi) -> mask.
+_KINK_TESTS: dict[int, Callable] = {
+    ca.OP_FABS: lambda al, ah, bl, bh: _strictly_inside0(al, ah),
+    ca.OP_SIGN: lambda al, ah, bl, bh: _touches0(al, ah),
+    ca.OP_COPYSIGN: lambda al, ah, bl, bh: _strictly_inside0(al, ah) | _touches0(bl, bh),
+    ca.OP_FMIN: lambda al, ah, bl, bh: (al < bh) & (bl < ah),
+    ca.OP_FMAX: lambda al, ah, bl, bh: (al < bh) & (bl < ah),
+    ca.OP_FLOOR: lambda al, ah, bl, bh: np.floor(al) != np.floor(ah),
+    ca.OP_CEIL: lambda al, ah, bl, bh: np.ceil(al) != np.ceil(ah),
+}
 
 
 # ---------------------------------------------------------------------------- compilation
@@ -566,12 +587,22 @@ class IntervalFunction:
     ``undecided``: ``"error"`` (default) raises :class:`IntervalDomainError` where a comparison or
     an ``if_else`` condition is undecided on a box; ``"hull"`` returns the sound hull of both
     branches instead (wider, never wrong).
+
+    ``kinks``: ``"bound"`` (default) bounds ``fabs``, ``sign``, ``copysign``, ``fmin``, ``fmax``,
+    ``floor``, ``ceil`` exactly, also where the box contains their kink or jump.  ``"error"``
+    raises there instead: then a passing evaluation of ``f`` certifies that every non-smooth op
+    of ``f`` keeps one smooth branch on the box, which a derivative-based bound (a Lagrange
+    remainder from the Hessian) needs -- CasADi differentiates ``fabs`` to ``sign`` and ``sign``
+    to 0, so the Hessian of a kinked ``f`` alone would silently give a wrong remainder.
     """
 
-    def __init__(self, fun: ca.Function, *, undecided: str = "error"):
+    def __init__(self, fun: ca.Function, *, undecided: str = "error", kinks: str = "bound"):
         if undecided not in UNDECIDED:
             raise ProblemError(f"undecided must be one of {UNDECIDED}; got {undecided!r}")
+        if kinks not in KINKS:
+            raise ProblemError(f"kinks must be one of {KINKS}; got {kinks!r}")
         self.undecided = undecided
+        self.kinks = kinks
         self.fun = _as_sx(fun)
         f = self.fun
         self.name = f.name()
@@ -729,13 +760,19 @@ class IntervalFunction:
         L[self._const_rows] = self._const_vals
         H[self._const_rows] = self._const_vals
         und = self.undecided
+        kink_check = self.kinks == "error"
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             for g in self._groups:
                 try:
                     if g.b is None:
-                        rlo, rhi = _KERNELS[g.op][1](L[g.a], H[g.a], None, None, und)
+                        args = (L[g.a], H[g.a], None, None)
                     else:
-                        rlo, rhi = _KERNELS[g.op][1](L[g.a], H[g.a], L[g.b], H[g.b], und)
+                        args = (L[g.a], H[g.a], L[g.b], H[g.b])
+                    if kink_check and g.op in _KINK_TESTS:
+                        _require(_KINK_TESTS[g.op](*args), "non-smooth point (kink or jump of "
+                                 "the op) inside the box, so derivative-based bounds of this "
+                                 "function do not hold there; split the box")
+                    rlo, rhi = _KERNELS[g.op][1](*args, und)
                 except _Fail as fail:
                     self._raise(fail.mask, fail.reason, g, los, his, s)
                 L[g.start:g.stop] = rlo
@@ -786,13 +823,13 @@ class IntervalFunction:
 
 
 def interval_function(fun: ca.Function, *, model: Any = None, key: Any = None,
-                      undecided: str = "error") -> IntervalFunction:
+                      undecided: str = "error", kinks: str = "bound") -> IntervalFunction:
     """:class:`IntervalFunction` of ``fun``, cached through ``model.cached`` when ``model`` is
     given (``key`` defaults to the Function's name)."""
     if model is None:
-        return IntervalFunction(fun, undecided=undecided)
-    k = ("intervals", key if key is not None else fun.name(), undecided)
-    return model.cached(k, lambda: IntervalFunction(fun, undecided=undecided))
+        return IntervalFunction(fun, undecided=undecided, kinks=kinks)
+    k = ("intervals", key if key is not None else fun.name(), undecided, kinks)
+    return model.cached(k, lambda: IntervalFunction(fun, undecided=undecided, kinks=kinks))
 
 
 # ---------------------------------------------------------------------------- sub-box splitting
@@ -868,7 +905,7 @@ class ModelIntervals:
 
     FUNCTIONS = ("f", "jac", "hessian", "all")
 
-    def function(self, what: str) -> IntervalFunction:
+    def function(self, what: str, kinks: str = "bound") -> IntervalFunction:
         """The :class:`IntervalFunction` behind :meth:`f` (``"f"``, the model's ``f_fun``),
         :meth:`jacobians` (``"jac"``, ``jac_fun``), :meth:`hessian` (``"hessian"``) and
         :meth:`all` (``"all"``), built once per model (``Model.cached``); inputs ``(x, u, t, p)``."""
@@ -889,8 +926,8 @@ class ModelIntervals:
             d1, d2 = m.derivative_expressions(2)[:2]
             return ca.Function("f_jac_hess", args, [m.f, d1, d2], names, ["f", "J", "H"])
 
-        return m.cached(("intervals", "model", what, self.undecided),
-                        lambda: IntervalFunction(build(), undecided=self.undecided))
+        return m.cached(("intervals", "model", what, self.undecided, kinks),
+                        lambda: IntervalFunction(build(), undecided=self.undecided, kinks=kinks))
 
     def _args(self, x: Box, u: Box, t, p) -> tuple[list, list]:
         m = self.model
@@ -913,15 +950,28 @@ class ModelIntervals:
         out = F(*self._args(x, u, t, p))
         return [out[0], F.reshape(out[1], 1), F.reshape(out[2], 2)]
 
-    def hessian(self, x: Box, u: Box, t=0.0, p=None) -> tuple[np.ndarray, np.ndarray]:
+    def check_smooth(self, x: Box, u: Box, t=0.0, p=None) -> None:
+        """Raise :class:`IntervalDomainError` unless every non-smooth op of ``f`` (``fabs``,
+        ``sign``, ``fmin``, ``if_else`` ...) keeps one smooth branch on the boxes: the condition
+        for derivative bounds (:meth:`hessian`, :meth:`all`) to bound a Taylor remainder."""
+        self.function("f", kinks="error")(*self._args(x, u, t, p))
+
+    def hessian(self, x: Box, u: Box, t=0.0, p=None, *, smooth_check: bool = True
+                ) -> tuple[np.ndarray, np.ndarray]:
         """Bound of the Hessian tensor ``H[i, a, b] = d^2 f_i / dz_a dz_b``, ``z = (x, u)``:
         ``(lo, hi)`` of shape ``(n_x, n_z, n_z, B)`` (Foss et al. Eq. 11 layout, as
-        :meth:`ocreach.model.Model.tensors`)."""
+        :meth:`ocreach.model.Model.tensors`).  ``smooth_check`` first runs :meth:`check_smooth`."""
+        if smooth_check:
+            self.check_smooth(x, u, t, p)
         F = self.function("hessian")
         return self._hess(F, F(*self._args(x, u, t, p))[0])
 
-    def all(self, x: Box, u: Box, t=0.0, p=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """``f`` (n_x, B), ``J = df/dz`` (n_x, n_z, B) and ``H`` (n_x, n_z, n_z, B) in one pass."""
+    def all(self, x: Box, u: Box, t=0.0, p=None, *, smooth_check: bool = True
+            ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """``f`` (n_x, B), ``J = df/dz`` (n_x, n_z, B) and ``H`` (n_x, n_z, n_z, B) in one pass
+        (after :meth:`check_smooth` unless ``smooth_check=False``)."""
+        if smooth_check:
+            self.check_smooth(x, u, t, p)
         F = self.function("all")
         out = F(*self._args(x, u, t, p))
         return {"f": out[0], "J": F.reshape(out[1], 1), "H": self._hess(F, out[2])}

@@ -418,6 +418,47 @@ def test_domain_errors(expr, lo, hi, what):
     F([np.array([0.2, 0.4]), y[:2]], [np.array([0.3, 0.45]), y[:2]])   # no error without box 2
 
 
+@pytest.mark.parametrize("expr, kink_box, smooth_box", [
+    (ca.fabs(_X), (-0.1, 0.2), (0.0, 0.2)),          # |x| = x on [0, 0.2]: smooth
+    (ca.sign(_X), (0.0, 0.2), (0.1, 0.2)),           # sign jumps at 0 (also at an end)
+    (ca.copysign(_Y, _X), (-0.1, 0.2), (0.1, 0.2)),
+    (ca.fmin(_X, _Y), (0.4, 0.6), (0.0, 0.5)),       # y = 0.5: touching is smooth
+    (ca.fmax(_X, _Y), (0.4, 0.6), (0.5, 0.9)),
+    (ca.floor(3 * _X), (0.2, 0.4), (0.34, 0.6)),
+    (ca.ceil(3 * _X), (0.2, 0.4), (0.34, 0.6)),
+])
+def test_kinks_error_mode(expr, kink_box, smooth_box):
+    f = ca.Function("k", [_X, _Y], [expr], ["x", "y"], ["o"])
+    y = np.full(1, 0.5)
+    strict = IntervalFunction(f, kinks="error")
+    with pytest.raises(IntervalDomainError, match="non-smooth point.*box 0"):
+        strict([np.array([kink_box[0]]), y], [np.array([kink_box[1]]), y])
+    a = strict([np.array([smooth_box[0]]), y], [np.array([smooth_box[1]]), y])
+    b = IntervalFunction(f)([np.array([smooth_box[0]]), y], [np.array([smooth_box[1]]), y])
+    np.testing.assert_array_equal(a[0][0], b[0][0])
+    IntervalFunction(f)([np.array([kink_box[0]]), y], [np.array([kink_box[1]]), y])  # default: bound
+    with pytest.raises(ProblemError, match="kinks must be one of"):
+        IntervalFunction(f, kinks="maybe")
+
+
+def test_model_hessian_refuses_a_kinked_box():
+    """CasADi differentiates |x| to sign(x) and sign to 0: the Hessian alone would claim a zero
+    remainder across the kink; the model helpers check f's non-smooth ops first."""
+    from ocreach.model import Model
+
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u", 1)
+    m = Model.build("kinky", x, u, ca.vertcat(x[1], -ca.fabs(x[0]) + u[0]))
+    mi = iv.for_model(m)
+    ubox = (np.zeros(1), np.zeros(1))
+    lo, hi = mi.hessian((np.array([0.5, 0.0]), np.array([1.0, 1.0])), ubox)
+    assert np.all(lo == 0) and np.all(hi == 0)
+    with pytest.raises(IntervalDomainError, match=r"\(fabs\): non-smooth point"):
+        mi.hessian((np.array([-0.5, 0.0]), np.array([1.0, 1.0])), ubox)
+    with pytest.raises(IntervalDomainError, match="non-smooth"):
+        mi.all((np.array([-0.5, 0.0]), np.array([1.0, 1.0])), ubox)
+    mi.check_smooth((np.array([0.1, 0.0]), np.array([1.0, 1.0])), ubox)
+
+
 def test_singularity_in_model_box_is_named():
     model = MODELS["cr3bp-spatial"][0]
     moon = np.array([1 - MU, 0, 0, 0, 0, 0])
