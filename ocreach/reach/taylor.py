@@ -393,7 +393,8 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     base_tube = hs.tube + RU
     Vbox = (ctx.Ubox[0], ctx.Ubox[1])
     t_box = (t0, t0 + h)
-    Lbar = np.zeros(n) if L_guess is None else np.asarray(L_guess, dtype=float).copy()
+    # warm start: the previous step's remainder, enlarged once (the loop then usually closes at once)
+    Lbar = np.zeros(n) if L_guess is None else np.asarray(L_guess, dtype=float) * GROWTH
     err = None
     need = None
     for it in range(1, ctx.opts.max_iter + 1):
