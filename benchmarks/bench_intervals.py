@@ -23,12 +23,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from _interval_truth import Reference, as_arrays  # noqa: E402
+from _interval_truth import Reference, as_arrays
 
-from ocreach import intervals as iv  # noqa: E402
-from ocreach.models import cr3bp, twobody  # noqa: E402
-from ocreach.models.reentry import reentry  # noqa: E402
-from ocreach.report import replace_markdown_section  # noqa: E402
+from ocreach import intervals as iv
+from ocreach.models import cr3bp, twobody
+from ocreach.models.reentry import reentry
+from ocreach.report import replace_markdown_section
 
 DOCS = ROOT / "docs" / "benchmarks.md"
 MU = 0.01215058560962404
@@ -102,23 +102,25 @@ def main() -> None:
     for label, model, c, s, ub, what, n_peer in cases:
         r = run_case(label, model, c, s, ub, what, n_ours=args.boxes, n_peer=n_peer)
         rows.append(r)
-        print(f"{label:36s} {r['ops']:5d} ops {r['groups']:3d} groups | ocreach {r['t_ours'] * 1e6:8.2f} us/box "
+        print(f"{label:36s} {r['ops']:5d} ops {r['groups']:3d} groups | "
+              f"ocreach {r['t_ours'] * 1e6:8.2f} us/box "
               f"(1 box alone {r['t_one'] * 1e3:6.2f} ms) | mpmath.iv {r['t_peer'] * 1e3:8.2f} ms/box | "
               f"{r['ratio']:8.0f}x ({r['ratio_one']:.1f}x single box) | escapes {r['escapes']} | "
               f"max excess {r['excess']:.1e} of |bound| | median width ratio {r['width_ratio']:.12f}")
     lines = [
         "## Interval evaluator",
         "",
-        f"`python benchmarks/bench_intervals.py` ({time.strftime('%Y-%m-%d')}; the machine was shared "
-        "with other developers' work, so times are CPU times of the benchmark process, both sides "
-        "single-threaded).  ocreach: one vectorised call "
-        f"over {args.boxes:,} random boxes (median of 3), per box; peer: the same CasADi graph walked "
-        "instruction by instruction with `mpmath.iv` (53-bit directed rounding), per box, on the "
-        "first N boxes.  Soundness on those N boxes: mpmath intervals outside ours (must be 0); "
-        "tightness: ours minus mpmath's width, relative to the bound's magnitude (max), and ours over "
-        "mpmath's width (median).",
+        (f"`python benchmarks/bench_intervals.py` ({time.strftime('%Y-%m-%d')}; the machine was "
+         "shared with other developers' work, so times are CPU times of the benchmark process, "
+         "both sides single-threaded).  ocreach: one vectorised call "
+         f"over {args.boxes:,} random boxes (median of 3), per box; peer: the same CasADi graph "
+         "walked instruction by instruction with `mpmath.iv` (53-bit directed rounding), per box, "
+         "on the first N boxes.  Soundness on those N boxes: mpmath intervals outside ours (must "
+         "be 0); tightness: ours minus mpmath's width, relative to the bound's magnitude (max), "
+         "and ours over mpmath's width (median)."),
         "",
-        "| case | ops / groups | ocreach per box | 1 box alone | mpmath.iv per box | ratio | ratio, 1 box | N | escapes | max excess | median width ratio |",
+        ("| case | ops / groups | ocreach per box | 1 box alone | mpmath.iv per box | ratio | "
+         "ratio, 1 box | N | escapes | max excess | median width ratio |"),
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
@@ -126,11 +128,11 @@ def main() -> None:
                      f"{r['t_one'] * 1e3:.2f} ms | {r['t_peer'] * 1e3:.2f} ms | {r['ratio']:.0f}x | "
                      f"{r['ratio_one']:.1f}x | {r['n_peer']} | {r['escapes']} | {r['excess']:.1e} | "
                      f"{r['width_ratio']:.12f} |")
-    lines += ["", "Target: >= 100x faster per box (vectorised).  On the loaded machine the ratios "
-              "move by tens of percent between runs (CPU time is still affected by the other "
-              "jobs' use of the caches).  A single box pays the Python overhead of one numpy call "
-              "per operation group, so it is only 1-6x faster than mpmath; batch the boxes (or "
-              "the parts of a split set) into one call."]
+    lines += ["", ("Target: >= 100x faster per box (vectorised).  On the loaded machine the ratios "
+                   "move by tens of percent between runs (CPU time is still affected by the other "
+                   "jobs' use of the caches).  A single box pays the Python overhead of one numpy "
+                   "call per operation group, so it is only 1-6x faster than mpmath; batch the "
+                   "boxes (or the parts of a split set) into one call.")]
     text = "\n".join(lines)
     print()
     print(text)

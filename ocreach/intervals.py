@@ -530,7 +530,7 @@ def _as_sx(fun: ca.Function) -> ca.Function:
         return fun
     try:
         out = fun.expand()
-    except Exception as exc:  # noqa: BLE001 - CasADi raises RuntimeError with its own text
+    except Exception as exc:
         raise ProblemError(f"Function {fun.name()!r} ({fun.class_name()}) cannot be expanded to an "
                            f"SX Function for interval evaluation: {exc}") from exc
     if not out.is_a("SXFunction"):
@@ -849,7 +849,7 @@ def split_boxes(lo: Sequence, hi: Sequence, splits: int, *, max_boxes: int = 409
     if dims is None:
         cand = sorted(((float(h[j] - l[j]), i, j) for i, (l, h) in enumerate(zip(lo, hi))
                        for j in range(l.size) if h[j] > l[j]), reverse=True)
-        n_dims = 0 if splits == 1 else int(math.floor(math.log(max_boxes) / math.log(splits) + 1e-12))
+        n_dims = 0 if splits == 1 else math.floor(math.log(max_boxes) / math.log(splits) + 1e-12)
         dims = [(i, j) for (_, i, j) in cand[:n_dims]]
     dims = list(dims)
     if splits ** len(dims) > max_boxes:

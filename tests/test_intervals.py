@@ -122,7 +122,7 @@ def test_point_boxes_match_casadi(name):
     rng = np.random.default_rng(5)
     F = iv.for_model(model).function("all")
     lo, _ = _boxes(rng, model, centre, spread, ubox, tbox, 200)
-    lo[1] = np.clip(lo[1] + 0.05, *map(lambda a: np.asarray(a, float)[:, None], ubox))
+    lo[1] = np.clip(lo[1] + 0.05, *(np.asarray(a, float)[:, None] for a in ubox))
     out = F(lo, lo)
     num = F.fun.map(200)(*lo)
     for (olo, ohi), v in zip(out, num):
@@ -147,9 +147,9 @@ def test_model_helpers_shapes_and_cache():
     x = np.array([0.9, 0.1, 0.05, 0.0, 0.2, 0.0])
     box = (x - 1e-3, x + 1e-3)
     ubox = (-np.ones(3), np.ones(3))
-    flo, fhi = mi.f(box, ubox)
+    flo, _ = mi.f(box, ubox)
     assert flo.shape == (6, 1)
-    (f_lo, f_hi), (A_lo, A_hi), (B_lo, B_hi) = mi.jacobians(box, ubox)
+    _, (A_lo, A_hi), (B_lo, B_hi) = mi.jacobians(box, ubox)
     assert A_lo.shape == (6, 6, 1) and B_lo.shape == (6, 3, 1)
     H_lo, H_hi = mi.hessian(box, ubox)
     assert H_lo.shape == (6, 9, 9, 1)
@@ -169,7 +169,7 @@ def test_model_helpers_shapes_and_cache():
         assert np.all(al["J"][0][..., 0] <= J) and np.all(J <= al["J"][1][..., 0])
     # many boxes at once, t and p as boxes
     X = x[:, None] + np.zeros((6, 5))
-    lo, hi = mi.f((X - 1e-4, X + 1e-4), ubox, t=(0.0, 1.0), p=(model.p_default, model.p_default))
+    lo, _ = mi.f((X - 1e-4, X + 1e-4), ubox, t=(0.0, 1.0), p=(model.p_default, model.p_default))
     assert lo.shape == (6, 5)
 
 
