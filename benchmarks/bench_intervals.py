@@ -131,7 +131,7 @@ def main() -> None:
     lines += ["", ("Target: >= 100x faster per box (vectorised).  On the loaded machine the ratios "
                    "move by tens of percent between runs (CPU time is still affected by the other "
                    "jobs' use of the caches).  A single box pays the Python overhead of one numpy "
-                   "call per operation group, so it is only 1-6x faster than mpmath; batch the "
+                   "call per operation group, so it is about as fast as mpmath (0.8-6x); batch the "
                    "boxes (or the parts of a split set) into one call.")]
     text = "\n".join(lines)
     print()
