@@ -127,6 +127,17 @@ def plot3d(ax, problem, res, every: int, color: str, label: str) -> None:
     ax.set_zlabel("z [DU]")
 
 
+def single3d(path: Path, problem, res, color: str, label: str, title: str) -> None:
+    """One 3-D position projection figure (Figs. 2 and 6)."""
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(6, 5))
+    ax = fig.add_subplot(projection="3d")
+    plot3d(ax, problem, res, every=6, color=color, label=label)
+    ax.set_title(title)
+    save_figure(fig, path)
+
+
 def entry(problem, name, res, rt, fail, samples) -> dict:
     out = {"problem": problem.id, "method": name, "runtime_s": rt,
            "horizon_requested_h": float(problem.grid[-1] / HOUR) if problem.id != "earth-mars" else None,
@@ -191,11 +202,8 @@ def main() -> None:
         r, rt, fail = run(p, "taylor", **tay_opts)
         rows.append(entry(p, "taylor", r, rt, fail, samples))
         print(json.dumps(jsonable(rows[-1])))
-        fig = plt.figure(figsize=(6, 5))
-        ax = fig.add_subplot(projection="3d")
-        plot3d(ax, p, r, every=6, color="tab:red", label="taylor")
-        ax.set_title(f"l2-halo, taylor: {r.times[-1] / HOUR:.0f} h (Fig. 2)")
-        save_figure(fig, out / "fig2_l2_halo_taylor.png")
+        single3d(out / "fig2_l2_halo_taylor.png", p, r, "tab:red", "taylor",
+                 f"l2-halo, taylor: {r.times[-1] / HOUR:.0f} h (Fig. 2)")
 
     if "fig6" in cases:  # SDC over the full NRHO orbit
         p0 = get_problem("nrho-9-2")
@@ -203,11 +211,8 @@ def main() -> None:
         r, rt, fail = run(p, "sdc", **tay_opts)
         rows.append(entry(p, "sdc", r, rt, fail, 0))
         print(json.dumps(jsonable(rows[-1])))
-        fig = plt.figure(figsize=(6, 5))
-        ax = fig.add_subplot(projection="3d")
-        plot3d(ax, p, r, every=6, color="tab:blue", label="sdc")
-        ax.set_title(f"nrho-9-2, sdc: {r.times[-1] / HOUR:.0f} h of the {p.grid[-1] / HOUR:.0f} h orbit")
-        save_figure(fig, out / "fig6_nrho_sdc_orbit.png")
+        single3d(out / "fig6_nrho_sdc_orbit.png", p, r, "tab:blue", "sdc",
+                 f"nrho-9-2, sdc: {r.times[-1] / HOUR:.0f} h of the {p.grid[-1] / HOUR:.0f} h orbit")
 
     if "table1" in cases:  # Earth-Mars runtimes
         for days in ((20,) if args.quick else (200, 300)):

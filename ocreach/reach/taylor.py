@@ -405,8 +405,11 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
             err = ctx.err.bound(tube, xs, vs, Vbox, t_box)
         except OcreachError as exc:  # e.g. IntervalDomainError: a singularity inside the box
             msg = str(exc)
-            return StepFail("remainder bound failed: " + (msg if len(msg) < 300 else msg[:300] + " ..."),
-                            need)
+            msg = msg if len(msg) < 300 else msg[:300] + " ..."
+            if it > 1:  # the guessed remainder grew until the tube's box reached a singularity
+                msg = (f"the remainder loop diverged (iteration {it}, last bound "
+                       f"{np.array2string(need, precision=3)}) until: {msg}")
+            return StepFail("remainder bound failed: " + msg, need)
         hull = err.interval_hull()
         need = np.maximum(np.abs(hull.lo), np.abs(hull.hi))
         if not np.all(np.isfinite(need)):
