@@ -459,10 +459,12 @@ class ZonotopeReach:
         self.ctx = Context(problem, opts, error_model, V, W)
         n = problem.model.n_x
         me = opts.max_error
-        self.max_error = None if me is None else np.broadcast_to(
-            np.atleast_1d(np.asarray(me, dtype=float)), (n,)).copy() if np.size(me) in (1, n) else None
-        if me is not None and self.max_error is None:
-            raise ProblemError(f"max_error must be one number or {n} numbers (one per state); got {me!r}")
+        self.max_error = None
+        if me is not None:
+            if np.size(me) not in (1, n):
+                raise ProblemError(f"max_error must be one number or {n} numbers (one per state); "
+                                   f"got {me!r}")
+            self.max_error = np.broadcast_to(np.atleast_1d(np.asarray(me, dtype=float)), (n,)).copy()
 
     def _reduce(self, Z: Zonotope) -> Zonotope:
         return Z.reduce(self.opts.order, self.opts.reduction)
@@ -598,6 +600,10 @@ class DiscreteTaylor:
         self.method, self.problem, self.opts, self.n_sub = method, problem, opts, n_sub
         self.V, self.input_desc = input_zonotope(problem, opts)
         self.W = disturbance_zonotope(problem, opts.disturbance)
+        n = problem.model.n_x
+        if opts.max_error is not None and np.size(opts.max_error) not in (1, n):
+            raise ProblemError(f"max_error must be one number or {n} numbers (one per state); "
+                               f"got {opts.max_error!r}")
 
     def step(self, Z: Zonotope, t: float, h: float) -> tuple[Zonotope, np.ndarray]:
         m = self.problem.model
