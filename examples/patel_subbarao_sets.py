@@ -224,8 +224,8 @@ def main() -> None:
                 rows.append(e)
                 print(json.dumps(jsonable(rows[-1])))
 
-    lines = ["| problem | method | reached | requested | runtime [s] | parts | escapes / samples | "
-             "width ratio mean (min..max) | volume ratio |", "|" + "---|" * 9]
+    lines = [("| problem | method | reached | requested | runtime [s] | parts | escapes / samples | "
+              "width ratio mean (min..max) | volume ratio |"), "|" + "---|" * 9]
     for e in rows:
         reached = (f"{e['reached_days']:.0f} d" if "reached_days" in e else f"{e.get('reached_h', 0):.1f} h")
         lines.append(f"| {e['problem']} | {e['method']} | {reached} | "

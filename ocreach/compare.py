@@ -215,8 +215,8 @@ def position_volume(result: ReachResult, problem: Problem, k: int = -1) -> float
         from scipy.spatial import ConvexHull
 
         return float(ConvexHull(np.asarray(result.points[k])[:, dims]).volume)
-    except Exception:  # a degenerate hull or an unsupported set type: no number, not a failure
-        return float("nan")
+    except (ValueError, ArithmeticError, RuntimeError):  # a degenerate hull (QhullError) or too
+        return float("nan")  # many generator subsets (SetError): no number, not a failure
 
 
 def _result_name(problem: Problem, method: str) -> str:

@@ -77,7 +77,7 @@ def simulate(problem, X0: np.ndarray, U: np.ndarray, W: np.ndarray | None = None
         if W is not None:
             acc = acc + W[:, k] / a
 
-        def f(t, y):
+        def f(t, y, acc=acc):
             return rhs(y.reshape(N, n), acc).ravel()
 
         t_in = grid[k] + (grid[k + 1] - grid[k]) * (np.arange(1, inner + 1) / (inner + 1))

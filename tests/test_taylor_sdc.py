@@ -12,6 +12,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from _reach_truth import ball_controls, initial_samples, simulate
 from scipy.linalg import expm
 
 import ocreach
@@ -21,8 +22,6 @@ from ocreach.problem import Problem, get_problem
 from ocreach.reach.linsys import expm_terms, linear_step
 from ocreach.sets.union import union_gauge
 from ocreach.sets.zonotope import Zonotope
-
-from _reach_truth import ball_controls, initial_samples, simulate
 
 HOUR = 3600.0 / 375200.0
 TOL = 1 + 1e-9

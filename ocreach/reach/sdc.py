@@ -48,8 +48,8 @@ from ocreach.reach.taylor import (
     ZonotopeOptions,
     ZonotopeReach,
     check_smooth,
-    initial_zonotope,
     inflate_box,
+    initial_zonotope,
     time_dependent,
 )
 from ocreach.sets.matzonotope import MatrixZonotope, matzonotope_times_zonotope

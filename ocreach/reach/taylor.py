@@ -671,9 +671,9 @@ class DiscreteTaylor:
 
     def _meta(self, t_start, rem, splits, truncated):
         meta = self.method.base_meta(self.problem, {"propagation": time.perf_counter() - t_start})
-        meta.update({"guaranteed": True, "guaranteed_for": "the discrete RK4 model (control held on "
-                     "each grid step, %d RK4 sub-steps); not an enclosure of the continuous-time "
-                     "flow" % self.n_sub, "truncated": truncated, "alg": "dt",
+        meta.update({"guaranteed": True, "guaranteed_for": f"the discrete RK4 model (control held on "
+                     f"each grid step, {self.n_sub} RK4 sub-steps); not an enclosure of the "
+                     "continuous-time flow", "truncated": truncated, "alg": "dt",
                      "input_set": self.problem.control_set.kind, "input_enclosure": self.input_desc,
                      "steps": {"remainder": rem, "splits": splits}})
         return meta
