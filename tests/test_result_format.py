@@ -15,6 +15,7 @@ from ocreach.reach.result import ReachResult, load
 from ocreach.reach.stt import PZUnion
 from ocreach.sets import Ellipsoid, Interval, MatrixZonotope, PolyZonotope, Zonotope
 from ocreach.sets.serialize import registered_types
+from ocreach.sets.union import ZonotopeUnion
 
 
 def _sets(rng):
@@ -28,6 +29,8 @@ def _sets(rng):
         "Ellipsoid": Ellipsoid(rng.normal(size=3), A @ A.T),
         "MatrixZonotope": MatrixZonotope(rng.normal(size=(3, 3)), rng.normal(size=(2, 3, 3))),
         "PZUnion": PZUnion([pz, PolyZonotope(np.zeros(3), np.eye(3))]),
+        "ZonotopeUnion": ZonotopeUnion([Zonotope(rng.normal(size=3), rng.normal(size=(3, 2))),
+                                        Zonotope(np.zeros(3), np.eye(3))]),
     }
 
 
@@ -37,7 +40,7 @@ _FIELDS = {"Interval": ("lo", "hi"), "Zonotope": ("c", "G"), "PolyZonotope": ("c
 
 def _same(a, b):
     assert type(a) is type(b)
-    if isinstance(a, PZUnion):
+    if isinstance(a, (PZUnion, ZonotopeUnion)):
         assert len(a.parts) == len(b.parts)
         for p, q in zip(a.parts, b.parts):
             _same(p, q)

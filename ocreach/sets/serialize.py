@@ -71,6 +71,7 @@ for _args in (
 ):
     register_set_type(*_args)
 register_set_type("PZUnion", "ocreach.reach.stt:PZUnion", union=True)
+register_set_type("ZonotopeUnion", "ocreach.sets.union:ZonotopeUnion", union=True)
 
 
 def registered_types() -> list[str]:
