@@ -322,29 +322,36 @@ class _Slots:
         self.k[ii, rank[ii, kk]] = kk
         self.e[ii, rank[ii, kk]] = E[kk, ii]
         self.p = E.shape[0]
+        L = self.k.shape[1]
+        self.onehot = np.zeros((L, h, self.p))                      # slot -> factor scatter matrices
+        for l in range(L):
+            on = self.e[:, l] > 0
+            self.onehot[l, np.flatnonzero(on), self.k[on, l]] = 1.0
 
     def values_grad(self, A: np.ndarray, grad: bool = True):
         """Monomial values (N, h) and, with ``grad``, d m_i / d a_k as (N, h, L) per slot."""
-        X = A[:, self.k]                                            # (N, h, L)
-        F = X ** self.e
+        emax = int(self.e.max()) if self.e.size else 0
+        Pw = np.ones((A.shape[0], self.p, emax + 1))                # powers a_k^j, j = 0..emax
+        for j in range(1, emax + 1):
+            Pw[:, :, j] = Pw[:, :, j - 1] * A
+        ei = self.e.astype(np.int64)
+        F = Pw[:, self.k, ei]                                       # (N, h, L)
         M = np.prod(F, axis=2)
         if not grad:
             return M, None
         L = F.shape[2]
-        dF = np.where(self.e > 0, self.e * X ** np.maximum(self.e - 1, 0), 0.0)
+        dF = np.where(self.e > 0, self.e * Pw[:, self.k, np.maximum(ei - 1, 0)], 0.0)
         dM = np.empty_like(F)
         for l in range(L):                                         # L <= a few
-            others = np.prod(np.delete(F, l, axis=2), axis=2) if L > 1 else 1.0
+            others = np.prod(F[:, :, [i for i in range(L) if i != l]], axis=2) if L > 1 else 1.0
             dM[:, :, l] = dF[:, :, l] * others
         return M, dM
 
     def gather_grad(self, coef: np.ndarray, dM: np.ndarray) -> np.ndarray:
         """``sum_i coef[:, i] d m_i / d a`` (N, p) for coefficient rows coef (N, h)."""
-        N = coef.shape[0]
-        out = np.zeros((N, self.p))
-        contrib = coef[:, :, None] * dM                             # (N, h, L)
+        out = np.zeros((coef.shape[0], self.p))
         for l in range(self.k.shape[1]):
-            np.add.at(out.T, self.k[:, l], contrib[:, :, l].T * (self.e[:, l] > 0)[:, None])
+            out += (coef * dM[:, :, l]) @ self.onehot[l]
         return out
 
 
