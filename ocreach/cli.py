@@ -103,13 +103,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    if args.kind != "lqr-vs-mpc":
-        raise OcreachError(f"unknown report {args.kind!r}; available: ['lqr-vs-mpc']")
+    if args.kind not in ("lqr-vs-mpc", "station-keeping"):
+        raise OcreachError(f"unknown report {args.kind!r}; available: ['lqr-vs-mpc', 'station-keeping']")
     from ocreach.control.report import lqr_vs_mpc_report
     from ocreach.problem import get_problem
 
     prob_over, opts = _split_options(_parse_sets(args.set))
     problem = get_problem(args.problem, **prob_over)
+    if args.kind == "station-keeping":
+        from ocreach.control.station_keeping_report import cmd_station_keeping
+        return 0 if cmd_station_keeping(args, opts, problem) is not None else 1
     out = Path(args.out or f"out/report_{problem.id}")
     metrics = lqr_vs_mpc_report(problem, out, **opts)
     print(json.dumps(metrics, indent=2, default=str))
@@ -155,11 +158,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="method option (ode.samples=200) or problem.KEY=VALUE")
     c.set_defaults(func=cmd_compare)
 
-    rp = sub.add_parser("report", help="write a report (lqr-vs-mpc)")
-    rp.add_argument("kind", help="lqr-vs-mpc")
+    rp = sub.add_parser("report", help="write a report (lqr-vs-mpc, station-keeping)")
+    rp.add_argument("kind", help="lqr-vs-mpc | station-keeping")
     rp.add_argument("--problem", default="l2-halo")
     rp.add_argument("--out")
     rp.add_argument("--set", action="append", metavar="KEY=VALUE")
+    rp.add_argument("--controllers", help="station-keeping: e.g. event-mpc,tube-mpc,mpc,lqr")
+    rp.add_argument("--revolutions", type=float, help="station-keeping: revolutions (default 10)")
     rp.set_defaults(func=cmd_report)
 
     b = sub.add_parser("bench", help="run the benchmarks in benchmarks/")

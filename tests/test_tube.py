@@ -4,6 +4,7 @@ trace, SciPy's solve_ivp (drift tubes, Delta-V)."""
 from __future__ import annotations
 
 import itertools
+import json
 
 import casadi as ca
 import cvxpy as cp
@@ -303,3 +304,44 @@ def test_station_keeping_bad_inputs(halo):
         MPC(Q_PAPER, R_PAPER, tube=6, tube_slack=-1.0)
     with pytest.raises(ProblemError, match="tube_slack needs"):
         MPC(Q_PAPER, R_PAPER, tube_slack=1.0)
+
+
+def test_station_keeping_report_writes_files_with_metrics_per_controller(tmp_path):
+    """``ocreach report station-keeping`` on a short l2-halo run: files written, one metrics entry
+    per controller with the required keys, text computed from the run."""
+    from ocreach.cli import main
+
+    rc = main(["report", "station-keeping", "--problem", "l2-halo", "--controllers",
+               "event-mpc,tube-mpc,lqr", "--revolutions", "0.06", "--out", str(tmp_path),
+               "--set", "n_p=6", "--set", "progress=False"])
+    assert rc == 0
+    data = json.loads((tmp_path / "metrics.json").read_text())
+    keys = ("revolutions", "delta_v_mps", "delta_v_per_rev_mps", "activations", "duty_cycle",
+            "max_gauge_off", "max_deviation_km", "time_per_step_ms", "solver_failures")
+    for name in ("event-mpc", "tube-mpc", "lqr"):
+        assert all(k in data[name] for k in keys), name
+    assert "mpc" not in data
+    assert data["settings"]["tube_guaranteed"] is False
+    md = (tmp_path / "report.md").read_text()
+    assert "NOT a guaranteed enclosure" in md
+    assert f"{data['lqr']['delta_v_mps']:.4g} m/s" in md
+    for f in ("report.html", "trajectory.png", "projections.png", "gauge.png", "thrust.png",
+              "delta_v.png"):
+        assert (tmp_path / f).stat().st_size > 0
+    # lqr is on every step: duty cycle 1, one activation
+    assert data["lqr"]["duty_cycle"] == 1.0 and data["lqr"]["activations"] == 1
+
+
+def test_defect_correction_makes_the_prediction_exact_on_the_reference(halo_ref):
+    """With one RK4 substep the prediction from x_ref is off the reference (the MPC thrusts to
+    fight its model error); with the defect correction it is exact there: zero thrust, plan on
+    the reference."""
+    x = halo_ref.state(3)
+    plain = MPC(Q_PAPER, R_PAPER, n_p=6, n_c=6, prediction_substeps=1).setup(halo_ref, "ball")
+    corr = MPC(Q_PAPER, R_PAPER, n_p=6, n_c=6, prediction_substeps=1,
+               defect_correction=True).setup(halo_ref, "ball")
+    u_plain, u_corr = plain.control(3, x), corr.control(3, x)
+    assert corr.fallbacks == plain.fallbacks == 0
+    assert np.linalg.norm(u_corr) <= 1e-9
+    assert np.abs(corr._X_abs - halo_ref.state(np.arange(4, 10))).max() <= 1e-12
+    assert np.linalg.norm(u_plain) > 1e3 * max(np.linalg.norm(u_corr), 1e-12)

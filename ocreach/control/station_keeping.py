@@ -150,7 +150,7 @@ class EventTriggeredMPC:
     name = "event-mpc"
 
     def __init__(self, Q, R, schedule: TubeSchedule, *, trigger: EventTrigger | None = None,
-                 n_p: int = PAPER_N, n_c: int | None = None, tube_slack: float = 1e4,
+                 n_p: int = PAPER_N, n_c: int | None = None, tube_slack: float = 100.0,
                  target: float | None = None, fallback: LQR | None = None,
                  **mpc_options: Any) -> None:
         self.schedule = schedule
@@ -337,8 +337,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         membership: str = "box", tube_source: str = "linear",
                         tube_options: dict | None = None, phase: int | str = "apolune",
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
-                        navigation: Any = None, seed: int = 0, tube_slack: float = 1e4,
+                        navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
                         max_cpu_time: float = 2.0, n_sub: int | str = "auto",
+                        prediction_substeps: int | None = 4,
                         progress: bool = False) -> StationKeepingRun:
     """Closed loop of each controller over ``revolutions`` of the problem's periodic reference.
 
@@ -347,7 +348,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     the navigation error (half-widths ``navigation`` on the measured state, or ``None``).
     Controllers: ``event-mpc`` (:class:`EventTriggeredMPC`), ``tube-mpc``
     (:class:`~ocreach.control.tube_mpc.TubeMPC`), ``mpc`` (continuous :class:`MPC`, no tube), ``lqr``
-    (periodic LQR).  Weights default to Table 3 (``R`` on the thrust acceleration).
+    (periodic LQR).  Weights default to Table 3 (``R`` on the thrust acceleration).  The
+    reference, LQR and tubes use ``n_sub`` RK4 substeps (``"auto"``: one-step error <= 1e-6); the
+    MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
+    (``None``: ``n_sub``, no correction).
     """
     from ocreach.control.report import PAPER_Q, paper_pattern
     from ocreach.control.tube_mpc import TubeMPC
@@ -382,14 +386,18 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     build = {
         "event-mpc": lambda: EventTriggeredMPC(Q, R, schedule, trigger=EventTrigger(beta, m),
                                                n_p=n_p, tube_slack=tube_slack, fallback=lqr,
-                                               max_cpu_time=max_cpu_time),
+                                               **mpc_kw),
         "tube-mpc": lambda: TubeMPC(Q, R, schedule, disturbance=disturbance,
                                     velocity_dims=problem.velocity_dims, n_p=n_p,
-                                    tube_slack=tube_slack, fallback=lqr, max_cpu_time=max_cpu_time),
-        "mpc": lambda: MPC(Q, R, n_p=n_p, n_c=n_p, fallback=lqr, max_cpu_time=max_cpu_time),
+                                    tube_slack=tube_slack, fallback=lqr, **mpc_kw),
+        "mpc": lambda: MPC(Q, R, n_p=n_p, n_c=n_p, fallback=lqr, **mpc_kw),
         "lqr": lambda: lqr,
     }
     kind = problem.control_set.kind
+    if prediction_substeps is not None and prediction_substeps >= ref.n_sub:
+        prediction_substeps = None  # the reference's model is already that cheap
+    mpc_kw = {"max_cpu_time": max_cpu_time, "prediction_substeps": prediction_substeps,
+              "defect_correction": prediction_substeps is not None}
     results, metrics, gauges, active = {}, {}, {}, {}
     for name in controllers:
         ctl = build[name]()
@@ -403,6 +411,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
     tube0 = schedule.tube(schedule.phase)
+    off0 = results[controllers[0]].X[0] - ref.state(0)
     settings = {
         "problem": problem.id, "revolutions": float(K / ref.n_steps), "n_steps": K,
         "steps_per_rev": ref.n_steps, "dt_TU": ref.dt,
@@ -413,9 +422,15 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
                                   else initial, float).tolist(),
         "disturbance_W": disturbance, "navigation": navigation, "seed": seed,
-        "offset": (results[controllers[0]].X[0] - ref.state(0)).tolist(),
+        "offset": off0.tolist(),
+        "offset_position_km": float(np.linalg.norm(off0[list(problem.position_dims)])
+                                    * problem.units.length / 1e3),
+        "offset_velocity_mps": float(np.linalg.norm(off0[list(problem.velocity_dims)])
+                                     * problem.units.velocity),
         "Q": np.asarray(Q, float).tolist(), "R": np.asarray(R, float).tolist(),
         "tube_slack": tube_slack, "rk4_substeps": ref.n_sub,
+        "prediction_substeps": prediction_substeps,
+        "defect_correction": prediction_substeps is not None,
         "a_max": float(problem.param("a_max")), "thrust_N": problem.extra.get("thrust_N"),
         "mass_kg": problem.extra.get("mass_kg"),
         "paper": {"delta_v_mps": PAPER_DELTA_V_MPS, "t_f_hours": PAPER_TF_HOURS, "N": PAPER_N,

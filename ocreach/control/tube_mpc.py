@@ -81,7 +81,7 @@ class TubeMPC:
 
     def __init__(self, Q, R, schedule: TubeSchedule, *, disturbance: Any,
                  velocity_dims: tuple[int, ...], n_p: int = 15, n_c: int | None = None,
-                 tube_slack: float = 1e4, fallback: LQR | None = None, **mpc_options: Any) -> None:
+                 tube_slack: float = 100.0, fallback: LQR | None = None, **mpc_options: Any) -> None:
         self.schedule = schedule
         self.Q_in, self.R_in = Q, R
         self.disturbance = disturbance
