@@ -190,6 +190,18 @@ def test_schedule_refreshes_at_the_phase_and_windows_cross_it(halo, halo_ref):
     assert np.allclose(G[2], np.pad(z_new.G, ((0, 0), (0, G.shape[2] - z_new.n_generators))))
     # the refreshed tube starts at the initial set: its box is the paper's initial box
     assert np.allclose(np.abs(z_new.G).sum(axis=1), [1e-4] * 3 + [5e-4] * 3)
+    # short tubes refreshed every 50 steps: built per phase, re-used a period later
+    calls = []
+
+    def build(k):
+        calls.append(k)
+        return linear_drift_tube(halo_ref, k, 55, 1e-5, 1e-7, halo.velocity_dims)
+
+    short = TubeSchedule(build, halo_ref, phase=5, interval=50, lookahead=4)
+    assert short.refresh_step(120) == 105 and short.tube(120).k0 == 105
+    assert short.tube(130).k0 == 105 and calls == [105]  # cached
+    assert short.tube(155).k0 == 155 and calls == [105, 155]
+    assert short.refresh_step(5 + 7 * 50 + 3) == 355
 
 
 def _cr3bp_rhs(mu):

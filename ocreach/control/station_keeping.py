@@ -108,7 +108,8 @@ def as_box(tube: Tube) -> Tube:
 def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "paper",
                    disturbance: Any = PAPER_W, membership: str = "box", phase: int | str = "apolune",
                    every: int = 1, lookahead: int = PAPER_N, source: str = "linear",
-                   order: float = 5.0, tube_options: dict | None = None) -> TubeSchedule:
+                   order: float = 5.0, tube_options: dict | None = None,
+                   interval: int | None = None) -> TubeSchedule:
     """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
     revolutions; each covers its interval plus ``lookahead`` steps.
 
@@ -121,7 +122,7 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     G0 = paper_initial_set(problem) if isinstance(initial, str) and initial == "paper" else initial
     if isinstance(G0, str):
         raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
-    length = every * reference.n_steps + lookahead + 1
+    length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
     if source == "linear":
         def build(k: int) -> Tube:
             return linear_drift_tube(reference, k, length, G0, disturbance, problem.velocity_dims,
@@ -130,7 +131,7 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
         raise ProblemError(f"tube source must be 'linear'; got {source!r}")
     wrap = as_box if membership == "box" else (lambda t: t)
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
-                        lookahead=lookahead, reuse=True)
+                        lookahead=lookahead, reuse=True, interval=interval)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -285,16 +285,17 @@ class TubeSchedule:
 
     ``builder(k) -> Tube`` computes the tube that starts at reference step ``k`` (a refresh step).
     Refreshes happen at ``k = phase + i * every * M`` (``M`` steps per period; ``every`` in
-    revolutions); the tube active at step ``k`` is the one of the last refresh ``<= k``.  Each tube
-    must cover its refresh interval plus ``lookahead`` steps (MPC windows reach across the next
-    refresh: the steps after it are constrained by the next tube).  With ``reuse=True`` (the
-    builder depends only on the phase, e.g. a tube about a periodic reference) the tube of the
-    first refresh is re-used, shifted by whole periods.
+    revolutions), or every ``interval`` steps if given (a short-horizon tube refreshed more often
+    than once per revolution); the tube active at step ``k`` is the one of the last refresh
+    ``<= k``.  Each tube must cover its refresh interval plus ``lookahead`` steps (MPC windows
+    reach across the next refresh: the steps after it are constrained by the next tube).  With
+    ``reuse=True`` (the builder depends only on the phase of the periodic reference, e.g. a tube
+    about the reference) a tube is built once per phase and re-used, shifted by whole periods.
     """
 
     def __init__(self, builder: Callable[[int], Tube], reference: TrackingReference, *,
                  phase: int | str = "apolune", every: int = 1, lookahead: int = 0,
-                 reuse: bool = True) -> None:
+                 reuse: bool = True, interval: int | None = None) -> None:
         if not reference.periodic:
             raise ProblemError(f"tube refresh needs a periodic reference (a period to refresh on); "
                                f"'{reference.name}' has none")
@@ -310,7 +311,8 @@ class TubeSchedule:
         self.phase = int(phase)
         self.every = check_count("every (revolutions between refreshes)", every, 1)
         self.lookahead = check_count("lookahead", lookahead, 0)
-        self.interval = self.every * M
+        self.interval = (self.every * M if interval is None
+                         else check_count("interval (steps between refreshes)", interval, 1))
         self.builder = builder
         self.reuse = reuse
         self._tubes: dict[int, Tube] = {}
@@ -324,10 +326,12 @@ class TubeSchedule:
         """The tube active at step ``k``."""
         r = self.refresh_step(k)
         if r not in self._tubes:
-            if self.reuse and self._tubes:
-                base_r, base = next(iter(self._tubes.items()))
-                t = Tube(base.centers, base.generators, k0=base.k0 + (r - base_r),
-                         guaranteed=base.guaranteed, source=base.source, meta=base.meta)
+            M = self.reference.n_steps
+            base = next((b for b in self._tubes.values() if (b.k0 - r) % M == 0), None) \
+                if self.reuse else None
+            if base is not None:
+                t = Tube(base.centers, base.generators, k0=r, guaranteed=base.guaranteed,
+                         source=base.source, meta=base.meta)
             else:
                 t = self.builder(r)
                 if not isinstance(t, Tube):
