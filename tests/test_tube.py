@@ -257,10 +257,10 @@ def test_linear_drift_tube_contains_sampled_drift_trajectories(halo, halo_ref):
 
 
 # ----------------------------------------------------------------------------- Delta-V
-def test_delta_v_in_si_from_thrust_mass_and_time_unit():
+def test_delta_v_in_si_from_thrust_mass_and_time_unit(halo):
     """Paper: T_max = 0.1 N, m0 = 1000 kg -> 1e-4 m/s^2; t* = 375200 s.  Full thrust for 10 steps
     of 1 h is 3.6 m/s; half thrust 1.8 m/s."""
-    prob = ocreach.get_problem("nrho-9-2")
+    prob = halo  # same spacecraft as nrho-9-2 (0.1 N, 1000 kg, Patel units)
     a = prob.param("a_max")
     assert a * prob.units.acceleration == pytest.approx(0.1 / 1000.0, rel=1e-12)
     dt = 3600.0 / 375200.0

@@ -28,6 +28,7 @@ from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, simulate
 from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube
+from ocreach.control.tube_mpc import MPCWrapper
 from ocreach.errors import ProblemError, check_count
 
 #: Patel & Subbarao's NRHO station-keeping settings (non-dimensional).
@@ -137,7 +138,7 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
 # ------------------------------------------------------------------------------------------------
 # controllers
 # ------------------------------------------------------------------------------------------------
-class EventTriggeredMPC:
+class EventTriggeredMPC(MPCWrapper):
     """Thrust off inside the tube; the tube-constrained MPC (soft) when the trigger is on.
 
     ``schedule`` a :class:`TubeSchedule` on the same reference; ``mpc_options`` for
@@ -181,14 +182,6 @@ class EventTriggeredMPC:
         self.active: list[bool] = []
         self.slacks: list[float] = []
         self.solve_times: list[float] = []
-
-    @property
-    def fallbacks(self) -> int:
-        return self.mpc.fallbacks
-
-    @property
-    def events(self) -> list:
-        return self.mpc.events
 
     def control(self, k: int, x: np.ndarray) -> np.ndarray:
         g = self.schedule.gauge(k, x)

@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ocreach.control.reference import TrackingReference
+from ocreach.control.simulate import _generator
 from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.sets.zonotope import Zonotope
 
@@ -387,22 +388,6 @@ def disturbance_input(reference: TrackingReference, velocity_dims: tuple[int, ..
     return reference.B @ np.linalg.pinv(S)
 
 
-def _as_generators(name: str, W: Any, n: int) -> np.ndarray:
-    if W is None:
-        return np.zeros((n, 0))
-    M = np.asarray(W, dtype=float)
-    if M.ndim == 0:
-        M = float(M) * np.eye(n)
-    elif M.ndim == 1:
-        if M.size != n:
-            raise ProblemError(f"{name}: a diagonal must have length {n}; got {M.size}")
-        M = np.diag(M)
-    if M.ndim != 2 or M.shape[0] != n or not np.all(np.isfinite(M)):
-        raise ProblemError(f"{name} must be a finite scalar, length-{n} diagonal or {n} x q "
-                           f"matrix; got shape {np.shape(W)}")
-    return M
-
-
 def linear_drift_tube(reference: TrackingReference, k0: int, length: int, initial: Any,
                       disturbance: Any, velocity_dims: tuple[int, ...], *,
                       order: float = 5.0) -> Tube:
@@ -418,8 +403,8 @@ def linear_drift_tube(reference: TrackingReference, k0: int, length: int, initia
     n = reference.model.n_x
     length = check_count("length (tube steps)", length, 1)
     reference.linearize()
-    G0 = _as_generators("initial deviation set", initial, n)
-    Wg = _as_generators("disturbance W", disturbance, len(velocity_dims))
+    G0 = _generator("initial deviation set", initial, n)
+    Wg = _generator("disturbance W", disturbance, len(velocity_dims))
     Bw = disturbance_input(reference, velocity_dims)
     idx = reference.gains_index(np.arange(k0, k0 + length))
     zs = []

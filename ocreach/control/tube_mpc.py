@@ -31,7 +31,8 @@ import numpy as np
 from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference
-from ocreach.control.tube import TubeSchedule, _as_generators, disturbance_input
+from ocreach.control.simulate import _generator
+from ocreach.control.tube import TubeSchedule, disturbance_input
 from ocreach.errors import ProblemError
 
 #: smallest fraction of a constraint kept after tightening (a fully consumed set is reported)
@@ -67,7 +68,21 @@ def error_tube_margins(reference: TrackingReference, K: np.ndarray, Bw: np.ndarr
     return state, thrust
 
 
-class TubeMPC:
+class MPCWrapper:
+    """A controller built around an inner :class:`MPC` (``self.mpc``): its failures are the MPC's."""
+
+    mpc: MPC
+
+    @property
+    def fallbacks(self) -> int:
+        return self.mpc.fallbacks
+
+    @property
+    def events(self) -> list:
+        return self.mpc.events
+
+
+class TubeMPC(MPCWrapper):
     """Tube MPC with tightened state (drift-tube box) and thrust sets on the nonlinear prediction.
 
     ``schedule`` gives the state constraint sets (their interval hulls); ``disturbance`` the
@@ -104,7 +119,7 @@ class TubeMPC:
         M = reference.n_steps
         K = self.lqr.K[np.arange(M)]
         Bw = disturbance_input(reference, self.velocity_dims)
-        W = _as_generators("disturbance W", self.disturbance, len(self.velocity_dims))
+        W = _generator("disturbance W", self.disturbance, len(self.velocity_dims))
         self.state_margin, self.thrust_margin = error_tube_margins(
             reference, K, Bw, W, self.n_p, self.mpc.kind)
         self.M = M
@@ -116,14 +131,6 @@ class TubeMPC:
             self.mpc.reset()
         self.tightening_exhausted = 0
         self.solve_times = self.mpc.solve_times
-
-    @property
-    def fallbacks(self) -> int:
-        return self.mpc.fallbacks
-
-    @property
-    def events(self) -> list:
-        return self.mpc.events
 
     def tightened(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(centres (n_p, n_x), half widths (n_p, n_x), thrust radii (n_c,))`` at step ``k``."""
@@ -145,4 +152,4 @@ class TubeMPC:
         return u
 
 
-__all__ = ["TubeMPC", "error_tube_margins"]
+__all__ = ["MPCWrapper", "TubeMPC", "error_tube_margins"]
