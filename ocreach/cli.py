@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ocreach.errors import OcreachError
+from ocreach.errors import OcreachError, SolverError
 
 
 def _parse_sets(items: list[str] | None) -> dict:
@@ -55,8 +55,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     prob_over, opts = _split_options(_parse_sets(args.set))
     problem = get_problem(args.problem, **prob_over)
     print(problem.summary())
-    result = reach(problem, args.method, **opts)
     out = Path(args.out or f"out/{problem.id}_{args.method}")
+    try:
+        result = reach(problem, args.method, **opts)
+    except SolverError as exc:  # a sound method that stopped keeps its sets so far (truncated)
+        if getattr(exc, "partial", None) is None:
+            raise
+        exc.partial.save(out / "result_truncated.npz")
+        print(f"wrote the sets up to t = {exc.partial.times[-1]:g} to {out}/result_truncated.npz",
+              file=sys.stderr)
+        raise
     out.mkdir(parents=True, exist_ok=True)
     result.save(out / "result.npz")
     planes = list(problem.planes().values())

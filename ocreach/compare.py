@@ -77,6 +77,12 @@ class Comparison:
             lines.append(f"| {name} | failed: {err} |" + " |" * (len(head) - 2))
         lines += ["", "runtime: wall time of each method's solve in this process, including any one-off "
                   "compilation of generated C code (cached on disk for later runs)."]
+        vols = {n: m.get("volume_pos") for n, m in self.metrics.items()
+                if np.isfinite(m.get("volume_pos", float("nan")))}
+        if vols:  # position-space volume at the final time (Patel & Subbarao Fig. 5)
+            lines += ["position-space volume at the final time: " + ", ".join(
+                f"{n} {v:.4g}" + (" (guaranteed)" if self.results[n].meta.get("guaranteed") else "")
+                for n, v in vols.items())]
         lines += [f"Note: {n}" for n in self.notes()]
         return "\n".join(lines)
 
@@ -189,9 +195,28 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
                                     "support_err_max": float(np.max(np.abs(err))),
                                     "area": float(area), "mc_covered": float(np.mean(covered)),
                                     "dims": list(dims)}
+        entry["volume_pos"] = position_volume(res, problem)
         metrics[name] = entry
     return Comparison(problem=problem, results=results, metrics=metrics, truth=truth, errors=errors,
                       interrupted=interrupted)
+
+
+def position_volume(result: ReachResult, problem: Problem, k: int = -1) -> float:
+    """Volume of the position-space projection at time index ``k`` (Patel & Subbarao Fig. 5):
+    exact for a zonotope, the sum over the parts (an upper bound) for a union of zonotopes, the
+    convex hull of the samples for sample-based results; NaN when it cannot be computed."""
+    dims = list(problem.position_dims)
+    try:
+        if result.sets is not None:
+            S = result.sets[k].project(dims)
+            if hasattr(S, "volume_bound"):
+                return S.volume_bound()
+            return float(S.volume()) if hasattr(S, "volume") else float("nan")
+        from scipy.spatial import ConvexHull
+
+        return float(ConvexHull(np.asarray(result.points[k])[:, dims]).volume)
+    except Exception:  # a degenerate hull or an unsupported set type: no number, not a failure
+        return float("nan")
 
 
 def _result_name(problem: Problem, method: str) -> str:

@@ -33,6 +33,22 @@ MASS_KG, ISP_S = 1000.0, 3000.0
 EARTH_MARS_STATE_KM = (-140699693.0, -51614428.0, 980.0, 9.774596, -28.07828, 4.337725e-4)
 EARTH_MARS_EPOCH = "2007-04-10"
 HOUR_TU = 3600.0 / EARTH_MOON_PATEL.time
+#: Initial-set generators of the cislunar cases (Patel & Subbarao, NRHO section): G_pos = 1e-4 I_3
+#: DU, G_vel = 5e-4 I_3 DU/TU.  The paper gives them for the NRHO and only says "a small generator
+#: matrix" for the L2 halo (Fig. 2); the same values are used there.
+G_POS_DU, G_VEL_DUTU = 1e-4, 5e-4
+INITIAL_SETS = ("paper", "point")
+
+
+def _initial_set(x0: np.ndarray, kind: str, g_pos: float, g_vel: float):
+    """The paper's box initial set about ``x0`` (``"paper"``) or none (``"point"``: ``x0`` only)."""
+    from ocreach.sets.zonotope import Zonotope
+
+    if kind not in INITIAL_SETS:
+        raise ProblemError(f"initial_set must be one of {INITIAL_SETS}; got {kind!r}")
+    if kind == "point":
+        return None
+    return Zonotope(x0, np.diag([g_pos] * 3 + [g_vel] * 3))
 
 
 @cache
@@ -62,7 +78,8 @@ def _grid(t_final: float, dt: float) -> np.ndarray:
 
 
 def _cislunar(pid: str, orbit: PeriodicOrbit, t_final: float, dt: float, thrust: float,
-              mass: float, isp: float, description: str, citation: str) -> Problem:
+              mass: float, isp: float, description: str, citation: str,
+              initial_set: str = "paper") -> Problem:
     check_positive("thrust", thrust)
     check_positive("mass", mass)
     check_positive("isp", isp)
@@ -72,6 +89,7 @@ def _cislunar(pid: str, orbit: PeriodicOrbit, t_final: float, dt: float, thrust:
     return Problem(
         id=pid, model=model, x0=orbit.x0.copy(), grid=_grid(t_final, dt), units=units,
         reference=orbit.to_reference(orbit.family),
+        initial_set=_initial_set(orbit.x0, initial_set, G_POS_DU, G_VEL_DUTU),
         description=(f"{description}; T_max = {thrust:g} N, m0 = {mass:g} kg "
                      f"(a_max = {a_max:.4g} DU/TU^2), Isp = {isp:g} s, "
                      f"{t_final / HOUR_TU:.4g} h in steps of {dt / HOUR_TU:.3g} h"),
@@ -83,13 +101,15 @@ def _cislunar(pid: str, orbit: PeriodicOrbit, t_final: float, dt: float, thrust:
 
 
 def l2_halo(t_final: float | None = None, dt: float = HOUR_TU, thrust: float = CISLUNAR_THRUST_N,
-            mass: float = MASS_KG, isp: float = ISP_S) -> Problem:
+            mass: float = MASS_KG, isp: float = ISP_S, initial_set: str = "paper") -> Problem:
     """Earth-Moon L2 halo, 0.1 N on 1000 kg, one period (349.3 h) in 1 h steps (Patel & Subbarao Tables 2-3).
 
     x0 and the reference are the paper's state corrected with z0 fixed (see :func:`halo_orbit`).
     Options: ``t_final`` (TU, default one period), ``dt`` (TU, default 1 h = 3600/375200 TU; the
     grid has ``round(t_final/dt)`` equal segments ending exactly at ``t_final``), ``thrust`` (N),
-    ``mass`` (kg), ``isp`` (s; recorded in ``extra``, the model keeps the mass constant).
+    ``mass`` (kg), ``isp`` (s; recorded in ``extra``, the model keeps the mass constant),
+    ``initial_set`` (``"paper"``: the box ``x0 +- (1e-4 DU, 5e-4 DU/TU)`` of the NRHO section, used
+    by ``mc``, ``taylor``, ``sdc``, ``stt``; ``"point"``: ``x0`` only).
     """
     orbit = halo_orbit()
     t_final = orbit.period if t_final is None else t_final
@@ -99,25 +119,28 @@ def l2_halo(t_final: float | None = None, dt: float = HOUR_TU, thrust: float = C
                      f"{list(HALO_SEED)} corrected with z0 fixed (period {orbit.period:.5f} TU = "
                      f"{orbit.period_in(EARTH_MOON_PATEL):.2f} h; paper quotes "
                      f"{HALO_PERIOD_PAPER_H:.2f} h)"),
-        citation=f"{CITATION}, L2 halo station-keeping, Tables 2-3; state from {BOWERFIND_TAHERI}")
+        citation=f"{CITATION}, L2 halo station-keeping, Tables 2-3; state from {BOWERFIND_TAHERI}",
+        initial_set=initial_set)
 
 
 def nrho_9_2_problem(t_final: float = 76.0 * HOUR_TU, dt: float = HOUR_TU,
                      thrust: float = CISLUNAR_THRUST_N, mass: float = MASS_KG,
-                     isp: float = ISP_S) -> Problem:
+                     isp: float = ISP_S, initial_set: str = "paper") -> Problem:
     """Earth-Moon L2 9:2 NRHO from apolune, 0.1 N on 1000 kg, 76 h in 1 h steps (Patel & Subbarao, Fig. 4-6).
 
     The paper's method comparison runs 76 h (apolune to just before perilune, which is at half the
     157.5 h period).  Note: the paper's text quotes the halo state [1.1720, 0, -0.0862, ...] for this
     case too; here the actual 9:2 NRHO (period = 2/9 synodic month) is used, as its title and the
-    157 h station-keeping period indicate.  Options as for ``l2-halo`` (``t_final`` default 76 h).
+    157 h station-keeping period indicate.  Options as for ``l2-halo`` (``t_final`` default 76 h;
+    ``initial_set`` ``"paper"`` is the paper's G_pos = 1e-4 I_3 DU, G_vel = 5e-4 I_3 DU/TU).
     """
     orbit = nrho_orbit()
     return _cislunar(
         "nrho-9-2", orbit, t_final, dt, thrust, mass, isp,
         description=(f"spatial CR3BP (mu = {MU_PATEL}) southern L2 9:2 NRHO from apolune "
                      f"(period {orbit.period:.5f} TU = {orbit.period_in(EARTH_MOON_PATEL, 'd'):.3f} d)"),
-        citation=f"{CITATION}, L2 9:2 NRHO method comparison (76 h) and station-keeping")
+        citation=f"{CITATION}, L2 9:2 NRHO method comparison (76 h) and station-keeping",
+        initial_set=initial_set)
 
 
 def earth_mars(t_days: float = 200.0, dt_days: float = 1.0, thrust: float = EM_THRUST_N,

@@ -1,0 +1,223 @@
+"""Sound reachable sets of a linear system over one step: the step shared by ``taylor`` and ``sdc``.
+
+For ``d' = A d + u_c + w(t)`` with ``d(0)`` in a zonotope ``R0``, a constant input ``u_c`` and an
+uncertain input ``w(t)`` in a zonotope ``W`` that contains the origin (``W`` is centred at 0 by
+moving its centre into ``u_c``), this module encloses the time-point set ``R(h)`` and the
+time-interval set ``R([0, h])`` (Althoff, Stursberg & Buss, CDC 2008; Girard, HSCC 2005; Althoff's
+thesis 2010, Sec. 3.2).  Every approximation is an enclosure:
+
+* **Exponential-matrix remainder.**  With ``T_i = (A h)^i / i!`` (``i = 0..eta``) the tail
+  ``e^{A t} - sum_{i<=eta} (A t)^i / i!`` is bounded elementwise for every ``t`` in ``[0, h]`` by
+  ``E``: ``|sum_{i>eta} (A t)^i / i!| <= sum_{i>eta} (|A| h)^i / i! = P M`` with ``P = (|A| h)^{eta+1}``
+  and ``M = sum_k (|A| h)^k / (eta+1+k)!``, whose entries are at most
+  ``1 / ((eta+1)! (1 - a / (eta+2)))``, ``a = ||A h||_inf < eta + 2``; so
+  ``E_ij = rowsum_i(P) / ((eta+1)! (1 - a/(eta+2)))``, plus the floating-point error of the
+  computed ``T_i`` and their sums, ``2 (eta+1)(n+2) u sum_i (|A| h)^i / i!`` (:func:`expm_terms`).
+* **Time point** (Eq. 3.5 of the thesis): ``R(h) = e^{A h} R0 + Gamma(h) u_c + R_W`` with
+  ``e^{A h} in Phi_T + [-E, E]``, ``Phi_T = sum T_i``; ``Gamma(h) = int_0^h e^{A s} ds in
+  h sum T_i / (i+1) + [-E h, E h]``; and the input solution
+  ``R_W = sum_{i=0}^{eta} h/(i+1) T_i W  +  [-E h, E h] W``: the i-th term of
+  ``int_0^h e^{A (h-s)} w(s) ds`` is ``int (h-s)^i / i! A^i w(s) ds``, a non-negative weight of total
+  ``h^{i+1} / (i+1)!`` times points of the convex set ``A^i W``, hence in ``h^{i+1}/(i+1)! A^i W``.
+* **Time interval** (Prop. 3.7 of the thesis, the curvature correction): for ``t`` in ``[0, h]``
+  ``e^{A t} d0 = d0 + (t/h)(Phi_T - I) d0 + F(t) d0`` with
+  ``F(t) in F = sum_{i=2}^{eta} [q_i, 0] T_i + [-E, E]``, ``q_i = i^{-i/(i-1)} - i^{-1/(i-1)}``
+  (the minimum of ``tau^i - tau`` on ``[0, 1]``), and ``Gamma(t) u_c = (t/h) Gamma_T u_c + F~(t) u_c``
+  with ``F~ = sum_{i=1}^{eta} [q_{i+1}, 0] h/(i+1) T_i + [-E h, E h]``.  The segment
+  ``d0 + lambda (Phi_T d0 + Gamma_T u_c - d0)``, lambda in [0, 1], with the *same* ``d0`` is enclosed
+  by the zonotope convex-hull formula ``((c1+c2)/2, [(G1+G2)/2, (c1-c2)/2, (G1-G2)/2])``; the input
+  solution at any ``t <= h`` lies in ``R_W`` because ``0`` is in ``W`` (each term scales a convex set
+  containing 0 by a factor in [0, 1]) and the remainder bound grows with ``t``.  So
+  ``R([0, h]) = CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c + R_W``.
+
+Interval matrices act on zonotopes through ``M Z in mid(M) Z + box(rad(M) (|c| + sum |g|))``.
+Floating-point rounding of the zonotope arithmetic (matrix products, sums) is not tracked
+operation by operation; instead every result gets an extra box of ``FP_REL`` times
+``|c| + sum_j |g_j|`` per component, about 500 times the unit round-off times the dimension-
+dependent growth of a dot product of these sizes (documented in ``docs/validation.md``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import factorial
+
+import numpy as np
+
+from ocreach.errors import SolverError
+from ocreach.sets.zonotope import Zonotope
+
+#: relative box added to every computed set for the rounding of the zonotope arithmetic
+FP_REL = 1e-13
+#: largest number of Taylor terms of the exponential matrix
+MAX_TERMS = 40
+#: the tail bound must be below this (relative to ||A h||) before the series is truncated
+TAIL_TOL = 1e-16
+
+
+@dataclass(frozen=True)
+class ExpmTerms:
+    """Truncated exponential series of ``A h`` with a sound remainder (see module docstring).
+
+    ``T[i] = (A h)^i / i!`` for ``i = 0..eta`` (shape ``(eta+1, n, n)``), ``E`` the elementwise
+    remainder bound ``(n, n)`` valid for every ``t`` in ``[0, h]``, ``Phi = sum T``,
+    ``Gamma = h sum T_i / (i+1)`` (the series part of ``int_0^h e^{A s} ds``),
+    ``F_mid``/``F_rad`` midpoint and radius of the interval matrix ``F``, ``Ft_mid``/``Ft_rad``
+    of ``F~``.
+    """
+
+    h: float
+    eta: int
+    T: np.ndarray
+    E: np.ndarray
+    Phi: np.ndarray
+    Gamma: np.ndarray
+    F_mid: np.ndarray
+    F_rad: np.ndarray
+    Ft_mid: np.ndarray
+    Ft_rad: np.ndarray
+
+
+def _q(i: int) -> float:
+    """``min_{tau in [0,1]} tau^i - tau = i^{-i/(i-1)} - i^{-1/(i-1)}`` (i >= 2), rounded down."""
+    v = i ** (-i / (i - 1)) - i ** (-1 / (i - 1))
+    return v * (1 + 1e-12)
+
+
+def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
+    """Taylor terms of ``e^{A h}`` with the remainder bound ``E`` and the matrices ``F``, ``F~``
+    (Althoff CDC 2008, Eq. 6-8; module docstring).  Raises :class:`SolverError` if ``||A h||`` is so
+    large that ``MAX_TERMS`` terms do not bound the tail (the step must be shortened)."""
+    A = np.asarray(A, dtype=float)
+    n = A.shape[0]
+    Ah = A * h
+    absAh = np.abs(Ah)
+    a = float(np.max(absAh.sum(axis=1))) if n else 0.0
+    T = [np.eye(n)]
+    P = np.eye(n)  # (|A| h)^i
+    S_abs = np.eye(n)  # sum_i (|A| h)^i / i!, bounds sum_i |T_i| and the rounding of the sums
+    eta = 0
+    while True:
+        eta += 1
+        T.append(T[-1] @ Ah / eta)
+        P = P @ absAh
+        S_abs = S_abs + P / factorial(eta)
+        # tail after eta terms: uses (|A|h)^(eta+1)
+        if a < eta + 2:
+            scalar = a ** (eta + 1) / factorial(eta + 1) / (1.0 - a / (eta + 2))
+            if eta >= 2 and scalar <= TAIL_TOL * max(1.0, a):
+                break
+        if eta >= MAX_TERMS:
+            raise SolverError(f"exponential-matrix remainder: ||A h||_inf = {a:.4g} is too large for "
+                              f"{MAX_TERMS} Taylor terms (step h = {h:.4g}); use a shorter step")
+    P1 = P @ absAh  # (|A| h)^(eta+1)
+    E_row = P1.sum(axis=1) / factorial(eta + 1) / (1.0 - a / (eta + 2))
+    # plus the rounding of the computed T_i and their sums: (eta + 1)(n + 2) u sum_i (|A| h)^i / i!
+    # (first-order error bound of the recursive products T_i = T_{i-1} A h / i and the sums)
+    u = np.finfo(float).eps
+    E = (np.repeat(E_row[:, None], n, axis=1) * (1 + 1e-10)
+         + 2.0 * (eta + 1) * (n + 2) * u * S_abs + 1e-300)
+    Tarr = np.array(T)
+    Phi = Tarr.sum(axis=0)
+    Gamma = h * sum(T[i] / (i + 1) for i in range(eta + 1))
+    F_mid = np.zeros((n, n))
+    F_rad = E.copy()
+    for i in range(2, eta + 1):
+        q = _q(i)
+        F_mid += 0.5 * q * T[i]
+        F_rad += 0.5 * abs(q) * np.abs(T[i])
+    Ft_mid = np.zeros((n, n))
+    Ft_rad = E * h
+    for i in range(1, eta + 1):
+        q = _q(i + 1)
+        M = h / (i + 1) * T[i]
+        Ft_mid += 0.5 * q * M
+        Ft_rad += 0.5 * abs(q) * np.abs(M)
+    return ExpmTerms(h=float(h), eta=eta, T=Tarr, E=E, Phi=Phi, Gamma=Gamma, F_mid=F_mid,
+                     F_rad=F_rad, Ft_mid=Ft_mid, Ft_rad=Ft_rad)
+
+
+def abs_extent(Z: Zonotope) -> np.ndarray:
+    """``|c| + sum_j |g_j|``: the largest magnitude of each component over ``Z``."""
+    return np.abs(Z.c) + np.abs(Z.G).sum(axis=1)
+
+
+def box_zonotope(c: np.ndarray, r: np.ndarray) -> Zonotope:
+    """The box ``c +- r`` as a zonotope (zero radii give no generator)."""
+    r = np.asarray(r, dtype=float)
+    keep = r > 0
+    return Zonotope(np.asarray(c, dtype=float), np.diag(r)[:, keep])
+
+
+def interval_matrix_times(M_mid: np.ndarray, M_rad: np.ndarray, Z: Zonotope) -> Zonotope:
+    """Enclosure of ``{M x : M in [M_mid -+ M_rad], x in Z}``: ``M_mid Z + box(M_rad |Z|)``."""
+    core = M_mid @ Z
+    r = M_rad @ abs_extent(Z)
+    return Zonotope(core.c, np.hstack([core.G, np.diag(r)[:, r > 0]]))
+
+
+def with_fp_margin(Z: Zonotope) -> Zonotope:
+    """``Z`` plus the rounding box ``FP_REL (|c| + sum|g|)`` (module docstring)."""
+    r = FP_REL * abs_extent(Z) + 1e-300
+    return Zonotope(Z.c, np.hstack([Z.G, np.diag(r)]))
+
+
+def input_solution(W: Zonotope, et: ExpmTerms) -> Zonotope:
+    """Enclosure ``R_W`` of ``{int_0^t e^{A (t-s)} w(s) ds : t in [0, h], w(s) in W}`` for ``W``
+    containing the origin (module docstring); ``W``'s centre must be 0 (put it into ``u_c``)."""
+    if np.any(W.c != 0):
+        raise SolverError("input_solution: the uncertain input set must be centred at 0 "
+                          "(move the centre into the constant input u_c)")
+    n = W.dim
+    if W.n_generators == 0:
+        return Zonotope(np.zeros(n))
+    h = et.h
+    blocks = [(h / (i + 1)) * (et.T[i] @ W.G) for i in range(et.eta + 1)]
+    r = (et.E * h) @ np.abs(W.G).sum(axis=1)
+    G = np.hstack(blocks + [np.diag(r)[:, r > 0]])
+    return Zonotope(np.zeros(n), G)
+
+
+@dataclass(frozen=True)
+class LinearStep:
+    """Time-point set ``point`` (at ``h``) and time-interval set ``tube`` (over ``[0, h]``)."""
+
+    point: Zonotope
+    tube: Zonotope
+
+
+def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms) -> LinearStep:
+    """The part of the step without the uncertain input: ``e^{A h} R0 + Gamma(h) u_c`` and
+    ``CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c`` (module docstring)."""
+    u_c = np.asarray(u_c, dtype=float)
+    h = et.h
+    # time point: Phi_T R0 + [-E, E] R0 + Gamma_T u_c + [-E h, E h] u_c
+    PR = et.Phi @ R0
+    r_pt = et.E @ abs_extent(R0) + (et.E * h) @ np.abs(u_c)
+    c_end = PR.c + et.Gamma @ u_c
+    point = Zonotope(c_end, np.hstack([PR.G, np.diag(r_pt)[:, r_pt > 0]]))
+    # time interval: convex hull of R0 and Phi_T R0 + Gamma_T u_c with common factors
+    c1, G1 = R0.c, R0.G
+    c2, G2 = c_end, PR.G
+    ch_c = 0.5 * (c1 + c2)
+    ch_G = np.hstack([0.5 * (G1 + G2), 0.5 * (c1 - c2)[:, None], 0.5 * (G1 - G2)])
+    FR = interval_matrix_times(et.F_mid, et.F_rad, R0)
+    Ftu_c = et.Ft_mid @ u_c
+    Ftu_r = et.Ft_rad @ np.abs(u_c)
+    tube = Zonotope(ch_c + FR.c + Ftu_c, np.hstack([ch_G, FR.G, np.diag(Ftu_r)[:, Ftu_r > 0]]))
+    return LinearStep(point=point, tube=tube)
+
+
+def linear_step(R0: Zonotope, A: np.ndarray, h: float, u_c: np.ndarray, W: Zonotope | None = None,
+                et: ExpmTerms | None = None) -> LinearStep:
+    """Sound time-point and time-interval sets of ``d' = A d + u_c + w``, ``w(t) in W`` (``W`` any
+    zonotope; its centre is moved into ``u_c``) from ``d(0) in R0`` over ``[0, h]``."""
+    et = expm_terms(A, h) if et is None else et
+    u_c = np.asarray(u_c, dtype=float)
+    if W is not None:
+        u_c = u_c + W.c
+        W0 = Zonotope(np.zeros(W.dim), W.G)
+    else:
+        W0 = Zonotope(np.zeros(R0.dim))
+    hs = homogeneous_step(R0, u_c, et)
+    RW = input_solution(W0, et)
+    return LinearStep(point=with_fp_margin(hs.point + RW), tube=with_fp_margin(hs.tube + RW))

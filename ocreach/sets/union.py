@@ -1,0 +1,217 @@
+"""Finite unions of zonotopes: the reachable set of a split zonotope method (``taylor``, ``sdc``).
+
+When a reachable set is split into parts (Patel & Subbarao Eq. 16 and the splitting rule after it)
+every part is propagated on its own; the set at a time is the union of the parts.  A
+:class:`ZonotopeUnion` keeps the parts and answers the usual set queries exactly for the union.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ocreach.errors import SetError, SolverError
+from ocreach.sets._base import SetBase, as_directions, as_points, as_rng
+from ocreach.sets.zonotope import Zonotope
+
+#: points per block-diagonal gauge LP
+GAUGE_CHUNK = 100
+#: tolerance of the membership test used as the inside certificate (relative to the set's size)
+CERT_TOL = 1e-11
+
+
+class ZonotopeUnion(SetBase):
+    """The union of zonotopes ``parts`` (all of the same dimension; at least one)."""
+
+    def __init__(self, parts: Sequence[Any]):
+        ps = [p.to_zonotope() if not isinstance(p, Zonotope) else p for p in parts]
+        if not ps:
+            raise SetError("ZonotopeUnion needs at least one part")
+        dims = {p.dim for p in ps}
+        if len(dims) != 1:
+            raise SetError(f"ZonotopeUnion: parts have different dimensions {sorted(dims)}")
+        self.parts = tuple(ps)
+        self._freeze()
+
+    @property
+    def dim(self) -> int:
+        return self.parts[0].dim
+
+    @property
+    def n_parts(self) -> int:
+        return len(self.parts)
+
+    def __repr__(self) -> str:
+        return f"ZonotopeUnion(dim={self.dim}, parts={self.n_parts})"
+
+    def support(self, d: Any) -> np.ndarray | float:
+        """Exact support function of the union: the max over the parts."""
+        D, single = as_directions(d, self.dim)
+        val = np.max(np.vstack([p.support(D) for p in self.parts]), axis=0)
+        return float(val[0]) if single else val
+
+    def contains(self, points: Any, tol: float = 1e-7) -> np.ndarray | bool:
+        """Membership in any part (exact per part, see :meth:`Zonotope.contains`)."""
+        P, single = as_points("points", points, self.dim)
+        out = np.zeros(P.shape[0], dtype=bool)
+        for p in self.parts:
+            todo = ~out
+            if not np.any(todo):
+                break
+            out[todo] = np.asarray(p.contains(P[todo], tol=tol), dtype=bool)
+        return bool(out[0]) if single else out
+
+    def interval_hull(self):
+        from ocreach.sets.interval import Interval
+
+        hs = [p.interval_hull() for p in self.parts]
+        return Interval(np.min([h.lo for h in hs], axis=0), np.max([h.hi for h in hs], axis=0))
+
+    def project(self, dims: Any) -> ZonotopeUnion:
+        return ZonotopeUnion([p.project(dims) for p in self.parts])
+
+    def __rmatmul__(self, M):
+        return ZonotopeUnion([M @ p for p in self.parts])
+
+    def __add__(self, other):
+        if isinstance(other, SetBase) and not isinstance(other, ZonotopeUnion):
+            return ZonotopeUnion([p + other for p in self.parts])
+        v = np.asarray(other, dtype=float) if not isinstance(other, SetBase) else None
+        if v is not None and v.ndim == 1:
+            return ZonotopeUnion([p + v for p in self.parts])
+        return NotImplemented
+
+    def sample(self, n: int, rng: Any = None, mode: str = "uniform") -> np.ndarray:
+        """(n, dim) points: each drawn from a part chosen uniformly at random."""
+        g = as_rng(rng)
+        which = g.integers(0, self.n_parts, size=int(n))
+        out = np.empty((int(n), self.dim))
+        for j, p in enumerate(self.parts):
+            idx = np.flatnonzero(which == j)
+            if idx.size:
+                out[idx] = p.sample(idx.size, g, mode)
+        return out
+
+    def to_zonotope(self) -> Zonotope:
+        """A single zonotope enclosing the union (the interval hull; exact for one part)."""
+        if self.n_parts == 1:
+            return self.parts[0]
+        return self.interval_hull().to_zonotope()
+
+    def reduce(self, order: float = 1.0, method: str = "girard") -> ZonotopeUnion:
+        return ZonotopeUnion([p.reduce(order, method) for p in self.parts])
+
+    def outline(self, dims: Any = (0, 1)) -> list[np.ndarray]:
+        """The parts' 2-D outlines (a list of polygons, as :meth:`PolyZonotope.outline` gives)."""
+        return [p.outline(dims) for p in self.parts]
+
+    def plot(self, ax, dims=(0, 1), **kw):
+        """Draw every part's projection on ``dims`` (one label for the union)."""
+        from ocreach.sets.plot import plot_set
+
+        label = kw.pop("label", None)
+        out = None
+        for i, p in enumerate(self.parts):
+            out = plot_set(p, ax, dims=dims, label=label if i == 0 else None, **kw)
+        return out
+
+    def volume_bound(self) -> float:
+        """Sum of the parts' volumes: an upper bound of the union's volume (exact if disjoint)."""
+        return float(sum(p.volume() for p in self.parts))
+
+
+def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool = True) -> np.ndarray:
+    """Scaled gauge ``min {t >= 0 : x in c + t G}`` of each point (inf if ``x - c`` is outside
+    the range of ``G``); ``x`` is in ``Z`` iff the gauge is <= 1.
+
+    Unless ``exact``, points certified inside by the exact membership test
+    (:func:`ocreach.sets.contains.points_in_zonotope` on the row-scaled set, distance tolerance
+    ``CERT_TOL`` of the set's size) are reported with the upper bound ``1.0`` without an LP; then the LP ``min t s.t. G xi = x - c, -t <= xi <= t`` for the
+    remaining points, ``GAUGE_CHUNK`` of them per block-diagonal LP (HiGHS).  With ``lp=False``
+    only the certificate runs and uncertified points get ``inf``.
+    """
+    P, single = as_points("points", points, Z.dim)
+    G = np.asarray(Z.G)
+    G = G[:, np.any(G != 0, axis=0)]
+    R = P - Z.c
+    out = np.full(P.shape[0], np.inf)
+    if G.shape[1] == 0:
+        out[np.all(R == 0, axis=1)] = 0.0
+        return float(out[0]) if single else out
+    # row scaling leaves the gauge unchanged and gives the LP entries of order one
+    row = np.abs(G).sum(axis=1)
+    live = row > 0
+    off = np.any(R[:, ~live] != 0, axis=1)
+    G = G[live] / row[live, None]
+    R = R[:, live] / row[live]
+    if G.shape[0] == 0:
+        out[~off] = 0.0
+        return float(out[0]) if single else out
+    if exact:
+        ok = np.zeros(R.shape[0], dtype=bool)
+    else:
+        from ocreach.sets.contains import points_in_zonotope
+
+        # exact membership up to an l1 distance of ~6e-11 of the (row-scaled, unit-size) set
+        ok = ~off & np.asarray(points_in_zonotope(Zonotope(np.zeros(G.shape[0]), G), R,
+                                                  tol=CERT_TOL), dtype=bool)
+        out[ok] = 1.0
+    todo = np.flatnonzero(~ok & ~off) if lp else np.zeros(0, dtype=np.int64)
+    for s0 in range(0, todo.size, GAUGE_CHUNK):
+        blk = todo[s0: s0 + GAUGE_CHUNK]
+        out[blk] = _gauge_lp(G, R[blk])
+    return float(out[0]) if single else out
+
+
+def _gauge_lp(G: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``min t_k s.t. G xi_k = r_k, -t_k <= xi_k <= t_k`` for all rows ``r_k`` of ``R`` in ONE
+    block-diagonal LP (HiGHS); the objective is the sum, which separates over the blocks."""
+    import scipy.sparse as sp
+    from scipy.optimize import linprog
+
+    n, h = G.shape
+    K = R.shape[0]
+    nv = h + 1
+    eq = sp.csr_matrix(np.hstack([G, np.zeros((n, 1))]))
+    ub = sp.csr_matrix(np.vstack([np.hstack([np.eye(h), -np.ones((h, 1))]),
+                                  np.hstack([-np.eye(h), -np.ones((h, 1))])]))
+    I = sp.identity(K, format="csr")
+    c = np.tile(np.r_[np.zeros(h), 1.0], K)
+    bounds = [(None, None)] * h + [(0, None)]
+    res = linprog(c, A_ub=sp.kron(I, ub, format="csc"), b_ub=np.zeros(2 * h * K),
+                  A_eq=sp.kron(I, eq, format="csc"), b_eq=R.ravel(), bounds=bounds * K,
+                  method="highs", options={"primal_feasibility_tolerance": 1e-10,
+                                           "dual_feasibility_tolerance": 1e-10})
+    if res.status == 2:  # infeasible: some point is off the range of G -> solve them one by one
+        if K == 1:
+            return np.array([np.inf])
+        return np.concatenate([_gauge_lp(G, R[k:k + 1]) for k in range(K)])
+    if res.status != 0:
+        raise SolverError(f"gauge LP failed (HiGHS status {res.status}: {res.message})")
+    return res.x.reshape(K, nv)[:, -1]
+
+
+def union_gauge(S: Any, points: Any, exact: bool = False) -> np.ndarray:
+    """Smallest gauge over the parts of a :class:`ZonotopeUnion` (or of one zonotope).
+
+    Unless ``exact``, a point certified inside some part is reported as ``1.0`` (see :func:`gauge`);
+    the exact LP gauge is computed only for points inside no part."""
+    parts = S.parts if isinstance(S, ZonotopeUnion) else (S.to_zonotope(),)
+    P, single = as_points("points", points, parts[0].dim)
+    out = np.full(P.shape[0], np.inf)
+    todo = np.ones(P.shape[0], dtype=bool)
+    if not exact:
+        for p in parts:
+            idx = np.flatnonzero(todo)
+            if idx.size == 0:
+                break
+            g = np.atleast_1d(gauge(p, P[idx], lp=False))
+            hit = g <= 1.0
+            out[idx[hit]] = g[hit]
+            todo[idx[hit]] = False
+    idx = np.flatnonzero(todo)
+    if idx.size:
+        vals = np.vstack([np.atleast_1d(gauge(p, P[idx], exact=True)) for p in parts])
+        out[idx] = vals.min(axis=0)
+    return float(out[0]) if single else out

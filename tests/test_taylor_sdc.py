@@ -1,0 +1,223 @@
+"""Soundness of the zonotope methods ``taylor`` and ``sdc`` against independent truth.
+
+Truth: trajectories integrated by SciPy's DOP853 (rtol 1e-12) on numpy right-hand sides written in
+``tests/_reach_truth.py`` (not the project's CasADi models), initial states at vertices and inside
+the initial set, constant / bang-bang / random admissible controls, disturbances at +-W.  A point
+is inside when its scaled gauge (smallest t with x in c + t G) is <= 1 + 1e-9.  Short horizons and
+~1,000 samples keep the suite fast; the 10,000-sample full-horizon checks are in
+``examples/patel_subbarao_sets.py``.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+import ocreach
+from ocreach.errors import ProblemError, SolverError
+from ocreach.model import Model
+from ocreach.problem import Problem, get_problem
+from ocreach.reach.linsys import expm_terms, linear_step
+from ocreach.sets.union import union_gauge
+from ocreach.sets.zonotope import Zonotope
+
+from _reach_truth import ball_controls, initial_samples, simulate
+
+HOUR = 3600.0 / 375200.0
+TOL = 1 + 1e-9
+
+
+def _nrho(hours: float, dt_h: float = 1.0) -> Problem:
+    p = get_problem("nrho-9-2", t_final=hours * HOUR, dt=dt_h * HOUR)
+    assert p.initial_set is not None  # the paper's G_pos = 1e-4 I, G_vel = 5e-4 I
+    return p
+
+
+def _mc(problem, n_per_law: int, seed: int = 0, W: float | None = None):
+    rng = np.random.default_rng(seed)
+    K = problem.n_segments
+    X0 = initial_samples(rng, problem.initial_set or Zonotope(problem.x0), 3 * n_per_law)
+    U = np.concatenate([ball_controls(rng, n_per_law, K, law) for law in ("constant", "bang", "random")])
+    Wacc = None
+    if W is not None:
+        Wacc = np.zeros((3 * n_per_law, K, 3))
+        Wacc[:] = W * rng.choice([-1.0, 1.0], size=(3 * n_per_law, 1, 3))
+    return simulate(problem, X0, U, Wacc, inner=2)
+
+
+def _assert_contained(res, traj, mid):
+    for k in range(res.times.size):
+        g = union_gauge(res.sets[k], traj[:, k])
+        assert g.max() <= TOL, f"time index {k}: gauge {g.max()!r} > 1"
+    for k in range(res.times.size - 1):
+        for j in range(mid.shape[2]):
+            g = union_gauge(res.tubes[k], mid[:, k, j])
+            assert g.max() <= TOL, f"tube {k}, interior time {j}: gauge {g.max()!r} > 1"
+
+
+# ------------------------------------------------------------------------------------------ linsys
+def test_linear_step_contains_exact_linear_solutions():
+    rng = np.random.default_rng(3)
+    n = 4
+    A = rng.standard_normal((n, n)) * 2.0
+    h = 0.3
+    R0 = Zonotope(rng.standard_normal(n), 0.2 * rng.standard_normal((n, 5)))
+    u_c = rng.standard_normal(n)
+    W = Zonotope(np.zeros(n), 0.5 * np.diag(rng.uniform(0.5, 1.0, n)))
+    step = linear_step(R0, A, h, u_c, W)
+    # exact solutions for inputs constant on two halves of the step (augmented matrix exponential)
+    N = 400
+    x0 = np.vstack([R0.sample(N // 2, rng, "extreme"), R0.sample(N // 2, rng)])
+    w1, w2 = (W.sample(N, rng, "extreme") for _ in range(2))
+
+    def flow(x, w, t):
+        M = np.zeros((2 * n, 2 * n))
+        M[:n, :n], M[:n, n:] = A, np.eye(n)
+        E = expm(M * t)
+        return x @ E[:n, :n].T + (u_c + w) @ E[:n, n:].T
+
+    xm = flow(x0, w1, h / 2)
+    xe = flow(xm, w2, h / 2)
+    assert union_gauge(step.point, xe).max() <= TOL
+    for s in (0.1, 0.37, 0.5, 0.8):
+        xs = flow(x0, w1, s * h) if s <= 0.5 else flow(xm, w2, (s - 0.5) * h)
+        assert union_gauge(step.tube, xs).max() <= TOL
+    # tight for a pure linear map: the point set's box is close to the sampled spread
+    spread = np.ptp(xe, axis=0)
+    width = 2 * np.abs(step.point.G).sum(axis=1)
+    assert np.all(width < 3.0 * spread)
+
+
+def test_expm_remainder_bounds_the_tail():
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((5, 5)) * 3
+    et = expm_terms(A, 0.4)
+    err = np.abs(expm(A * 0.4) - et.Phi)
+    assert np.all(err <= et.E)
+    with pytest.raises(SolverError, match="too large"):
+        expm_terms(A * 1e3, 1.0)
+
+
+# ------------------------------------------------------------------------------------------ taylor
+@pytest.fixture(scope="module")
+def nrho6():
+    p = _nrho(6.0)
+    traj, mid = _mc(p, 300)
+    return p, traj, mid
+
+
+def test_taylor_contains_mc_nrho(nrho6):
+    p, traj, mid = nrho6
+    res = ocreach.reach(p, "taylor")
+    assert res.meta["guaranteed"] is True and not res.meta["truncated"]
+    assert len(res.tubes) == p.n_segments
+    _assert_contained(res, traj, mid)
+
+
+def test_taylor_pca_and_splitting_contain_mc(nrho6):
+    p, traj, mid = nrho6
+    res = ocreach.reach(p, "taylor", reduction="pca", order=6, max_error=2e-6, max_parts=3)
+    assert max(res.meta["steps"]["parts"]) > 1  # the threshold forced splits
+    _assert_contained(res, traj, mid)
+
+
+def test_taylor_disturbance_contains_mc():
+    p = _nrho(4.0)
+    w = 1e-2  # 27 % of a_max: large enough to matter over 4 h
+    traj, mid = _mc(p, 200, seed=2, W=w)
+    res = ocreach.reach(p, "taylor", disturbance=w)
+    _assert_contained(res, traj, mid)
+    plain = ocreach.reach(p, "taylor")
+    assert union_gauge(plain.sets[-1], traj[:, -1]).max() > 1  # W matters: without it, escapes
+
+
+def test_taylor_earth_mars_contains_mc():
+    p = get_problem("earth-mars", t_days=20.0, dt_days=5.0)
+    traj, mid = _mc(p, 200, seed=4)
+    res = ocreach.reach(p, "taylor")
+    _assert_contained(res, traj, mid)
+
+
+def test_taylor_dt_contains_the_rk4_model():
+    p = _nrho(4.0)
+    res = ocreach.reach(p, "taylor", alg="dt", rk4_substeps=2)
+    assert "discrete" in res.meta["guaranteed_for"] and res.tubes is None
+    rng = np.random.default_rng(5)
+    from ocreach.control.discretize import Discretization
+
+    d = Discretization(p.model, float(p.grid[1] - p.grid[0]), 2)
+    N = 300
+    X = initial_samples(rng, p.initial_set, N)
+    U = np.concatenate([ball_controls(rng, N // 3, p.n_segments, law) for law in ("constant", "bang", "random")])
+    F = d.F.map(N)
+    for k in range(p.n_segments):
+        X = np.asarray(F(X.T, U[:, k].T, p.grid[k], np.tile(p.params[:, None], (1, N)))).T
+        assert union_gauge(res.sets[k + 1], X).max() <= TOL
+
+
+# ------------------------------------------------------------------------------------------ sdc
+def test_sdc_contains_mc_and_is_not_looser_than_taylor(nrho6):
+    p, traj, mid = nrho6
+    res = ocreach.reach(p, "sdc")
+    assert res.meta["guaranteed"] is True
+    _assert_contained(res, traj, mid)
+    tay = ocreach.reach(p, "taylor")
+    D = np.random.default_rng(0).standard_normal((50, 6))
+    ratio = res.sets[-1].support(D) - tay.sets[-1].support(D)
+    # both expand about the same point with the same linear part: they agree to the remainder
+    width = tay.sets[-1].support(D) + tay.sets[-1].support(-D)
+    assert np.max(np.abs(ratio) / width) < 0.05
+
+
+def test_sdc_and_taylor_agree_on_a_linear_model():
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    f = ca.vertcat(x[1], -x[0] - 0.1 * x[1] + u[0])
+    m = Model.build("osc", x, u, f, control_set="box")
+    Z0 = Zonotope([1.0, 0.0], 0.1 * np.eye(2))
+    p = Problem(id="osc", model=m, x0=np.array([1.0, 0.0]), grid=np.linspace(0, 2, 5), initial_set=Z0)
+    a = ocreach.reach(p, "taylor")
+    b = ocreach.reach(p, "sdc")
+    D = np.random.default_rng(1).standard_normal((50, 2))
+    assert np.allclose(a.sets[-1].support(D), b.sets[-1].support(D), rtol=1e-9, atol=1e-12)
+
+
+def test_sdc_origin_variant_is_flagged_unsound():
+    p = _nrho(2.0)
+    res = ocreach.reach(p, "sdc", base="origin")
+    assert res.meta["guaranteed"] is False and "f(0)" in res.meta["unsound_reason"]
+
+
+# ------------------------------------------------------------------------------------------ errors
+def test_bad_inputs_give_clear_errors():
+    p = _nrho(2.0)
+    p.initial_set = Zonotope(np.zeros(4), np.eye(4))
+    with pytest.raises(ProblemError, match="dimension 4"):
+        ocreach.reach(p, "taylor")
+    for bad in ({"order": 0.5}, {"reduction": "foo"}, {"max_parts": 0}, {"alg": "xx"},
+                {"max_error": -1}, {"input_set": "ball"}, {"split": "yes"}):
+        with pytest.raises(ProblemError, match=next(iter(bad))):
+            ocreach.reach(_nrho(1.0), "taylor", **bad)
+    with pytest.raises(ProblemError, match="disturbance"):
+        ocreach.reach(_nrho(1.0), "taylor", disturbance=[1.0, 2.0])
+
+
+def test_nonsmooth_model_is_refused():
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    m = Model.build("kink", x, u, ca.vertcat(x[1], -ca.fabs(x[0]) + u[0]), control_set="box")
+    p = Problem(id="kink", model=m, x0=np.array([0.0, 1.0]), grid=np.linspace(0, 1, 3))
+    for meth in ("taylor", "sdc"):
+        with pytest.raises(ProblemError, match="not smooth"):
+            ocreach.reach(p, meth)
+
+
+def test_box_around_the_singularity_fails_with_partial_result():
+    p = get_problem("earth-mars", t_days=4.0, dt_days=1.0)
+    p.initial_set = Zonotope(p.x0, np.diag([1.2, 1.2, 0.1, 0.0, 0.0, 0.0]))  # contains the Sun
+    with pytest.raises(SolverError, match="step 0") as info:
+        ocreach.reach(p, "taylor", max_parts=1, max_halvings=1)
+    assert "primary" in str(info.value) or "contain" in str(info.value)
+    assert info.value.partial.meta["truncated"] is True
+    assert len(info.value.partial.sets) == 1
