@@ -23,7 +23,14 @@ from ocreach.control.station_keeping import (
     station_keeping_metrics,
     trigger_signal,
 )
-from ocreach.control.tube import Tube, TubeSchedule, casadi_gauge_constraints, gauge, linear_drift_tube
+from ocreach.control.tube import (
+    Tube,
+    TubeSchedule,
+    casadi_gauge_constraints,
+    gauge,
+    linear_drift_tube,
+    reach_drift_tube,
+)
 from ocreach.errors import ProblemError
 
 Q_PAPER = np.diag([1000.0] * 3 + [100.0] * 3)
@@ -254,6 +261,30 @@ def test_linear_drift_tube_contains_sampled_drift_trajectories(halo, halo_ref):
     assert e_paper <= 5e-3       # paper's initial set: within 0.5 % of the tube
     assert e_small <= 1e-6       # 1/100 of it: the neglected second-order term vanishes
     assert e_small > -0.5        # the corners reach the boundary: the tube is not trivially large
+
+
+def test_taylor_drift_tube_contains_every_sampled_drift_trajectory(halo, halo_ref):
+    """The sound tube (``taylor``, zero thrust, the paper's initial set and W = 1e-7) over 30 h of
+    the L2 halo: every sampled trajectory (corners and interior of the initial set, per-step
+    disturbance corners; independent SciPy DOP853 integration) has zonotope gauge <= 1."""
+    G0 = np.r_[1e-4, 1e-4, 1e-4, 5e-4, 5e-4, 5e-4]
+    L = 31
+    tube = reach_drift_tube(halo, halo_ref, 0, L, G0, 1e-7, "taylor")
+    assert tube.guaranteed and len(tube) == L and tube.k0 == 0
+    rhs = _cr3bp_rhs(halo.param("mu"))
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for s in range(8):
+        xi = rng.choice([-1.0, 1.0], 6) if s < 5 else rng.uniform(-1, 1, 6)
+        X = [halo_ref.state(0) + G0 * xi]
+        for k in range(L - 1):
+            w = 1e-7 * rng.choice([-1.0, 1.0], 3)
+            sol = solve_ivp(rhs, (halo_ref.time(k), halo_ref.time(k + 1)), X[-1], args=(w,),
+                            method="DOP853", rtol=1e-12, atol=1e-14)
+            X.append(sol.y[:, -1])
+        worst = max(worst, float(tube.gauge(np.arange(L), np.array(X)).max()))
+    assert worst <= 1.0
+    assert worst > 0.3  # not trivially large
 
 
 # ----------------------------------------------------------------------------- Delta-V

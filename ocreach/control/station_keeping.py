@@ -27,7 +27,7 @@ from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, simulate
-from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube
+from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube, reach_drift_tube
 from ocreach.control.tube_mpc import MPCWrapper
 from ocreach.errors import ProblemError, check_count
 
@@ -114,7 +114,9 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
     revolutions; each covers its interval plus ``lookahead`` steps.
 
-    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed).
+    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed) or
+    ``"taylor"`` / ``"sdc"`` (:func:`~ocreach.control.tube.reach_drift_tube`, guaranteed; with
+    ``tube_options`` for the method, and ``interval`` for tubes shorter than a revolution).
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
     """
@@ -128,8 +130,12 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
         def build(k: int) -> Tube:
             return linear_drift_tube(reference, k, length, G0, disturbance, problem.velocity_dims,
                                      order=order)
+    elif source in ("taylor", "sdc"):
+        def build(k: int) -> Tube:
+            return reach_drift_tube(problem, reference, k, length, G0, disturbance, source,
+                                    **(tube_options or {}))
     else:
-        raise ProblemError(f"tube source must be 'linear'; got {source!r}")
+        raise ProblemError(f"tube source must be 'linear', 'taylor' or 'sdc'; got {source!r}")
     wrap = as_box if membership == "box" else (lambda t: t)
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
                         lookahead=lookahead, reuse=True, interval=interval)
@@ -329,7 +335,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         revolutions: float = 10, dt: float | None = None, n_p: int = PAPER_N,
                         Q: Any = None, R: Any = None, beta: float = 0.7, m: int = 3,
                         membership: str = "box", tube_source: str = "linear",
-                        tube_options: dict | None = None, phase: int | str = "apolune",
+                        tube_options: dict | None = None, tube_interval: int | None = None,
+                        phase: int | str = "apolune",
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
                         navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
                         max_cpu_time: float = 2.0, n_sub: int | str = "auto",
@@ -366,7 +373,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     K = int(round(revolutions * ref.n_steps))
     schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,
                               membership=membership, phase=phase, lookahead=n_p,
-                              source=tube_source, tube_options=tube_options)
+                              source=tube_source, tube_options=tube_options,
+                              interval=tube_interval)
     lqr = LQR(Q, R).setup(ref, problem.control_set.kind)
     if isinstance(offset, str):
         if offset != "paper":
@@ -412,6 +420,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "dt_hours": ref.dt * problem.units.time / 3600.0, "period_hours": ref.n_steps * ref.dt
         * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
         "membership": membership, "tube_source": tube0.source,
+        "tube_interval_steps": schedule.interval,
         "tube_guaranteed": bool(tube0.guaranteed), "refresh_phase_step": schedule.phase,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
                                   else initial, float).tolist(),

@@ -19,7 +19,8 @@ A point off the affine hull of a degenerate zonotope has gauge ``inf``.
 apolune, as in the paper: "At each apolune ... a tube of forward reachable sets") and answers
 gauges and MPC windows across refreshes.  :func:`linear_drift_tube` builds a tube from the
 reference's linearisation (STM ``A_k`` and the disturbance input matrix): cheap but **not a
-guaranteed enclosure** (no remainder term).
+guaranteed enclosure** (no remainder term); :func:`reach_drift_tube` uses the sound ``taylor`` /
+``sdc`` methods of :mod:`ocreach.reach` and inherits their ``guaranteed`` flag.
 """
 from __future__ import annotations
 
@@ -422,5 +423,45 @@ def linear_drift_tube(reference: TrackingReference, k0: int, length: int, initia
                                meta={"order": order, "initial": G0.tolist(), "W": Wg.tolist()})
 
 
+def reach_drift_tube(problem, reference: TrackingReference, k0: int, length: int, initial: Any,
+                     disturbance: float, method: str = "taylor", **options) -> Tube:
+    """Drift tube from a sound reachability method (``ocreach.reach(problem, "taylor" | "sdc")``).
+
+    The problem is re-posed from ``x_ref(k0)`` on the reference grid ``t_{k0} .. t_{k0+length-1}``
+    with the initial set ``x_ref(k0) + G0 [-1, 1]^q`` (``initial``: scalar, diagonal or matrix),
+    the disturbance ``w`` (the box ``+-w`` on the velocity rates, Patel & Subbarao's ``W_gen = w
+    I_3``) and the thrust parameter ``a_max`` set to 1e-300 (zero thrust up to a term far below
+    rounding; the enclosure is of that problem, so it contains the drift).  Union results (split
+    parts) are replaced by their zonotope enclosure.  The tube's ``guaranteed`` flag is the
+    result's.  A method that cannot enclose the whole horizon (e.g. near perilune) raises its
+    :class:`SolverError`.
+    """
+    import dataclasses
+
+    from ocreach.reach.base import reach
+
+    model = problem.model
+    if "a_max" not in model.param_names:
+        raise ProblemError(f"reach_drift_tube needs a model with an 'a_max' thrust parameter; "
+                           f"{model.name} has {list(model.param_names)}")
+    length = check_count("length (tube steps)", length, 2)
+    p = np.array(reference.params, float)
+    p[list(model.param_names).index("a_max")] = 1e-300
+    x0 = reference.state(k0)
+    G0 = _generator("initial deviation set", initial, model.n_x)
+    drift = dataclasses.replace(
+        problem, id=f"{problem.id}-drift", x0=x0.copy(), params=p, reference=None,
+        grid=reference.time(np.arange(k0, k0 + length)), initial_set=Zonotope(x0, G0),
+        method_options={})
+    res = reach(drift, method, disturbance=disturbance, **options)
+    zs = res.sets
+    if zs is None or len(zs) != length:
+        raise SolverError(f"{method} returned {0 if zs is None else len(zs)} sets; need {length}")
+    return Tube.from_zonotopes([z.to_zonotope() for z in zs], k0=k0,
+                               guaranteed=bool(res.meta.get("guaranteed", False)),
+                               source=f"{method} (sound reachability)",
+                               meta={"method": method, "options": dict(options)})
+
+
 __all__ = ["CasadiGauge", "Tube", "TubeSchedule", "apolune_phase", "casadi_gauge_constraints",
-           "disturbance_input", "gauge", "linear_drift_tube"]
+           "disturbance_input", "gauge", "linear_drift_tube", "reach_drift_tube"]
