@@ -252,8 +252,8 @@ def _edges(on: np.ndarray) -> int:
 
 
 def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedule: TubeSchedule,
-                            problem, controller=None) -> dict[str, Any]:
-    """Metrics of one closed-loop run (units: m/s, km, ms).
+                            problem, controller=None) -> tuple[dict[str, Any], np.ndarray]:
+    """Metrics of one closed-loop run (units: m/s, km, ms) and the gauge of every state (K+1,).
 
     ``delta_v_mps`` = sum_k ||a_max u_k|| dt (applied thrust) in m/s, ``delta_v_per_rev_mps`` the
     same over the revolutions flown; ``activations`` off->on switches of the thrust (event-MPC:
@@ -284,11 +284,7 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedu
     dp = np.linalg.norm(d[:, pos], axis=1) * units.length / 1e3
     dvv = np.linalg.norm(d[:, vel], axis=1) * units.velocity
     exc = np.flatnonzero(off & (gam > 1.0))
-    solves = getattr(controller, "solve_times", None)
-    if solves is None and hasattr(controller, "mpc"):
-        solves = controller.mpc.solve_times
-    if solves is None:
-        solves = getattr(controller, "solve_times", [])
+    solves = getattr(controller, "solve_times", None) or []
     return {
         "revolutions": float(revs),
         "n_steps": int(K),
