@@ -388,3 +388,36 @@ def test_defect_correction_makes_the_prediction_exact_on_the_reference(halo_ref)
     assert np.linalg.norm(u_corr) <= 1e-9
     assert np.abs(corr._X_abs - halo_ref.state(np.arange(4, 10))).max() <= 1e-12
     assert np.linalg.norm(u_plain) > 1e3 * max(np.linalg.norm(u_corr), 1e-12)
+
+
+def test_navigation_error_is_seeded_bounded_and_only_seen_by_the_controller(halo_ref):
+    from ocreach.control.station_keeping import NavigationError
+
+    class Recorder:
+        name = "rec"
+
+        def setup(self, ref, kind):
+            self.seen = []
+            return self
+
+        def reset(self):
+            self.seen = []
+
+        def control(self, k, x):
+            self.seen.append(np.array(x))
+            return np.zeros(3)
+
+    sigma = np.r_[1e-6] * np.ones(6)
+    runs = []
+    for _ in range(2):
+        rec = Recorder()
+        nav = NavigationError(rec, sigma, seed=4).setup(halo_ref, "ball")
+        nav.reset()
+        x = halo_ref.state(0)
+        for k in range(20):
+            nav.control(k, x)
+        runs.append(np.array(rec.seen) - x)
+    assert np.array_equal(runs[0], runs[1])               # seeded
+    assert np.all(np.abs(runs[0]) <= sigma) and np.abs(runs[0]).max() > 0.5e-6
+    with pytest.raises(ProblemError, match="navigation"):
+        NavigationError(Recorder(), -1.0)
