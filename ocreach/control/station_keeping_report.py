@@ -91,8 +91,10 @@ def summary_lines(data: dict) -> list[str]:
     s = data["settings"]
     names = [n for n in CONTROLLERS if n in data]
     lines = []
+    every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
+             else f"every {s['tube_interval_steps']} steps")
     tube = (f"Tube: {s['tube_source']}, membership {s['membership']}, refreshed at reference step "
-            f"{s['refresh_phase_step']} (apolune) every revolution; "
+            f"{s['refresh_phase_step']} (apolune) and then {every}; "
             + ("a guaranteed enclosure." if s["tube_guaranteed"] else
                "NOT a guaranteed enclosure (linearisation without a remainder term): gauges near "
                "perilune carry its linearisation error."))
