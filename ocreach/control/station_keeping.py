@@ -277,7 +277,11 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedu
         on = un > 0
         activations = _edges(on)
     ks = np.arange(K + 1)
-    gam = np.array([schedule.gauge(int(k), res.X[k]) for k in ks])
+    refresh = schedule.phase + ((ks - schedule.phase) // schedule.interval) * schedule.interval
+    gam = np.empty(K + 1)
+    for r in np.unique(refresh):  # one batched gauge call per tube
+        sel = refresh == r
+        gam[sel] = schedule.tube(int(r)).gauge(ks[sel], res.X[sel])
     off = np.r_[~on, True]  # the final state has no control: counted as off
     pos, vel = list(problem.position_dims), list(problem.velocity_dims)
     d = res.X - res.X_ref
