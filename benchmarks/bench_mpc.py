@@ -42,7 +42,7 @@ class DoMPCController:
     """do-mpc 5 MPC on the same discrete model, cost, horizons and thrust ball."""
 
     def __init__(self, ref, lqr: LQR, Q, Ru, n_p: int, n_c: int, warm: bool,
-                 shift: bool = False) -> None:
+                 shift: bool = False, tube=None, tube_scale: float = 1.0) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             import do_mpc
@@ -54,6 +54,9 @@ class DoMPCController:
         u = model.set_variable("_u", "u", (nu, 1))
         xr = model.set_variable("_tvp", "xref", (nx, 1))
         Pt = model.set_variable("_tvp", "P", (nx * nx, 1))
+        if tube is not None:  # box tube: centre and half widths per stage (time-varying)
+            model.set_variable("_tvp", "tc", (nx, 1))
+            model.set_variable("_tvp", "th", (nx, 1))
         model.set_rhs("x", F(x, u, 0.0, ref.params))
         model.setup()
         mpc = do_mpc.controller.MPC(model)
@@ -78,6 +81,10 @@ class DoMPCController:
             for i in range(n_p + 1):
                 tvp["_tvp", i, "xref"] = ref.state(k + i)
                 tvp["_tvp", i, "P"] = lqr.cost_to_go(k + i).ravel(order="F")
+                if tube is not None:
+                    z = tube.tube(k + i).zonotope(k + i)
+                    tvp["_tvp", i, "tc"] = z.c
+                    tvp["_tvp", i, "th"] = tube_scale * np.abs(z.G).sum(axis=1)
             return tvp
 
         mpc.set_tvp_fun(tvp_fun)
@@ -87,6 +94,14 @@ class DoMPCController:
             mpc.nlp_cons.append(c)
             mpc.nlp_cons_lb.append(np.zeros(c.shape))
             mpc.nlp_cons_ub.append(np.zeros(c.shape))
+        if tube is not None:  # x_i in the box, i = 1..n_p (ocreach: x_i = c_i + G_i xi_i)
+            for i in range(1, n_p + 1):
+                d = mpc.opt_x["_x", i, 0, -1] - mpc.opt_p["_tvp", i, "tc"]
+                h = mpc.opt_p["_tvp", i, "th"]
+                for c in (d - h, -d - h):
+                    mpc.nlp_cons.append(c)
+                    mpc.nlp_cons_lb.append(-np.inf * np.ones(c.shape))
+                    mpc.nlp_cons_ub.append(np.zeros(c.shape))
         mpc.create_nlp()
         mpc.x0 = ref.state(0)
         mpc.u0 = np.zeros(nu)
@@ -189,6 +204,51 @@ def run(n_steps: int = 100, seed: int = 0) -> dict:
             "t_build_dm": t_build_dm, "umax": umax}
 
 
+def run_tube(n_steps: int = 60, seed: int = 0, scale: float = 1.0) -> dict:
+    """MPC with the reachable-set tube constraints (Eq. 27) vs do-mpc on the same problem.
+
+    l2-halo, Table 3 weights, N_p = 10, N_c = 5, the box (interval hull) of the linearised drift
+    tube from the paper's initial set with W = 1e-7, refreshed at apolune
+    (:func:`ocreach.control.station_keeping.drift_schedule`), hard constraints on x_1..x_N.
+    ocreach: ``MPC(tube=6)`` (x_i = c_i + G_i xi_i, |xi| <= 1); do-mpc: the same box as
+    ``-h_i <= x_i - c_i <= h_i`` on its state variables.  Same feasible set and cost.  ``scale``
+    shrinks the tube (the boxes times ``scale``) so that the constraints become active.
+    """
+    from ocreach.control.station_keeping import drift_schedule
+
+    prob = ocreach.get_problem("l2-halo")
+    ref = reference_from_problem(prob, n_sub=2)
+    Q, R = np.diag(PAPER_Q), np.diag(PAPER_R)
+    lqr = LQR(Q, R).setup(ref, "ball")
+    sched = drift_schedule(prob, ref, membership="box", lookahead=10)
+    ours = MPC(Q, R, n_p=10, n_c=5, tube=6, fallback=lqr).setup(ref, "ball")
+    dm = DoMPCController(ref, lqr, Q, lqr.R, 10, 5, warm=True, shift=True, tube=sched,
+                         tube_scale=scale)
+    plant = Plant(ref, "ball", prob.velocity_dims)
+    rng = np.random.default_rng(seed)
+    x = ref.state(0) + np.asarray(PAPER_OFFSET_BOX) * rng.uniform(-1, 1, 6)
+    W = 1e-7 * rng.uniform(-1, 1, (n_steps, 3))
+    times = {"ours": np.empty(n_steps), "dompc": np.empty(n_steps)}
+    diff, active = 0.0, 0
+    for k in range(n_steps):
+        us = {}
+        for n in (("ours", "dompc") if k % 2 == 0 else ("dompc", "ours")):
+            t = time.perf_counter()
+            if n == "ours":
+                ours.set_tube(*sched.window(k, 10, beta=scale))
+                us[n] = ours.control(k, x)
+            else:
+                us[n] = dm.control(k, x)
+            times[n][k] = time.perf_counter() - t
+        diff = max(diff, float(np.max(np.abs(us["ours"] - us["dompc"]))))
+        if ours.plan_k == k:  # solved: is a tube constraint active in the plan?
+            active += int(np.max(np.abs(ours._w[3 * 5 + 6 * 10:])) > 1 - 1e-6)
+        x = plant.step(x, us["ours"], W[k], float(ref.time(k)), ref.dt)
+    med = {n: float(np.median(v[1:])) for n, v in times.items()}
+    return {"n_steps": n_steps, "scale": scale, "median": med, "diff": diff, "active": active,
+            "fallbacks": ours.fallbacks, "dm_failures": dm.failures}
+
+
 def markdown(r: dict) -> str:
     m, a, it = r["median"], r["mean"], r["iters"]
     return f"""## MPC
@@ -241,7 +301,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=100, help="closed-loop steps (default 100)")
     ap.add_argument("--write", action="store_true", help="update the MPC section of docs/benchmarks.md")
+    ap.add_argument("--tube", action="store_true", help="with the reachable-set tube constraints")
+    ap.add_argument("--tube-scale", type=float, default=1.0, help="tube boxes times this factor")
     args = ap.parse_args(argv)
+    if args.tube:
+        r = run_tube(args.steps, scale=args.tube_scale)
+        m = r["median"]
+        print(f"tube constraints: median time/step ocreach {1e3 * m['ours']:.2f} ms, do-mpc "
+              f"{1e3 * m['dompc']:.2f} ms, ratio {m['ours'] / m['dompc']:.2f}x; max |du| "
+              f"{r['diff']:.1e}; steps with an active tube constraint {r['active']}; fallbacks "
+              f"{r['fallbacks']}, do-mpc failures {r['dm_failures']}")
+        return 0
     r = run(args.steps)
     m = r["median"]
     print(f"median time/step: ocreach MPC {1e3 * m['ours']:.2f} ms, do-mpc {1e3 * m['dompc']:.2f} ms "

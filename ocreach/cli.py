@@ -32,6 +32,7 @@ BENCH_PEERS: dict[str, list[tuple[str, str]]] = {
 #: ``ocreach report KIND``: kind -> ``"module:function"`` with ``function(problem, out_dir, **opts) -> dict``.
 REPORT_KINDS: dict[str, str] = {
     "lqr-vs-mpc": "ocreach.control.report:lqr_vs_mpc_report",
+    "station-keeping": "ocreach.control.station_keeping_report:station_keeping_report",
 }
 
 
@@ -325,7 +326,14 @@ def cmd_report(args: argparse.Namespace) -> int:
     prob_raw, opt_raw = _split_options(_parse_sets(args.set))
     problem = _problem(args.problem, prob_raw)
     out = check_output_dir(args.out or f"out/report_{problem.id}")
-    metrics = report_fn(problem, out, **coerce(opt_raw, report_fn))
+    opts = coerce(opt_raw, report_fn)
+    if getattr(args, "controllers", None):
+        opts["controllers"] = args.controllers
+    if getattr(args, "revolutions", None) is not None:
+        opts["revolutions"] = args.revolutions
+    if args.kind == "station-keeping":
+        opts.setdefault("progress", True)
+    metrics = report_fn(problem, out, **opts)
     print(json.dumps(metrics, indent=2, default=str))
     print(f"wrote {out}/report.md, report.html, metrics.json and figures")
     return 0
@@ -397,6 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--problem", default="l2-halo")
     rp.add_argument("--out")
     rp.add_argument("--set", action="append", metavar="KEY=VALUE")
+    rp.add_argument("--controllers", help="station-keeping: e.g. event-mpc,tube-mpc,mpc,lqr")
+    rp.add_argument("--revolutions", type=float, help="station-keeping: revolutions (default 10)")
     rp.set_defaults(func=cmd_report)
 
     b = sub.add_parser("bench", help="run the benchmarks in benchmarks/")

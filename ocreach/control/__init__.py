@@ -8,7 +8,10 @@
     res["mpc"].metrics
 
 The report ``lqr_vs_mpc_report(problem, out_dir, **options)`` lives in
-:mod:`ocreach.control.report` (imported lazily; it needs matplotlib).
+:mod:`ocreach.control.report` (imported lazily; it needs matplotlib).  Reachable-set tubes and
+gauges: :mod:`ocreach.control.tube`; event-triggered station keeping:
+:mod:`ocreach.control.station_keeping` (report: :mod:`ocreach.control.station_keeping_report`);
+robust tube MPC: :mod:`ocreach.control.tube_mpc`.
 """
 from ocreach.control.discretize import Discretization, rk4_expression
 from ocreach.control.lqr import LQR, dare, periodic_riccati, riccati_backward
@@ -27,6 +30,13 @@ from ocreach.control.simulate import (
     compare_controllers,
     simulate,
 )
+from ocreach.control.station_keeping import (
+    EventTrigger,
+    EventTriggeredMPC,
+    run_station_keeping,
+)
+from ocreach.control.tube import Tube, TubeSchedule, gauge, linear_drift_tube
+from ocreach.control.tube_mpc import TubeMPC
 
 
 def lqr_vs_mpc_report(problem, out_dir, **options) -> dict:
@@ -39,6 +49,14 @@ def lqr_vs_mpc_report(problem, out_dir, **options) -> dict:
 __all__ = [
     "LQR",
     "MPC",
+    "EventTrigger",
+    "EventTriggeredMPC",
+    "Tube",
+    "TubeMPC",
+    "TubeSchedule",
+    "gauge",
+    "linear_drift_tube",
+    "run_station_keeping",
     "Discretization",
     "Plant",
     "SimOptions",

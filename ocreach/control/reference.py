@@ -142,6 +142,15 @@ class TrackingReference:
             self.cache["defect"] = np.max(np.abs(xn - self.X[1:]), axis=1)
         return self.cache["defect"]
 
+    def defect_vectors(self) -> np.ndarray:
+        """``x_ref_{k+1} - f_d(x_ref_k, u_ref_k, t_k)`` per step (M, n_x): the prediction model's
+        one-step error along the reference (signed; :meth:`defect` is its max-norm).  Cached."""
+        if "defect_vectors" not in self.cache:
+            ks = np.arange(self.n_steps)
+            xn, _, _ = self.discretization.linearize(self.X[:-1], self.U, self.time(ks), self.params)
+            self.cache["defect_vectors"] = self.X[1:] - xn
+        return self.cache["defect_vectors"]
+
     def with_substeps(self, n_sub: int) -> TrackingReference:
         """The same reference with a prediction model of ``n_sub`` RK4 substeps (fresh caches)."""
         return dataclasses.replace(self, n_sub=int(n_sub), A=None, B=None, cache={})

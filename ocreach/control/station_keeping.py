@@ -1,0 +1,447 @@
+"""Event-triggered station keeping on a reachable-set tube (Patel & Subbarao, "Station-keeping in
+the near rectilinear halo orbit").
+
+The thrust is off while the state stays in the drift tube ``R(t)`` (:mod:`ocreach.control.tube`,
+refreshed at every apolune).  When the gauge of the state exceeds 1 the MPC of Eq. 27 is switched
+on, its predicted states constrained to the ``beta``-shrunk tube (soft: a penalised slack keeps the
+NLP feasible from outside the tube); it stays on until the gauge has been ``<= beta`` for ``m``
+consecutive steps (hysteresis, :class:`EventTrigger`), then the thrust is off again.  The paper:
+N = 15, initial deviation set ``G_pos = 1e-4 I``, ``G_vel = 5e-4 I``, disturbance ``W = 1e-7 I``
+(non-dimensional), ``Delta V = 0.0061 m/s`` over 157 h.
+
+:func:`run_station_keeping` runs this controller, a robust tube MPC (:mod:`ocreach.control.tube_mpc`),
+the continuous MPC and the periodic LQR on the true CR3BP plant with the same seeded offset,
+disturbance and (optional) navigation-error draws, over many revolutions, and computes the metrics of
+:func:`station_keeping_metrics`.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ocreach.control.common import control_scale
+from ocreach.control.lqr import LQR
+from ocreach.control.mpc import MPC
+from ocreach.control.reference import TrackingReference, reference_from_problem
+from ocreach.control.simulate import SimOptions, SimResult, simulate
+from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube, reach_drift_tube
+from ocreach.control.tube_mpc import MPCWrapper
+from ocreach.errors import ProblemError, check_count
+
+#: Patel & Subbarao's NRHO station-keeping settings (non-dimensional).
+PAPER_N = 15
+PAPER_G_POS, PAPER_G_VEL = 1e-4, 5e-4
+PAPER_W = 1e-7
+PAPER_DELTA_V_MPS = 0.0061
+PAPER_TF_HOURS = 157.0
+MEMBERSHIPS = ("zonotope", "box")
+
+
+# ------------------------------------------------------------------------------------------------
+# trigger
+# ------------------------------------------------------------------------------------------------
+class EventTrigger:
+    """Hysteresis on the tube gauge: off -> on when ``gamma > threshold`` (default 1: the state
+    left the tube); on -> off when ``gamma <= beta`` for ``m`` consecutive steps (back inside the
+    shrunk tube).  ``update`` returns the thrust flag for the current step."""
+
+    def __init__(self, beta: float = 0.7, m: int = 3, threshold: float = 1.0) -> None:
+        if isinstance(threshold, bool) or not np.isfinite(threshold) or threshold <= 0:
+            raise ProblemError(f"threshold (trigger gauge) must be a finite number > 0; got {threshold!r}")
+        if isinstance(beta, bool) or not np.isfinite(beta) or not 0 < beta < threshold:
+            raise ProblemError(f"beta (release gauge, shrunk tube) must satisfy 0 < beta < threshold "
+                               f"= {threshold:g}; got {beta!r}")
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
+            raise ProblemError(f"m (steps inside the shrunk tube before release) must be an integer "
+                               f">= 1; got {m!r}")
+        self.beta, self.m, self.threshold = float(beta), int(m), float(threshold)
+        self.reset()
+
+    def reset(self) -> None:
+        self.active = False
+        self.inside = 0
+        self.activations = 0
+
+    def update(self, gamma: float) -> bool:
+        if np.isnan(gamma):
+            raise ProblemError(f"gauge must be a number; got {gamma!r}")
+        if not self.active:
+            if gamma > self.threshold:
+                self.active = True
+                self.activations += 1
+                self.inside = 0
+        else:
+            self.inside = self.inside + 1 if gamma <= self.beta else 0
+            if self.inside >= self.m:
+                self.active = False
+                self.inside = 0
+        return self.active
+
+
+def trigger_signal(gammas: Any, beta: float = 0.7, m: int = 3, threshold: float = 1.0) -> np.ndarray:
+    """Thrust flags of :class:`EventTrigger` over a gauge sequence (for plots and tests)."""
+    trig = EventTrigger(beta, m, threshold)
+    return np.array([trig.update(float(g)) for g in np.asarray(gammas, float)], dtype=bool)
+
+
+# ------------------------------------------------------------------------------------------------
+# tubes for station keeping
+# ------------------------------------------------------------------------------------------------
+def paper_initial_set(problem, g_pos: float = PAPER_G_POS, g_vel: float = PAPER_G_VEL) -> np.ndarray:
+    """Diagonal of the initial deviation set: ``g_pos`` on positions, ``g_vel`` on velocities."""
+    d = np.zeros(problem.model.n_x)
+    d[list(problem.position_dims)] = g_pos
+    d[list(problem.velocity_dims)] = g_vel
+    return d
+
+
+def as_box(tube: Tube) -> Tube:
+    """The tube's interval hulls as a tube (diagonal generators): the paper's Fig. 7 boxes."""
+    hw = tube.half_widths()
+    G = np.einsum("kn,nm->knm", hw, np.eye(tube.dim))
+    return Tube(tube.centers, G, k0=tube.k0, guaranteed=tube.guaranteed,
+                source=f"interval hull of {tube.source}", meta=tube.meta)
+
+
+def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "paper",
+                   disturbance: Any = PAPER_W, membership: str = "box", phase: int | str = "apolune",
+                   every: int = 1, lookahead: int = PAPER_N, source: str = "linear",
+                   order: float = 5.0, tube_options: dict | None = None,
+                   interval: int | None = None) -> TubeSchedule:
+    """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
+    revolutions; each covers its interval plus ``lookahead`` steps.
+
+    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed) or
+    ``"taylor"`` / ``"sdc"`` (:func:`~ocreach.control.tube.reach_drift_tube`, guaranteed; with
+    ``tube_options`` for the method, and ``interval`` for tubes shorter than a revolution).
+    ``membership``: ``"zonotope"`` (exact gauge of the set) or
+    ``"box"`` (its interval hull).
+    """
+    if membership not in MEMBERSHIPS:
+        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    G0 = paper_initial_set(problem) if isinstance(initial, str) and initial == "paper" else initial
+    if isinstance(G0, str):
+        raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
+    length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
+    if source == "linear":
+        def build(k: int) -> Tube:
+            return linear_drift_tube(reference, k, length, G0, disturbance, problem.velocity_dims,
+                                     order=order)
+    elif source in ("taylor", "sdc"):
+        def build(k: int) -> Tube:
+            return reach_drift_tube(problem, reference, k, length, G0, disturbance, source,
+                                    **(tube_options or {}))
+    else:
+        raise ProblemError(f"tube source must be 'linear', 'taylor' or 'sdc'; got {source!r}")
+    wrap = as_box if membership == "box" else (lambda t: t)
+    return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
+                        lookahead=lookahead, reuse=True, interval=interval)
+
+
+# ------------------------------------------------------------------------------------------------
+# controllers
+# ------------------------------------------------------------------------------------------------
+class EventTriggeredMPC(MPCWrapper):
+    """Thrust off inside the tube; the tube-constrained MPC (soft) when the trigger is on.
+
+    ``schedule`` a :class:`TubeSchedule` on the same reference; ``mpc_options`` for
+    :class:`MPC` (``tube`` and ``tube_slack`` are set here); ``trigger`` an :class:`EventTrigger`;
+    ``target`` the tube scale the MPC's predicted states are constrained to (default: the
+    trigger's ``beta``, so the MPC aims for the release region).  Logs per step: ``gauges``,
+    ``active``, ``slacks`` (largest predicted slack, 0 when off), ``excursions`` (steps where the
+    gauge exceeds 1, with the thrust flag).
+    """
+
+    name = "event-mpc"
+
+    def __init__(self, Q, R, schedule: TubeSchedule, *, trigger: EventTrigger | None = None,
+                 n_p: int = PAPER_N, n_c: int | None = None, tube_slack: float = 100.0,
+                 target: float | None = None, fallback: LQR | None = None,
+                 **mpc_options: Any) -> None:
+        self.schedule = schedule
+        self.trigger = trigger or EventTrigger()
+        self.target = self.trigger.beta if target is None else float(target)
+        if not np.isfinite(self.target) or self.target <= 0:
+            raise ProblemError(f"target (tube scale for the MPC) must be > 0; got {target!r}")
+        q = schedule.n_generators
+        self.mpc = MPC(Q, R, n_p=n_p, n_c=n_p if n_c is None else n_c, tube=q,
+                       tube_slack=tube_slack, fallback=fallback, **mpc_options)
+        self.n_p = n_p
+        self.reset()
+
+    def setup(self, reference: TrackingReference, control_set_kind: str) -> EventTriggeredMPC:
+        if reference is not self.schedule.reference:
+            raise ProblemError("EventTriggeredMPC: the tube schedule was built on another reference")
+        self.mpc.setup(reference, control_set_kind)
+        self.nu = reference.model.n_u
+        self.reset()
+        return self
+
+    def reset(self) -> None:
+        self.trigger.reset()
+        if getattr(self.mpc, "reference", None) is not None:
+            self.mpc.reset()
+        self.gauges: list[float] = []
+        self.active: list[bool] = []
+        self.slacks: list[float] = []
+        self.solve_times: list[float] = []
+
+    def control(self, k: int, x: np.ndarray) -> np.ndarray:
+        g = self.schedule.gauge(k, x)
+        on = self.trigger.update(g)
+        self.gauges.append(g)
+        self.active.append(on)
+        if not on:
+            self.slacks.append(0.0)
+            return np.zeros(self.nu)
+        c, G = self.schedule.window(k, self.n_p, beta=self.target)
+        self.mpc.set_tube(c, G)
+        t = time.perf_counter()
+        u = self.mpc.control(k, x)
+        self.solve_times.append(time.perf_counter() - t)
+        self.slacks.append(self.mpc.last_tube_slack)
+        return u
+
+
+class NavigationError:
+    """Wraps a controller so it sees ``x + e_k``, ``e_k`` uniform in ``diag(sigma) [-1, 1]^n``
+    (seeded; the plant keeps the true state)."""
+
+    def __init__(self, controller, sigma: Any, seed: int = 0) -> None:
+        self.controller = controller
+        self.sigma = np.asarray(sigma, float)
+        if not np.all(np.isfinite(self.sigma)) or np.any(self.sigma < 0):
+            raise ProblemError(f"navigation error half-widths must be finite and >= 0; got {sigma!r}")
+        self.seed = seed
+        self.name = getattr(controller, "name", "controller")
+
+    def setup(self, reference, kind):
+        self.controller.setup(reference, kind)
+        self.sigma = np.broadcast_to(self.sigma, (reference.model.n_x,))
+        return self
+
+    def reset(self) -> None:
+        self.rng = np.random.default_rng(self.seed)
+        if hasattr(self.controller, "reset"):
+            self.controller.reset()
+
+    def __getattr__(self, item):
+        if item == "controller":
+            raise AttributeError(item)
+        return getattr(self.controller, item)
+
+    def control(self, k: int, x: np.ndarray) -> np.ndarray:
+        e = self.sigma * self.rng.uniform(-1.0, 1.0, self.sigma.size)
+        return self.controller.control(k, np.asarray(x, float) + e)
+
+
+# ------------------------------------------------------------------------------------------------
+# metrics and runs
+# ------------------------------------------------------------------------------------------------
+def delta_v_si(U: np.ndarray, a_max: float, dt: float, units) -> np.ndarray:
+    """Per-step Delta-V in m/s: ``||u_k|| a_max dt`` (model units) times ``l*/t*``."""
+    return np.linalg.norm(np.asarray(U, float), axis=1) * a_max * dt * units.velocity
+
+
+def _edges(on: np.ndarray) -> int:
+    on = np.asarray(on, bool)
+    return int(on[0]) + int(np.sum(on[1:] & ~on[:-1])) if on.size else 0
+
+
+def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedule: TubeSchedule,
+                            problem, controller=None) -> tuple[dict[str, Any], np.ndarray]:
+    """Metrics of one closed-loop run (units: m/s, km, ms) and the gauge of every state (K+1,).
+
+    ``delta_v_mps`` = sum_k ||a_max u_k|| dt (applied thrust) in m/s, ``delta_v_per_rev_mps`` the
+    same over the revolutions flown; ``activations`` off->on switches of the thrust (event-MPC:
+    its trigger), ``duty_cycle`` the fraction of steps with thrust on, ``max_gauge`` / RMS of the
+    tube gauge of the true state, ``max_gauge_off`` the largest gauge while the thrust is off (None
+    if it never is), ``excursions`` the steps with gauge > 1 while the thrust is off, max / RMS
+    position and velocity deviation from the reference, ``time_per_step_ms`` (mean controller time
+    per step), ``time_per_solve_ms`` (mean over MPC solves), ``solver_failures`` (MPC fallbacks).
+    """
+    units = problem.units
+    model = reference.model
+    K = res.U.shape[0]
+    a = control_scale(model, reference.params, "auto")
+    dv = delta_v_si(res.U_applied, a, reference.dt, units)
+    revs = K / reference.n_steps
+    un = np.linalg.norm(res.U_applied, axis=1)
+    if controller is not None and hasattr(controller, "active") and len(controller.active) == K:
+        on = np.asarray(controller.active, bool)
+        activations = int(controller.trigger.activations)
+    else:
+        on = un > 0
+        activations = _edges(on)
+    ks = np.arange(K + 1)
+    refresh = schedule.phase + ((ks - schedule.phase) // schedule.interval) * schedule.interval
+    gam = np.empty(K + 1)
+    for r in np.unique(refresh):  # one batched gauge call per tube
+        sel = refresh == r
+        gam[sel] = schedule.tube(int(r)).gauge(ks[sel], res.X[sel])
+    off = np.r_[~on, True]  # the final state has no control: counted as off
+    pos, vel = list(problem.position_dims), list(problem.velocity_dims)
+    d = res.X - res.X_ref
+    dp = np.linalg.norm(d[:, pos], axis=1) * units.length / 1e3
+    dvv = np.linalg.norm(d[:, vel], axis=1) * units.velocity
+    exc = np.flatnonzero(off & (gam > 1.0))
+    solves = getattr(controller, "solve_times", None) or []
+    return {
+        "revolutions": float(revs),
+        "n_steps": int(K),
+        "delta_v_mps": float(dv.sum()),
+        "delta_v_per_rev_mps": float(dv.sum() / revs),
+        "activations": activations,
+        "duty_cycle": float(on.mean()),
+        "max_gauge": float(gam.max()),
+        "max_gauge_off": float(gam[off].max()) if off.any() else None,
+        "excursions_off": int(exc.size),
+        "excursion_steps": exc.tolist()[:200],
+        "max_deviation_km": float(dp.max()),
+        "rms_deviation_km": float(np.sqrt(np.mean(dp**2))),
+        "max_deviation_mps": float(dvv.max()),
+        "rms_deviation_mps": float(np.sqrt(np.mean(dvv**2))),
+        "final_deviation_km": float(dp[-1]),
+        "max_thrust_ratio": float(un.max()),
+        "time_per_step_ms": float(1e3 * np.mean(res.step_times)),
+        "time_per_solve_ms": float(1e3 * np.mean(solves)) if len(solves) else None,
+        "solves": int(len(solves)),
+        "solver_failures": int(res.fallbacks),
+        "total_time_s": float(res.total_time),
+    }, gam
+
+
+@dataclass
+class StationKeepingRun:
+    """Results of :func:`run_station_keeping`: per controller the :class:`SimResult`, metrics and
+    gauge history; the reference and the tube schedule; the settings."""
+
+    results: dict[str, SimResult]
+    metrics: dict[str, dict]
+    gauges: dict[str, np.ndarray]
+    active: dict[str, np.ndarray]
+    reference: TrackingReference
+    schedule: TubeSchedule
+    settings: dict = field(default_factory=dict)
+
+
+CONTROLLERS = ("event-mpc", "tube-mpc", "mpc", "lqr")
+
+
+def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
+                        revolutions: float = 10, dt: float | None = None, n_p: int = PAPER_N,
+                        Q: Any = None, R: Any = None, beta: float = 0.7, m: int = 3,
+                        membership: str = "box", tube_source: str = "linear",
+                        tube_options: dict | None = None, tube_interval: int | None = None,
+                        phase: int | str = "apolune",
+                        initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
+                        navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
+                        max_cpu_time: float = 2.0, n_sub: int | str = "auto",
+                        prediction_substeps: int | None = 4,
+                        progress: bool = False) -> StationKeepingRun:
+    """Closed loop of each controller over ``revolutions`` of the problem's periodic reference.
+
+    Same seeded draws for every controller: the initial offset (``"paper"``: uniform in the
+    paper's initial deviation set; or a vector; or ``None``), the disturbance ``W`` per step, and
+    the navigation error (half-widths ``navigation`` on the measured state, or ``None``).
+    Controllers: ``event-mpc`` (:class:`EventTriggeredMPC`), ``tube-mpc``
+    (:class:`~ocreach.control.tube_mpc.TubeMPC`), ``mpc`` (continuous :class:`MPC`, no tube), ``lqr``
+    (periodic LQR).  Weights default to Table 3 (``R`` on the thrust acceleration).  The
+    reference, LQR and tubes use ``n_sub`` RK4 substeps (``"auto"``: one-step error <= 1e-6); the
+    MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
+    (``None``: ``n_sub``, no correction).
+    """
+    from ocreach.control.report import PAPER_Q, paper_pattern
+    from ocreach.control.tube_mpc import TubeMPC
+
+    if problem.reference is None:
+        raise ProblemError(f"station keeping needs a periodic reference orbit; problem "
+                           f"{problem.id!r} has none (no period to refresh the tube on)")
+    unknown = sorted(set(controllers) - set(CONTROLLERS))
+    if unknown or not controllers:
+        raise ProblemError(f"controllers must be a non-empty subset of {list(CONTROLLERS)}; got "
+                           f"{list(controllers)!r}")
+    if isinstance(revolutions, bool) or not np.isfinite(revolutions) or revolutions <= 0:
+        raise ProblemError(f"revolutions must be a number > 0; got {revolutions!r}")
+    n_p = check_count("n_p (prediction horizon)", n_p, 1)
+    Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
+    R = np.ones(problem.model.n_u) if R is None else R
+    ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
+    K = int(round(revolutions * ref.n_steps))
+    schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,
+                              membership=membership, phase=phase, lookahead=n_p,
+                              source=tube_source, tube_options=tube_options,
+                              interval=tube_interval)
+    lqr = LQR(Q, R).setup(ref, problem.control_set.kind)
+    if isinstance(offset, str):
+        if offset != "paper":
+            raise ProblemError(f"offset must be 'paper', None or a state offset; got {offset!r}")
+        box, x0_off = paper_initial_set(problem), None
+    else:
+        box, x0_off = None, offset
+    # the offset is drawn at the refresh phase's reference state when the run starts there
+    opt = SimOptions(n_steps=K, offset_box=box, x0_offset=x0_off, disturbance=disturbance,
+                     seed=seed, n_sub=ref.n_sub, progress=progress)
+    build = {
+        "event-mpc": lambda: EventTriggeredMPC(Q, R, schedule, trigger=EventTrigger(beta, m),
+                                               n_p=n_p, tube_slack=tube_slack, fallback=lqr,
+                                               **mpc_kw),
+        "tube-mpc": lambda: TubeMPC(Q, R, schedule, disturbance=disturbance,
+                                    velocity_dims=problem.velocity_dims, n_p=n_p,
+                                    tube_slack=tube_slack, fallback=lqr, **mpc_kw),
+        "mpc": lambda: MPC(Q, R, n_p=n_p, n_c=n_p, fallback=lqr, **mpc_kw),
+        "lqr": lambda: lqr,
+    }
+    kind = problem.control_set.kind
+    if prediction_substeps is not None and prediction_substeps >= ref.n_sub:
+        prediction_substeps = None  # the reference's model is already that cheap
+    mpc_kw = {"max_cpu_time": max_cpu_time, "prediction_substeps": prediction_substeps,
+              "defect_correction": prediction_substeps is not None}
+    results, metrics, gauges, active = {}, {}, {}, {}
+    for name in controllers:
+        ctl = build[name]()
+        if ctl is not lqr:
+            ctl.setup(ref, kind)
+        run_ctl = ctl if navigation is None else NavigationError(ctl, navigation, seed + 1).setup(ref, kind)
+        res = simulate(ref, run_ctl, control_set_kind=kind, velocity_dims=problem.velocity_dims,
+                       options=opt, name=name)
+        met, gam = station_keeping_metrics(res, ref, schedule, problem, ctl)
+        results[name], metrics[name], gauges[name] = res, met, gam
+        active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
+                        else np.linalg.norm(res.U_applied, axis=1) > 0)
+    tube0 = schedule.tube(schedule.phase)
+    off0 = results[controllers[0]].X[0] - ref.state(0)
+    settings = {
+        "problem": problem.id, "revolutions": float(K / ref.n_steps), "n_steps": K,
+        "steps_per_rev": ref.n_steps, "dt_TU": ref.dt,
+        "dt_hours": ref.dt * problem.units.time / 3600.0, "period_hours": ref.n_steps * ref.dt
+        * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
+        "membership": membership, "tube_source": tube0.source,
+        "tube_interval_steps": schedule.interval,
+        "tube_guaranteed": bool(tube0.guaranteed), "refresh_phase_step": schedule.phase,
+        "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
+                                  else initial, float).tolist(),
+        "disturbance_W": disturbance, "navigation": navigation, "seed": seed,
+        "offset": off0.tolist(),
+        "offset_position_km": float(np.linalg.norm(off0[list(problem.position_dims)])
+                                    * problem.units.length / 1e3),
+        "offset_velocity_mps": float(np.linalg.norm(off0[list(problem.velocity_dims)])
+                                     * problem.units.velocity),
+        "Q": np.asarray(Q, float).tolist(), "R": np.asarray(R, float).tolist(),
+        "tube_slack": tube_slack, "rk4_substeps": ref.n_sub,
+        "prediction_substeps": prediction_substeps,
+        "defect_correction": prediction_substeps is not None,
+        "a_max": float(problem.param("a_max")), "thrust_N": problem.extra.get("thrust_N"),
+        "mass_kg": problem.extra.get("mass_kg"),
+        "paper": {"delta_v_mps": PAPER_DELTA_V_MPS, "t_f_hours": PAPER_TF_HOURS, "N": PAPER_N,
+                  "G_pos": PAPER_G_POS, "G_vel": PAPER_G_VEL, "W": PAPER_W},
+    }
+    return StationKeepingRun(results, metrics, gauges, active, ref, schedule, settings)
+
+
+__all__ = ["CONTROLLERS", "EventTrigger", "EventTriggeredMPC", "NavigationError",
+           "StationKeepingRun", "as_box", "delta_v_si", "drift_schedule", "paper_initial_set",
+           "run_station_keeping", "station_keeping_metrics", "trigger_signal"]

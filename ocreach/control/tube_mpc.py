@@ -1,0 +1,155 @@
+"""Robust tube MPC by constraint tightening (Chisci, Rossiter & Zappa 2001; Mayne, Seron & Rakovic 2005).
+
+The classical comparison for the reachable-set-triggered MPC of :mod:`ocreach.control.station_keeping`.
+About the reference the error ``e = x - x_ref`` under the ancillary feedback ``u = v - K_k e``
+(``K_k`` the periodic LQR gain) and the disturbance ``w in W`` evolves as
+``e_{k+1} = (A_k - B_k K_k) e_k + Bw_k w_k``.  The error tube of a prediction started at step ``k``
+from the measured state (Chisci et al.: ``E_0 = {0}``) is
+
+    E_0 = {0},   E_{i+1} = (A_{k+i} - B_{k+i} K_{k+i}) E_i (+) Bw_{k+i} W       (zonotopes)
+
+and the nominal MPC (the nonlinear prediction of Eq. 27) is solved on the tightened sets
+
+    x_{k+i|k} in X_{k+i} (-) E_i,      ||u_{k+i|k}|| <= 1 - max_{e in E_i} ||K_{k+i} e||.
+
+``X_k`` is the box of the drift tube at step ``k`` (its interval hull, the paper's Fig. 7 boxes), so
+the Pontryagin difference is exact: half widths minus the support function of ``E_i`` along the
+axes, ``sum_j |E_i|_{dj}``.  The thrust margin uses the support of ``K E_i`` along the axes (box
+set) or ``sum_j ||K g_j||_2 >= max ||K e||_2`` (ball set), both sound for the zonotope ``E_i``.
+The margins depend only on the phase of the periodic reference and are computed once for all
+``M`` phases (vectorised).  The state constraint is softened by the MPC's penalised slack (the
+measured state may start outside ``X``); without a terminal set the recursive-feasibility proof of
+the papers does not apply, and the tube is a linearisation (not a guaranteed enclosure of the
+nonlinear error).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ocreach.control.lqr import LQR
+from ocreach.control.mpc import MPC
+from ocreach.control.reference import TrackingReference
+from ocreach.control.simulate import _generator
+from ocreach.control.tube import TubeSchedule, disturbance_input
+from ocreach.errors import ProblemError
+
+#: smallest fraction of a constraint kept after tightening (a fully consumed set is reported)
+MIN_FRACTION = 1e-3
+
+
+def error_tube_margins(reference: TrackingReference, K: np.ndarray, Bw: np.ndarray, W: np.ndarray,
+                       n_p: int, thrust_kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """Margins of the error tube for every start phase ``k = 0..M-1``.
+
+    Returns ``state (M, n_p + 1, n_x)``: ``h_{E_i}(e_d)`` (support along each axis, ``i = 0..n_p``)
+    and ``thrust (M, n_p)``: the bound on ``||K_{k+i} e||`` over ``E_i`` (``i = 0..n_p-1``).
+    ``K`` (M, n_u, n_x) the feedback gains, ``Bw`` (M, n_x, n_w), ``W`` (n_w, m) generators.
+    """
+    M = reference.n_steps
+    A, B = reference.A, reference.B
+    nx = A.shape[1]
+    Acl = A - np.einsum("kxu,kuy->kxy", B, K)
+    BW = np.einsum("kxw,wm->kxm", Bw, W)
+    ks = np.arange(M)
+    E = np.zeros((M, nx, 0))
+    state = np.zeros((M, n_p + 1, nx))
+    thrust = np.zeros((M, n_p))
+    for i in range(n_p):
+        j = (ks + i) % M
+        KE = np.einsum("kux,kxm->kum", K[j], E)
+        if thrust_kind == "box":
+            thrust[:, i] = np.abs(KE).sum(axis=2).max(axis=1) if E.shape[2] else 0.0
+        else:
+            thrust[:, i] = np.linalg.norm(KE, axis=1).sum(axis=1) if E.shape[2] else 0.0
+        E = np.concatenate([np.einsum("kxy,kym->kxm", Acl[j], E), BW[j]], axis=2)
+        state[:, i + 1] = np.abs(E).sum(axis=2)
+    return state, thrust
+
+
+class MPCWrapper:
+    """A controller built around an inner :class:`MPC` (``self.mpc``): its failures are the MPC's."""
+
+    mpc: MPC
+
+    @property
+    def fallbacks(self) -> int:
+        return self.mpc.fallbacks
+
+    @property
+    def events(self) -> list:
+        return self.mpc.events
+
+
+class TubeMPC(MPCWrapper):
+    """Tube MPC with tightened state (drift-tube box) and thrust sets on the nonlinear prediction.
+
+    ``schedule`` gives the state constraint sets (their interval hulls); ``disturbance`` the
+    generators ``W`` of the acceleration disturbance on ``velocity_dims``; ``fallback`` the LQR
+    whose gains are the ancillary feedback (default: periodic LQR with ``Q``, ``R``).
+    ``tightening_exhausted`` counts constraint components the tube margin consumed completely
+    (kept at ``MIN_FRACTION`` of the set).
+    """
+
+    name = "tube-mpc"
+
+    def __init__(self, Q, R, schedule: TubeSchedule, *, disturbance: Any,
+                 velocity_dims: tuple[int, ...], n_p: int = 15, n_c: int | None = None,
+                 tube_slack: float = 100.0, fallback: LQR | None = None, **mpc_options: Any) -> None:
+        self.schedule = schedule
+        self.Q_in, self.R_in = Q, R
+        self.disturbance = disturbance
+        self.velocity_dims = tuple(velocity_dims)
+        self.n_p = n_p
+        self.lqr = fallback
+        self.mpc = MPC(Q, R, n_p=n_p, n_c=n_p if n_c is None else n_c,
+                       tube=schedule.reference.model.n_x, tube_slack=tube_slack, fallback=fallback,
+                       **mpc_options)
+        self.tightening_exhausted = 0
+
+    def setup(self, reference: TrackingReference, control_set_kind: str) -> TubeMPC:
+        if reference is not self.schedule.reference:
+            raise ProblemError("TubeMPC: the tube schedule was built on another reference")
+        if not reference.periodic:
+            raise ProblemError(f"TubeMPC needs a periodic reference; '{reference.name}' is not")
+        self.mpc.setup(reference, control_set_kind)
+        self.lqr = self.mpc.lqr
+        reference.linearize()
+        M = reference.n_steps
+        K = self.lqr.K[np.arange(M)]
+        Bw = disturbance_input(reference, self.velocity_dims)
+        W = _generator("disturbance W", self.disturbance, len(self.velocity_dims))
+        self.state_margin, self.thrust_margin = error_tube_margins(
+            reference, K, Bw, W, self.n_p, self.mpc.kind)
+        self.M = M
+        self.reset()
+        return self
+
+    def reset(self) -> None:
+        if getattr(self.mpc, "reference", None) is not None:
+            self.mpc.reset()
+        self.tightening_exhausted = 0
+        self.solve_times = self.mpc.solve_times
+
+    def tightened(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(centres (n_p, n_x), half widths (n_p, n_x), thrust radii (n_c,))`` at step ``k``."""
+        c, G = self.schedule.window(k, self.n_p)
+        hw = np.abs(G).sum(axis=2)
+        ph = k % self.M
+        hw_t = hw - self.state_margin[ph, 1:]
+        r = 1.0 - self.thrust_margin[ph, : self.mpc.n_c]
+        floor_x, floor_u = MIN_FRACTION * hw, MIN_FRACTION
+        self.tightening_exhausted += int(np.sum(hw_t < floor_x) + np.sum(r < floor_u))
+        return c, np.maximum(hw_t, floor_x), np.clip(r, floor_u, 1.0)
+
+    def control(self, k: int, x: np.ndarray) -> np.ndarray:
+        c, hw, r = self.tightened(k)
+        self.mpc.set_tube(c, np.einsum("kn,nm->knm", hw, np.eye(hw.shape[1])))
+        self.mpc.set_thrust_bound(r)
+        u = self.mpc.control(k, x)
+        self.solve_times = self.mpc.solve_times
+        return u
+
+
+__all__ = ["MPCWrapper", "TubeMPC", "error_tube_margins"]
