@@ -45,5 +45,5 @@ def test_mc_method_histories_option(glider):
     np.testing.assert_array_equal(lean.points[-1], rich.points[-1])
     assert lean.meta["grid_mean"].shape == (glider.grid.size, 6)
     np.testing.assert_allclose(lean.meta["grid_mean"][-1], rich.points[-1].mean(axis=0), rtol=1e-12)
-    with pytest.raises(ProblemError, match="histories must be True or False"):
-        ocreach.reach(glider, "mc", samples=10, histories="yes")
+    with pytest.raises(ProblemError, match="histories must be a boolean"):
+        ocreach.reach(glider, "mc", samples=10, histories="maybe")

@@ -77,9 +77,6 @@ class MonteCarlo(Method):
 
         def __post_init__(self) -> None:
             super().__post_init__()
-            if not isinstance(self.histories, (bool, np.bool_)):
-                raise ProblemError(f"histories must be True or False; got {self.histories!r}")
-            self.histories = bool(self.histories)
             try:
                 mix = np.asarray(self.mix, dtype=float)
             except (TypeError, ValueError):
