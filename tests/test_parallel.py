@@ -30,7 +30,7 @@ def test_reach_runs_under_the_blas_limit_and_thread_setting(monkeypatch):
     assert parallel.threads() == before  # restored afterwards
     monkeypatch.setenv("OCREACH_BLAS_THREADS", "2")
     with parallel.settings():
-        assert _blas_threads() <= {2}
+        assert max(_blas_threads()) <= 2  # a limit: a library may run fewer
     with pytest.raises(ProblemError, match="threads must be an integer >= 1"):
         ocreach.reach("vdp", "mc", samples=4, threads=-1)
 

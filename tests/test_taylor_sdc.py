@@ -195,7 +195,7 @@ def test_bad_inputs_give_clear_errors():
     with pytest.raises(ProblemError, match="dimension 4"):
         ocreach.reach(p, "taylor")
     for bad in ({"order": 0.5}, {"reduction": "foo"}, {"max_parts": 0}, {"alg": "xx"},
-                {"max_error": -1}, {"input_set": "ball"}, {"split": "yes"}):
+                {"max_error": -1}, {"input_set": "ball"}, {"split": "maybe"}):
         with pytest.raises(ProblemError, match=next(iter(bad))):
             ocreach.reach(_nrho(1.0), "taylor", **bad)
     with pytest.raises(ProblemError, match="disturbance"):
