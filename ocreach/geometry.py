@@ -97,3 +97,7 @@ def in_convex_hull(points: np.ndarray, hull_points: np.ndarray, tol: float = 1e-
     except QhullError:
         return np.zeros(len(points), dtype=bool)
     return tri.find_simplex(np.asarray(points, dtype=float), tol=tol) >= 0
+
+
+# minimum enclosing balls live in their own module (exact Welzl solver, support-function outer ball)
+from ocreach.meb import EnclosingBall, minimum_enclosing_ball, support_outer_ball  # noqa: E402,F401
