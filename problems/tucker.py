@@ -45,8 +45,12 @@ MASS_KG = 14.0
 DAY_TU = 86400.0 / UNITS.time
 LAGRANGE_HORIZONS_DAYS = (1.0, 5.0)
 GATEWAY_HORIZONS_DAYS = (1.0, 2.0, 3.0)
-#: bvp options of the custody problems: Tucker Eq. 4 (quadratic cost on the position subspace)
-BVP_OPTIONS = {"cost": "quadratic", "dims": "position", "samples": 40, "smooth": 1e-9}
+#: bvp options of the custody problems: position subspace, 40 Fibonacci directions.  The linear
+#: cost (support function) is used: Tucker's quadratic index (Eq. 4, ``cost="quadratic"``) has the
+#: same extremals (its costate is the linear one scaled by ``z . (x_f - x_ref)``; tests check the
+#: radii agree) but also the trivial root ``lam = 0`` at ``x_f = x_ref``, which warm starts across
+#: horizons can fall into.
+BVP_OPTIONS = {"cost": "linear", "dims": "position", "samples": 40, "smooth": 1e-9}
 
 
 @cache
