@@ -114,22 +114,23 @@ class ReachableBalls:
 
 
 def validate_with_mc(balls: ReachableBalls, t_days: float, samples: int = 10_000, seed: int = 0,
-                     rel_tol: float = 1e-6) -> dict:
+                     rel_tol: float = 1e-6, keep_points: bool = False) -> dict:
     """Monte Carlo endpoints against the balls and support values at ``t_days``.
 
     Returns the sample count, how many endpoints are outside the outer ball, the largest excess
     over the support values ``max_j (d_j . x - h_j)`` relative to the reach (the outer radius),
-    and the largest MC distance from the inner / outer centre relative to the radius.
+    and the largest MC distance from the inner / outer centre relative to the radius
+    (``keep_points``: also the MC endpoint positions under ``"points"``).
     """
     from ocreach.reach.base import reach
 
     hb = balls.at(t_days)
     prob = balls.problem(t_days)
-    mc = reach(prob, "mc", samples=samples, seed=seed)
+    mc = reach(prob, "mc", samples=samples, seed=seed)  # random / constant / bang-bang box controls
     P = np.asarray(mc.points[-1])[:, list(prob.position_dims)]
     excess = (P @ hb.directions.T - hb.support[None, :]).max()
     scale = hb.outer.radius
-    return {"t_days": float(t_days), "samples": int(samples),
+    out = {"t_days": float(t_days), "samples": int(samples),
             "outside_outer": int(np.sum(~hb.outer.contains(P, tol=rel_tol))),
             "max_support_excess_rel": float(excess / scale),
             "above_support": int(np.sum((P @ hb.directions.T - hb.support[None, :]).max(axis=1) > rel_tol * scale)),
@@ -137,3 +138,6 @@ def validate_with_mc(balls: ReachableBalls, t_days: float, samples: int = 10_000
             "mc_max_dist_outer": float(np.linalg.norm(P - hb.outer.center, axis=1).max() / hb.outer.radius),
             "inner_km": float(hb.inner.radius * prob.units.length / 1e3),
             "outer_km": float(hb.outer.radius * prob.units.length / 1e3)}
+    if keep_points:
+        out["points"] = P
+    return out
