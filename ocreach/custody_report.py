@@ -153,6 +153,8 @@ def analyse(problem_ids: Sequence[str], observers: Sequence[str], fovs: Sequence
             if not hz or hz[0] <= 0:
                 raise ProblemError(f"--horizons must be positive days; got {horizons!r}")
             t_max = max(hz)
+            # parse the observers before any solve, so bad input fails fast
+            obs_map = {ospec: parse_observer(ospec, rb.base, epoch) for ospec in observers}
             curve_t = sorted(set(np.round(np.arange(step_days, t_max + 1e-9, step_days), 9).tolist()) | set(hz))
             for t in curve_t:
                 rb.at(t)
@@ -160,11 +162,10 @@ def analyse(problem_ids: Sequence[str], observers: Sequence[str], fovs: Sequence
                 if mc_samples else []
             per_problem[(pid, cs)] = {"balls": rb, "horizons": hz, "curve_t": curve_t, "mc": mc_rows,
                                       "observers": {}}
-            for ospec in observers:
-                obs = parse_observer(ospec, rb.base, epoch)
+            for ospec, obs in obs_map.items():
                 per_problem[(pid, cs)]["observers"][ospec] = obs
                 t_set = first_set_time(obs, rb.base, t_max, tol_days)
-                for fov in fov_objs:
+                for fdeg, fov in zip(fovs, fov_objs):
                     res = {}
                     for ball in ("outer", "inner"):
                         res[ball] = _search(_probability(rb, obs, fov, ball), p_required, t_max, step_days,
@@ -186,7 +187,7 @@ def analyse(problem_ids: Sequence[str], observers: Sequence[str], fovs: Sequence
                                      "outer_radius_km": hb.outer.radius * rb.base.units.length / 1e3,
                                      "range_km": rng_km,
                                      "probability": _probability(rb, obs, fov)(t)})
-                    case = CaseResult(pid, obs.name, fov.full_deg, fov_shape, cs, p_required,
+                    case = CaseResult(pid, obs.name, float(fdeg), fov_shape, cs, p_required,
                                       res["outer"].t_safe, res["outer"].t_loss, res["inner"].t_safe,
                                       res["inner"].t_loss, tk.t_loss, rows,
                                       [list(e) for e in res["outer"].evaluations], t_set)
