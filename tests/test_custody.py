@@ -39,6 +39,17 @@ def test_warm_start_across_horizons(l1_balls):
     assert abs(hb.inner.radius - cold.inner.radius) <= 1e-9 * cold.inner.radius
 
 
+def test_warm_start_across_thrust_levels():
+    prob = get_problem("custody-l5", t_days=1.0, dt_hours=6.0)
+    a = prob.param("a_max")
+    base = reach(prob, "bvp", samples=8)
+    warm = reach(prob, "bvp", samples=8, thrust=1.3 * a, costate_guess=base.meta["costate0"])
+    cold = reach(prob, "bvp", samples=8, thrust=1.3 * a)
+    assert warm.meta["warm_started"][1:].all()  # every direction after the first: Newton from the guess
+    assert warm.meta["shots"] < cold.meta["shots"]
+    np.testing.assert_allclose(warm.points[-1], cold.points[-1], atol=1e-9)  # DU (0.4 m)
+
+
 @pytest.mark.parametrize("control_set,factor", [("ball", 1.0), ("box", np.sqrt(3.0))])
 def test_short_horizon_limit(control_set, factor):
     """r -> a t^2 / 2 (ball; sqrt(3) a t^2 / 2 for the box corner) as t -> 0."""

@@ -23,6 +23,14 @@ corrector fails.  In a 2-D direction subspace ``s`` is the angle ``theta`` of
 ``z-hat = (cos theta, sin theta)``; otherwise the directions are chained nearest-neighbour and
 ``s`` is the great-circle angle between consecutive ones.
 
+Box control sets (three independent thrusters, Tucker Sec. 4) use the smoothed law
+``u* = -tanh(G^T lam / smooth)``; a smoothing continuation (``smooth_start`` down to ``smooth`` by
+``smooth_factor``, each level warm-started from the last costate) reaches the nearly bang-bang
+solution, and is repeated for a direction whose continuation step fails.  The smoothing value is a
+runtime input (the last entry of ``a = [p; smooth]``) of one compiled state-costate(-STM) kernel.
+``costate_guess`` warm-starts every direction from given costates (a nearby horizon or thrust
+level).
+
 The control is continuous in time (not piecewise constant).  ``controls`` holds ``u*`` at the start
 of each segment (for inspection), ``meta["costate0"]`` the initial costates and
 ``trajectories[:, 0]`` the initial states: :func:`ocreach.reach.extremal.extremal_rhs`
@@ -63,12 +71,11 @@ def thrust_law_expression(model: Model, lam: ca.SX, smooth: float | ca.SX = 0.0)
     """
     numeric = not isinstance(smooth, (ca.SX, ca.MX))
     if model.control_affine:
-        if model.control_set == "box" and not (numeric and smooth == 0):
-            sw = ca.mtimes(ca.jacobian(model.f, model.u).T, lam)
-            return -ca.tanh(sw / smooth)
-        if numeric:
+        if numeric and (smooth == 0 or model.control_set == "ball"):
             return model.optimal_control_expression(lam, smooth=smooth)
         sw = ca.mtimes(ca.jacobian(model.f, model.u).T, lam)
+        if model.control_set == "box":
+            return -ca.tanh(sw / smooth)
         return -sw / ca.fmax(ca.sqrt(ca.sumsqr(sw) + smooth**2), 1e-300)
     if model.control_set != "ball" or "n" not in model.state_names:
         raise ProblemError(f"method 'bvp' needs a control-affine model or an inverse-mass model "
@@ -179,7 +186,7 @@ class BVPContinuation(FFOE):
         ``max |G^T lam_0|`` of the first guess, and no continuation for the ball),
         ``smooth_factor`` (ratio of consecutive smoothing values, in (0, 1)), ``costate_guess``
         (initial costates ``(samples, n_x)`` to start every direction from, e.g. a result at a
-        nearby horizon or thrust level: the warm start of :func:`warm_start_guess`), ``tol``
+        nearby horizon or thrust level, as :class:`ocreach.custody_reach.ReachableBalls` does), ``tol``
         (Newton residual, max-norm of ``lam(t_f) - lam_f``), ``max_newton`` (iterations per
         corrector) and ``max_halvings`` (continuation step halvings before giving up)."""
 
