@@ -41,7 +41,7 @@ hold the requirement) and ``t_loss`` (first time known to fail) with ``t_loss - 
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -483,17 +483,3 @@ def tucker_algorithm1(area: Callable[[float], float], p_c: float, theta: float, 
         if t > max_days:
             raise ProblemError(f"tucker_algorithm1: no loss within {max_days} days")
     return float(t)
-
-
-def probability_series(times: Sequence[float], balls: Sequence[tuple[np.ndarray, float]],
-                       observer: Observer, fov: FOV, nominal: Sequence[np.ndarray] | None = None,
-                       model: str = "covered") -> np.ndarray:
-    """Custody probability at each time for balls ``(centre, radius)`` (boresight on the ball's
-    centre, or on ``nominal[k]`` if given); 0 where a ground site does not see the centre."""
-    out = np.empty(len(times))
-    obs = observer.position(np.asarray(times, float))
-    vis = observer.visible(np.asarray(times, float), np.array([b[0] for b in balls]))
-    for k, (c, r) in enumerate(balls):
-        axis = None if nominal is None else np.asarray(nominal[k]) - obs[k]
-        out[k] = custody_probability(c, r, obs[k], fov, axis, model=model) if vis[k] else 0.0
-    return out
