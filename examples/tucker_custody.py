@@ -43,6 +43,8 @@ def main() -> None:
         write_outputs(cases, per, FIG, figures=True)
         all_cases += cases
         all_mc.update({k: v for k, v in per.items() if v["mc"]})
+    # one custody.json / custody.md over all runs (each run above wrote its own figures)
+    write_outputs(all_cases, all_mc, FIG, figures=False)
     elapsed = time.perf_counter() - t0
     text = "\n".join([
         "## Results", "",
