@@ -344,7 +344,7 @@ def write_figures(pid: str, cs: str, info: dict, cases, out: Path, p_required: f
     # probability against time per FOV (one panel per observer)
     for ospec, obs in info["observers"].items():
         fig, ax = plt.subplots(figsize=(6.5, 4.5))
-        ts = np.array(info["curve_t"])
+        ts = np.array(sorted(hb.t_days for hb in rb.cache.values()))  # scan and bisection points
         for c in [c for c in cases if c.observer in (ospec, obs.name)]:
             fov = make_fov(c.fov_deg, c.fov_shape)
             ps = [_probability(rb, obs, fov)(t) for t in ts]
