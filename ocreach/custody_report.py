@@ -141,7 +141,13 @@ def analyse(problem_ids: Sequence[str], observers: Sequence[str], fovs: Sequence
             samples: int = 40, epoch: str = "2026-01-01", mc_samples: int = 0, progress=print):
     """Run the custody analysis; returns ``(cases, per_problem)`` where ``per_problem[(pid, cs)]``
     holds the :class:`ReachableBalls`, the report horizons and the MC validation rows."""
+    from ocreach.errors import check_positive
+
     p_required = cu.check_probability(p_required)
+    check_positive("tol (days)", tol_days)
+    check_positive("step (days)", step_days)
+    if mc_samples < 0:
+        raise ProblemError(f"mc (Monte Carlo samples) must be >= 0; got {mc_samples!r}")
     fov_objs = [make_fov(f, fov_shape) for f in fovs]
     cases: list[CaseResult] = []
     per_problem: dict = {}
