@@ -32,6 +32,18 @@ def test_mc_inside_outer_ball_and_below_support(l1_balls):
     assert hb.outer.radius >= hb.inner.radius * (1 - 1e-12)
 
 
+def test_initial_ellipsoid_manifold(l1_balls):
+    """Eq. 6 initial manifold (50 km / 1 m/s semi-axes): the ball grows by roughly the drift of
+    the uncertainty, and MC endpoints from the ellipsoid stay inside the outer ball."""
+    rb = ReachableBalls("custody-l1", overrides={"uncertain": True, "sigma_pos_km": 50.0, "sigma_vel_mps": 1.0},
+                        bvp_options={"samples": 20})
+    r0 = l1_balls.at(1.0).inner.radius * KM
+    r = rb.at(1.0).inner.radius * KM
+    assert r0 + 60.0 < r < r0 + 50.0 + 86.4 + 20.0  # 50 km + 1 m/s x 1 d, gravity gradient aside
+    out = validate_with_mc(rb, 1.0, samples=1000, seed=5)
+    assert out["outside_outer"] == 0 and out["above_support"] == 0
+
+
 def test_warm_start_across_horizons(l1_balls):
     hb = l1_balls.at(1.5)
     assert hb.warm_started
