@@ -126,3 +126,15 @@ def test_support_outer_ball_encloses_set():
     assert outer.radius <= 2.0 * inner.radius  # 60 directions: a reasonably tight polytope
     with pytest.raises(SetError, match="unbounded"):
         support_outer_ball(np.abs(dirs), (pts @ np.abs(dirs).T).max(axis=0))
+
+
+@pytest.mark.parametrize("d", [2, 3, 6])
+def test_meb_many_cospherical_points(d):
+    """20,000 points on the unit sphere (all of them near-support points): radius 1 to 1e-12."""
+    rng = np.random.default_rng(d)
+    P = rng.standard_normal((20_000, d))
+    P /= np.linalg.norm(P, axis=1, keepdims=True)
+    ball = minimum_enclosing_ball(P + 7.0, verify=True)
+    assert abs(ball.radius - 1.0) <= 1e-12
+    assert np.linalg.norm(ball.center - 7.0) <= 1e-9
+    assert ball.certificate(1e-12)
