@@ -245,7 +245,8 @@ def write_outputs(cases, per_problem, out: str | Path, *, figures: bool = True, 
     out.mkdir(parents=True, exist_ok=True)
     payload = {"p_required": p_required, "ball_for_custody": "outer (support-polytope ball; conservative)",
                "cases": [c.__dict__ for c in cases],
-               "mc_validation": {f"{k[0]}:{k[1]}": v["mc"] for k, v in per_problem.items()}}
+               "mc_validation": {f"{k[0]}:{k[1]}": [{a: b for a, b in m.items() if a != "points"}
+                                                    for m in v["mc"]] for k, v in per_problem.items()}}
     atomic_write_text(out / "custody.json", json.dumps(jsonable(payload), indent=2))
     md = ["# Custody (Tucker et al.)", "", markdown_table(cases)]
     if any(v["mc"] for v in per_problem.values()):
