@@ -78,24 +78,6 @@ def _check_points(points, name: str = "points") -> np.ndarray:
     return P
 
 
-def circumball(B: np.ndarray) -> tuple[np.ndarray, float, np.ndarray] | None:
-    """Centre, squared radius and barycentric coefficients of the smallest sphere through the
-    rows of ``B`` (k, d), i.e. the sphere through ``B`` with centre in its affine hull; ``None``
-    if ``B`` is affinely dependent (to a relative singular-value tolerance)."""
-    q0 = B[0]
-    if B.shape[0] == 1:
-        return q0.copy(), 0.0, np.ones(1)
-    A = B[1:] - q0
-    s = np.linalg.svd(A, compute_uv=False)
-    if s[-1] <= _RANK_TOL * s[0] or s[0] == 0:
-        return None
-    M = A @ A.T
-    lam = np.linalg.solve(2.0 * M, np.einsum("ij,ij->i", A, A))
-    c = q0 + lam @ A
-    r2 = float(np.max(np.einsum("ij,ij->i", B - c, B - c)))
-    return c, r2, np.concatenate([[1.0 - lam.sum()], lam])
-
-
 class _Support:
     """An affinely independent support set ``B`` with its circumcentre in ``aff(B)``.
 
