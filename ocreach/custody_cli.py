@@ -45,7 +45,7 @@ def register(subparsers) -> None:
     c = subparsers.add_parser("custody", help="telescope custody horizon of a manoeuvring object (Tucker et al.)")
     c.add_argument("problem", help="custody-l1 ... custody-l5, custody-gateway, a comma list, or 'all'")
     c.add_argument("--observer", default="geocentre",
-                   help="geocentre | ground:LAT,LON,ALT (deg, deg, km) | orbit:PROBLEM; several with ';'")
+                   help="geocentre | L1..L5 | ground:LAT,LON,ALT (deg, deg, km) | orbit:PROBLEM; several with ';'")
     c.add_argument("--fov", required=True, help="full field-of-view angle(s) in deg, in (0, 180), e.g. 0.5,1,2,6")
     c.add_argument("--fov-shape", default="circle", choices=["circle", "square"])
     c.add_argument("--p", type=float, default=0.95, help="required custody probability in (0, 1]")

@@ -26,11 +26,17 @@ CUSTODY_PROBLEMS = ("custody-l1", "custody-l2", "custody-l3", "custody-l4", "cus
 
 
 def parse_observer(spec: str, problem, epoch: str = "2026-01-01") -> cu.Observer:
-    """``geocentre`` | ``ground:LAT,LON,ALT`` (deg, deg, km) | ``orbit:PROBLEM`` for ``problem``'s CR3BP."""
+    """``geocentre`` | ``L1`` ... ``L5`` (fixed at the Lagrange point) | ``ground:LAT,LON,ALT`` (deg,
+    deg, km) | ``orbit:PROBLEM`` for ``problem``'s CR3BP."""
     spec = str(spec).strip()
     mu = problem.model.param("mu", problem.params)
     if spec in ("geocentre", "geocenter", "earth"):
         return cu.geocentre(mu)
+    if spec.upper() in ("L1", "L2", "L3", "L4", "L5"):
+        from ocreach.orbits import lagrange_points
+
+        pt = lagrange_points(mu)[int(spec[1]) - 1]
+        return cu.Observer(spec.upper(), "fixed", lambda t: np.tile(pt, (t.size, 1)))
     if spec.startswith("ground:"):
         parts = spec[7:].split(",")
         if len(parts) != 3:
@@ -45,7 +51,7 @@ def parse_observer(spec: str, problem, epoch: str = "2026-01-01") -> cu.Observer
             raise ProblemError(f"--observer {spec}: the observer's problem must be a spatial CR3BP with "
                                f"mu = {mu}; {other.id} has model {other.model.name}")
         return cu.orbit_observer(other.model, other.x0, other.params, name=f"orbit:{other.id}")
-    raise ProblemError(f"--observer must be geocentre, ground:LAT,LON,ALT or orbit:PROBLEM; got {spec!r}")
+    raise ProblemError(f"--observer must be geocentre, L1..L5, ground:LAT,LON,ALT or orbit:PROBLEM; got {spec!r}")
 
 
 def make_fov(full_deg: float, shape: str) -> cu.FOV:
