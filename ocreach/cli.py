@@ -409,6 +409,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--revolutions", type=float, help="station-keeping: revolutions (default 10)")
     rp.set_defaults(func=cmd_report)
 
+    from ocreach.custody_cli import register as register_custody
+    register_custody(sub)
+
     b = sub.add_parser("bench", help="run the benchmarks in benchmarks/")
     b.add_argument("--only", help="comma-separated substrings of benchmark names")
     b.add_argument("--write", action="store_true", help="update docs/benchmarks.md")

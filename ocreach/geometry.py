@@ -89,11 +89,56 @@ def circle_directions(m: int) -> np.ndarray:
 
 
 def in_convex_hull(points: np.ndarray, hull_points: np.ndarray, tol: float = 1e-12) -> np.ndarray:
-    """Boolean mask: which ``points`` lie in the convex hull of ``hull_points`` (2-D or n-D)."""
+    """Boolean mask: which ``points`` (m, d) lie in the convex hull of ``hull_points`` (n, d).
+
+    Degenerate hulls (fewer than ``d + 1`` affinely independent points: a flat set, a segment, a
+    single point, duplicates) are handled exactly: the hull points span an affine subspace of
+    dimension ``k < d`` (SVD, relative tolerance 1e-10); a point is inside iff its distance to that
+    subspace is at most ``tol`` times the hull's scale (plus ``tol``) and its coordinates in the
+    subspace lie in the ``k``-dimensional hull (an interval for ``k = 1``, Delaunay otherwise).
+    Raises :class:`SetError` for empty, non-finite or mismatched input.
+    """
     from scipy.spatial import Delaunay, QhullError
 
+    H = np.atleast_2d(np.asarray(hull_points, dtype=float))
+    P = np.atleast_2d(np.asarray(points, dtype=float))
+    if H.ndim != 2 or H.shape[0] == 0 or H.shape[1] == 0:
+        raise SetError(f"hull_points must be a non-empty (n, d) array; got shape {H.shape}")
+    if P.ndim != 2 or P.shape[1] != H.shape[1]:
+        raise SetError(f"points must be an (m, {H.shape[1]}) array like hull_points; got shape {P.shape}")
+    if not (np.all(np.isfinite(H)) and np.all(np.isfinite(P))):
+        raise SetError("in_convex_hull: points and hull_points must be finite (no NaN or inf)")
+    if P.shape[0] == 0:
+        return np.zeros(0, dtype=bool)
+    c0 = H.mean(axis=0)
+    A = H - c0
+    _, s, Vt = np.linalg.svd(A, full_matrices=False)
+    scale = float(s[0]) if s.size else 0.0
+    k = int(np.sum(s > 1e-10 * scale)) if scale > 0 else 0
+    d = H.shape[1]
+    Q = P - c0
+    if k == d:
+        try:
+            return Delaunay(H).find_simplex(P, tol=tol) >= 0
+        except QhullError as exc:
+            raise SetError(f"in_convex_hull: qhull failed on {H.shape[0]} hull points in {d}-D: {exc}") from None
+    basis = Vt[:k]  # orthonormal basis of the hull's affine subspace
+    coords = Q @ basis.T
+    resid = np.linalg.norm(Q - coords @ basis, axis=1)
+    size = float(np.max(np.linalg.norm(A, axis=1)))
+    on_plane = resid <= tol * max(size, 1.0) + 1e-12 * size
+    if k == 0:
+        return on_plane
+    hc = A @ basis.T
+    if k == 1:
+        lo, hi = hc.min(), hc.max()
+        slack = tol * max(hi - lo, 1.0)
+        return on_plane & (coords[:, 0] >= lo - slack) & (coords[:, 0] <= hi + slack)
     try:
-        tri = Delaunay(np.asarray(hull_points, dtype=float))
-    except QhullError:
-        return np.zeros(len(points), dtype=bool)
-    return tri.find_simplex(np.asarray(points, dtype=float), tol=tol) >= 0
+        return on_plane & (Delaunay(hc).find_simplex(coords, tol=tol) >= 0)
+    except QhullError as exc:
+        raise SetError(f"in_convex_hull: qhull failed on the {k}-D affine hull: {exc}") from None
+
+
+# minimum enclosing balls live in their own module (exact Welzl solver, support-function outer ball)
+from ocreach.meb import EnclosingBall, minimum_enclosing_ball, support_outer_ball  # noqa: E402,F401
