@@ -166,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--only", help="comma-separated substrings of benchmark names")
     b.add_argument("--write", action="store_true", help="update docs/benchmarks.md")
     b.set_defaults(func=cmd_bench)
+    from ocreach.sweep.cli import register as register_sweep
+    register_sweep(sub)
     return ap
 
 

@@ -1,0 +1,136 @@
+"""The driver loop: submit pending tasks (a bounded number in flight), record each as it finishes.
+
+Only the driver writes (:class:`ocreach.sweep.store.Store`); workers return plain records.  A
+progress bar (tqdm) shows counts of ok / failed tasks, the rate and the ETA.  Ctrl-C (or any
+exception in the driver) cancels what has not started; every finished record is already on disk
+and the next run with the same spec and ``--out`` continues from there.
+"""
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ocreach.sweep.errors import SweepError
+from ocreach.sweep.executors import ExecutorHandle, make_executor
+from ocreach.sweep.spec import Spec, load_spec
+from ocreach.sweep.store import Store
+from ocreach.sweep.worker import run_task
+
+
+@dataclass
+class RunSummary:
+    """What one run did: tasks in the spec, skipped as finished, run now (ok / failed)."""
+
+    total: int
+    skipped: int
+    ran: int = 0
+    ok: int = 0
+    failed: int = 0
+    notes: list[str] = field(default_factory=list)
+    executor: str = ""
+    out: str = ""
+
+    def line(self) -> str:
+        if not self.ran:
+            return f"nothing to run: all {self.total} task(s) already finished in {self.out}"
+        return (f"{self.ran} task(s) run on {self.executor}: {self.ok} ok, {self.failed} failed; "
+                f"{self.skipped} already finished; {self.total} in the spec -> {self.out}")
+
+
+def _failure(key: str, fut: Future) -> dict[str, Any]:
+    exc = fut.exception()
+    return {"key": key, "status": "error", "worker": None, "runtime_s": None,
+            "error": {"type": type(exc).__name__, "message": f"the executor lost the task: {exc}"}}
+
+
+def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | None = None,
+              workers: int | None = None, scheduler: str | None = None,
+              dask_local: int | None = None, serial: bool = False, retry_failed: bool = False,
+              max_in_flight: int | None = None, limit: int | None = None, progress: bool = True,
+              on_record: Callable[[dict[str, Any]], None] | None = None) -> RunSummary:
+    """Run the pending tasks of ``spec`` into the folder ``out``.
+
+    Executor choice: ``executor`` (any Executor), ``serial``, ``scheduler`` (Dask address),
+    ``dask_local`` (LocalCluster size) or, by default, a process pool of ``workers`` (default
+    the core count).  ``max_in_flight`` bounds submitted-but-unfinished tasks (default twice the
+    worker count); ``limit`` stops after that many new tasks; ``retry_failed`` reruns failed
+    ones.  ``on_record`` is called with every record written.  Everything is checked (spec,
+    folder, executor) before the first task is submitted.
+    """
+    if not isinstance(spec, Spec):
+        spec = load_spec(spec)
+    for name, v in (("max_in_flight", max_in_flight), ("limit", limit)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise SweepError(f"{name} must be an integer >= 1; got {v!r}")
+    store = Store.open(out, spec)
+    try:
+        summary = RunSummary(total=len(spec), skipped=0, notes=list(store.log.notes), out=str(out))
+        done = store.finished(retry_failed)
+        todo = [(k, t) for k, t in zip(spec.keys, spec.tasks) if k not in done]
+        summary.skipped = len(spec) - len(todo)
+        if limit is not None:
+            todo = todo[:limit]
+        for note in summary.notes:
+            print(f"note: {note}", file=sys.stderr)
+        if not todo:
+            summary.executor = "nothing to run"
+            return summary
+        handle = make_executor(workers, scheduler=scheduler, dask_local_workers=dask_local,
+                               serial=serial, executor=executor)
+        try:
+            summary.executor = handle.kind
+            _drive(spec, todo, store, handle, summary, max_in_flight or 2 * handle.n_workers,
+                   progress, on_record)
+        finally:
+            if executor is None:
+                handle.close()
+        return summary
+    finally:
+        store.close()
+
+
+def _drive(spec: Spec, todo: list[tuple[str, dict[str, Any]]], store: Store, handle: ExecutorHandle,
+           summary: RunSummary, bound: int, progress: bool,
+           on_record: Callable[[dict[str, Any]], None] | None) -> None:
+    from tqdm import tqdm
+
+    pending = iter(todo)
+    in_flight: dict[Future, str] = {}
+    bar = tqdm(total=len(todo), unit="task", disable=not progress, dynamic_ncols=True,
+               desc="sweep", file=sys.stderr)
+
+    def submit_more() -> None:
+        while len(in_flight) < bound:
+            nxt = next(pending, None)
+            if nxt is None:
+                return
+            key, task = nxt
+            payload = {"key": key, "task": task, "base_dir": spec.base_dir}
+            in_flight[handle.executor.submit(run_task, payload)] = key
+
+    try:
+        submit_more()
+        while in_flight:
+            finished, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
+            for fut in finished:
+                key = in_flight.pop(fut)
+                rec = fut.result() if fut.exception() is None else _failure(key, fut)
+                rec = store.append(rec)
+                summary.ran += 1
+                if rec["status"] == "ok":
+                    summary.ok += 1
+                else:
+                    summary.failed += 1
+                bar.set_postfix(ok=summary.ok, failed=summary.failed, refresh=False)
+                bar.update(1)
+                if on_record is not None:
+                    on_record(rec)
+            submit_more()
+    finally:
+        for fut in in_flight:
+            fut.cancel()
+        bar.close()
