@@ -127,9 +127,9 @@ def dask_local(workers: int, processes: bool = True) -> ExecutorHandle:
     (``processes=False``: threads in this process, for tests)."""
     distributed = _dask()
     with single_thread_env():
+        where = {"host": "127.0.0.1"} if processes else {}  # threads talk in-process (inproc://)
         cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
-                                           processes=processes, host="127.0.0.1",
-                                           dashboard_address=None)
+                                           processes=processes, dashboard_address=None, **where)
     client = distributed.Client(cluster)
     kind = "processes" if processes else "threads"
     return ExecutorHandle(client.get_executor(pure=False), workers,

@@ -8,7 +8,6 @@ support function.
 """
 from __future__ import annotations
 
-import inspect
 import math
 from typing import Any
 
@@ -22,8 +21,8 @@ from ocreach.sweep.errors import SweepError
 def meb_radius(points: np.ndarray) -> dict[str, Any]:
     """Radius of the minimum enclosing ball of ``points`` (m, d).
 
-    Uses ``ocreach.geometry.minimum_enclosing_ball`` when that exact routine exists (issue #13);
-    until then the fallback :func:`meb_radius_bounds` brackets it.
+    Uses the exact ``ocreach.geometry.minimum_enclosing_ball`` (Welzl; issue #13, returns a ball
+    with ``.radius``) when it exists; otherwise the fallback :func:`meb_radius_bounds` brackets it.
     """
     from ocreach import geometry
 
@@ -83,24 +82,33 @@ def hull_volume(points: np.ndarray) -> float:
         return 0.0
 
 
-def custody_horizon(problem, result, params: dict[str, Any]) -> dict[str, Any]:
-    """``ocreach.custody.custody_horizon(problem, **params)`` (issue #13), imported lazily.
+#: the function of ocreach.custody a sweep calls for keep.custody (see custody_outputs)
+CUSTODY_HOOK = "sweep_task"
 
-    The result is passed as ``result=`` when the function accepts it.  Raises :class:`SweepError`
-    ("custody not available") when ``ocreach.custody`` or its ``custody_horizon`` is missing.
-    """
+
+def custody_hook():
+    """``ocreach.custody.sweep_task``, or :class:`SweepError` "custody not available"."""
     try:
         import ocreach.custody as custody
     except ImportError:
         raise SweepError("custody not available: ocreach.custody (issue #13) is not installed in "
                          "this version of ocreach; keep.custody needs it") from None
-    fn = getattr(custody, "custody_horizon", None)
+    fn = getattr(custody, CUSTODY_HOOK, None)
     if fn is None:
-        raise SweepError("custody not available: ocreach.custody has no custody_horizon()")
-    kwargs = dict(params)
-    if "result" in inspect.signature(fn).parameters:
-        kwargs["result"] = result
-    value = fn(problem, **kwargs)
+        raise SweepError(f"custody not available: ocreach.custody has no {CUSTODY_HOOK}(problem, "
+                         "result, **params) hook for sweeps yet")
+    return fn
+
+
+def custody_outputs(problem, result, params: dict[str, Any]) -> dict[str, Any]:
+    """Custody horizon of one task: ``ocreach.custody.sweep_task(problem, result, **params)``.
+
+    ``ocreach.custody`` (issue #13) is imported lazily; the hook returns a dict of numbers (e.g.
+    ``{"t_safe": ..., "t_loss": ...}``, recorded as ``custody_t_safe`` ...) or one number
+    (``custody_horizon``).  Raises :class:`SweepError` "custody not available" when the module or
+    the hook is missing, so the task is recorded as failed with that message and the others go on.
+    """
+    value = custody_hook()(problem, result, **params)
     if isinstance(value, dict):
         return {f"custody_{k}": v for k, v in value.items()}
     return {"custody_horizon": float(value)}
@@ -110,9 +118,9 @@ def compute_outputs(result, problem, keep: dict[str, Any]) -> dict[str, Any]:
     """The scalars a task records (see the module docstring); every number is finite."""
     dims = resolve_dims(keep["dims"], problem)
     names = [problem.model.state_names[d] for d in dims]
-    out: dict[str, Any] = {"t_final": float(result.times[-1]),
-                           "units_length_m": float(problem.units.length),
-                           "units_time_s": float(problem.units.time)}
+    out: dict[str, Any] = {"t_final": float(result.times[-1])}
+    if problem.units is not None:
+        out.update(units_length_m=float(problem.units.length), units_time_s=float(problem.units.time))
     if keep["extent"]:
         eye = np.eye(len(dims))
         hi = np.atleast_1d(result.support(eye, k=-1, dims=dims))
@@ -135,7 +143,7 @@ def compute_outputs(result, problem, keep: dict[str, Any]) -> dict[str, Any]:
             out["hull_volume_note"] = ("hull of the samples" if result.points is not None
                                        else "hull of 2000 samples of the set")
     if keep["custody"] is not None:
-        out.update(custody_horizon(problem, result, keep["custody"]))
+        out.update(custody_outputs(problem, result, keep["custody"]))
     bad = [k for k, v in out.items() if isinstance(v, float) and not math.isfinite(v)]
     if bad:
         raise SolverError(f"non-finite outputs {bad} from method {result.method!r}")

@@ -116,7 +116,7 @@ def _drive(spec: Spec, todo: list[tuple[str, dict[str, Any]]], store: Store, han
         submit_more()
         while in_flight:
             finished, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
-            for fut in finished:
+            for fut in [f for f in in_flight if f in finished]:  # in submission order
                 key = in_flight.pop(fut)
                 rec = fut.result() if fut.exception() is None else _failure(key, fut)
                 rec = store.append(rec)

@@ -11,7 +11,8 @@ A spec (JSON; TOML where Python has ``tomllib``) has these top-level keys::
 
 The tasks are ``catalog rows x tasks x product combinations`` (each factor is ``[{}]`` when
 absent), each merged onto ``base`` (dict fields merged key by key, later wins).  Product axes
-are task fields or dotted paths into them (``options.samples``, ``overrides.thrust``).
+are task fields or dotted paths into them (``options.samples``, ``overrides.thrust``,
+``keep.custody.fov_deg``).
 
 Task fields:
 
@@ -26,7 +27,8 @@ Task fields:
 * ``keep``: what to record (:data:`KEEP_DEFAULTS`): ``dims`` (the subspace, default
   ``"position"``), ``extent`` (min/max per dim), ``support`` (directions in that subspace),
   ``meb`` (minimum-enclosing-ball radius), ``volume`` (convex-hull volume), ``custody``
-  (keyword arguments of ``ocreach.custody.custody_horizon``), ``result`` (write the full result);
+  (keyword arguments of the custody hook, :func:`ocreach.sweep.outputs.custody_outputs`),
+  ``result`` (write the full result);
 * ``tags``: free labels copied to the table (a catalog row's ``name`` becomes ``tags.object``);
 * ``label``: optional text.
 
@@ -173,11 +175,19 @@ def _check_partial(obj: Any, where: str) -> None:
             raise SweepError(f"{where}: '{name}' must be an object; got {obj[name]!r}")
 
 
+def _deep(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = _deep(out[k], v) if isinstance(out.get(k), dict) and isinstance(v, dict) else copy.deepcopy(v)
+    return out
+
+
 def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """``b`` over ``a``: the fields in :data:`MERGED` merge key by key (recursively), others replace."""
     out = dict(a)
     for k, v in b.items():
         if k in MERGED and isinstance(out.get(k), dict) and isinstance(v, dict):
-            out[k] = {**out[k], **copy.deepcopy(v)}
+            out[k] = _deep(out[k], v)
         else:
             out[k] = copy.deepcopy(v)
     return out
@@ -200,11 +210,13 @@ def _product(axes: Any) -> list[dict[str, Any]]:
     for values in itertools.product(*(axes[n] for n in names)):
         combo: dict[str, Any] = {}
         for name, v in zip(names, values):
-            head, _, rest = name.partition(".")
-            if rest:
-                combo.setdefault(head, {})[rest] = v
-            else:
-                combo[head] = v
+            *parents, leaf = name.split(".")
+            node = combo
+            for part in parents:
+                node = node.setdefault(part, {})
+                if not isinstance(node, dict):
+                    raise SweepError(f"product axis {name!r} conflicts with another axis")
+            node[leaf] = v
         _check_partial(combo, f"product {combo!r}")
         out.append(combo)
     return out
@@ -345,7 +357,7 @@ def _normalize_keep(keep: dict[str, Any], where: str) -> dict[str, Any]:
         if not any(v != 0 for v in d):
             raise SweepError(f"{where}: keep.support direction {d!r} is zero")
     if out["custody"] is not None and not isinstance(out["custody"], dict):
-        raise SweepError(f"{where}: keep.custody must be an object of custody_horizon arguments or "
+        raise SweepError(f"{where}: keep.custody must be an object of custody arguments or "
                          f"null; got {out['custody']!r}")
     return out
 

@@ -13,6 +13,7 @@ import dataclasses
 import os
 import socket
 import tempfile
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -26,6 +27,9 @@ from ocreach.sweep.keys import canonical_json
 
 _PROBLEMS: dict[str, Any] = {}
 _THREADS_LIMITED = False
+#: tasks in one process run one at a time (a threaded executor, e.g. a Dask worker with several
+#: threads, would otherwise share the problem cache and CasADi objects between threads)
+_TASK_LOCK = threading.Lock()
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
               "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 
@@ -86,11 +90,15 @@ def _state(problem, state: dict[str, Any]) -> np.ndarray:
             raise SweepError(f"state names {state['names']} must be exactly the states {names} of "
                              f"problem {problem.id!r} (missing {missing}, unknown {extra})")
         order = [names.index(n) for n in state["names"]]
-    scale = {"nd": 1.0, "length": 1.0 / problem.units.length,
-             "velocity": 1.0 / problem.units.velocity, "mass": 1.0 / problem.units.mass}
+    u = problem.units
+    scale = {"nd": 1.0} if u is None else {"nd": 1.0, "length": 1.0 / u.length,
+                                            "velocity": 1.0 / u.velocity, "mass": 1.0 / u.mass}
     x0 = np.empty(len(names))
     for j, i in enumerate(order):
         kind, factor = UNITS[state["units"][j]] if state["units"] else ("nd", 1.0)
+        if kind not in scale:
+            raise SweepError(f"state {state['names'][j]!r} is given in {state['units'][j]!r} but "
+                             f"problem {problem.id!r} has no units; give it in 'nd'")
         x0[i] = values[j] * factor * scale[kind]
     return x0
 
@@ -99,6 +107,9 @@ def _grid(problem, horizon: dict[str, Any]) -> np.ndarray:
     from ocreach.sweep.spec import HORIZON_UNITS
 
     factor = HORIZON_UNITS[horizon["unit"]]
+    if factor is not None and problem.units is None:
+        raise SweepError(f"horizon in {horizon['unit']!r} needs units; problem {problem.id!r} has "
+                         "none (give the horizon in 'TU', the model's time unit)")
     H = horizon["value"] if factor is None else horizon["value"] * factor / problem.units.time
     g = problem.grid
     step = g[1] - g[0]
@@ -130,14 +141,21 @@ def _result_bytes(result) -> bytes:
 def run_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Run one task ``{"key", "task", "base_dir"}``; return its record (never raises for a task
     failure: the error is in the record)."""
+    with _TASK_LOCK:
+        return _run_task(payload)
+
+
+def _run_task(payload: dict[str, Any]) -> dict[str, Any]:
     from ocreach.reach.base import reach
-    from ocreach.sweep.outputs import compute_outputs
+    from ocreach.sweep.outputs import compute_outputs, custody_hook
 
     limit_threads()
     t0 = time.perf_counter()
     task = payload["task"]
     rec: dict[str, Any] = {"key": payload["key"], "worker": f"{socket.gethostname()}:{os.getpid()}"}
     try:
+        if task["keep"]["custody"] is not None:
+            custody_hook()  # fail before the reach computation when custody is not available
         problem = build_problem(task, payload["base_dir"])
         result = reach(problem, task["method"], **task["options"])
         rec["outputs"] = compute_outputs(result, problem, task["keep"])
