@@ -33,7 +33,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     summary = run_sweep(spec, args.out, workers=args.workers, scheduler=args.scheduler,
                         dask_local=args.dask_local, serial=args.serial,
                         retry_failed=args.retry_failed, max_in_flight=args.max_in_flight,
-                        limit=args.limit, progress=not args.no_progress)
+                        limit=args.limit, chunk=args.chunk, progress=not args.no_progress)
     print(summary.line())
     return 0 if summary.failed == 0 else 1
 
@@ -54,8 +54,10 @@ def register(subparsers) -> None:
     ex.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running Dask scheduler")
     ex.add_argument("--serial", action="store_true", help="run in this process, one at a time")
     s.add_argument("--retry-failed", action="store_true", help="run failed tasks again")
-    s.add_argument("--max-in-flight", type=int, help="tasks submitted at once (default 2 x workers)")
+    s.add_argument("--max-in-flight", type=int, help="chunks submitted at once (default 2 x workers)")
     s.add_argument("--limit", type=int, help="stop after this many new tasks")
+    s.add_argument("--chunk", type=int, help="tasks sent to a worker together (default: auto, "
+                   "1 to 16)")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
     s.add_argument("--format", default="csv", help="collect: csv, parquet or csv,parquet")
     s.set_defaults(func=cmd_sweep)

@@ -1,6 +1,8 @@
 """The driver loop: submit pending tasks (a bounded number in flight), record each as it finishes.
 
-Only the driver writes (:class:`ocreach.sweep.store.Store`); workers return plain records.  A
+Only the driver writes (:class:`ocreach.sweep.store.Store`); workers return plain records.  The
+records of the futures that finished together are appended in submission order and fsynced
+once (group commit: at a high completion rate one fsync covers several records).  A
 progress bar (tqdm) shows counts of ok / failed tasks, the rate and the ETA.  Ctrl-C (or any
 exception in the driver) cancels what has not started; every finished record is already on disk
 and the next run with the same spec and ``--out`` continues from there.
@@ -18,7 +20,7 @@ from ocreach.sweep.errors import SweepError
 from ocreach.sweep.executors import ExecutorHandle, make_executor
 from ocreach.sweep.spec import Spec, load_spec
 from ocreach.sweep.store import Store
-from ocreach.sweep.worker import run_task
+from ocreach.sweep.worker import run_tasks
 
 
 @dataclass
@@ -41,29 +43,41 @@ class RunSummary:
                 f"{self.skipped} already finished; {self.total} in the spec -> {self.out}")
 
 
-def _failure(key: str, fut: Future) -> dict[str, Any]:
+#: auto chunk size: about 20 chunks per worker, at most this many tasks in one chunk
+MAX_AUTO_CHUNK = 16
+
+
+def _failures(keys: list[str], fut: Future) -> list[dict[str, Any]]:
     exc = fut.exception()
-    return {"key": key, "status": "error", "worker": None, "runtime_s": None,
-            "error": {"type": type(exc).__name__, "message": f"the executor lost the task: {exc}"}}
+    return [{"key": key, "status": "error", "worker": None, "runtime_s": None,
+             "error": {"type": type(exc).__name__, "message": f"the executor lost the task: {exc}"}}
+            for key in keys]
+
+
+def auto_chunk(n_tasks: int, n_workers: int) -> int:
+    """Tasks per submitted chunk: ``n_tasks / (20 n_workers)`` clipped to ``[1, MAX_AUTO_CHUNK]``."""
+    return max(1, min(MAX_AUTO_CHUNK, n_tasks // (20 * max(1, n_workers))))
 
 
 def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | None = None,
               workers: int | None = None, scheduler: str | None = None,
               dask_local: int | None = None, serial: bool = False, retry_failed: bool = False,
-              max_in_flight: int | None = None, limit: int | None = None, progress: bool = True,
+              max_in_flight: int | None = None, limit: int | None = None, chunk: int | None = None,
+              progress: bool = True,
               on_record: Callable[[dict[str, Any]], None] | None = None) -> RunSummary:
     """Run the pending tasks of ``spec`` into the folder ``out``.
 
     Executor choice: ``executor`` (any Executor), ``serial``, ``scheduler`` (Dask address),
     ``dask_local`` (LocalCluster size) or, by default, a process pool of ``workers`` (default
     the core count).  ``max_in_flight`` bounds submitted-but-unfinished tasks (default twice the
-    worker count); ``limit`` stops after that many new tasks; ``retry_failed`` reruns failed
-    ones.  ``on_record`` is called with every record written.  Everything is checked (spec,
+    worker count), counted in chunks of ``chunk`` tasks sent together (default
+    :func:`auto_chunk`; 1 for small sweeps); ``limit`` stops after that many new tasks;
+    ``retry_failed`` reruns failed ones.  ``on_record`` is called with every record written.  Everything is checked (spec,
     folder, executor) before the first task is submitted.
     """
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
-    for name, v in (("max_in_flight", max_in_flight), ("limit", limit)):
+    for name, v in (("max_in_flight", max_in_flight), ("limit", limit), ("chunk", chunk)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
             raise SweepError(f"{name} must be an integer >= 1; got {v!r}")
     store = Store.open(out, spec)
@@ -83,8 +97,10 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
                                serial=serial, executor=executor)
         try:
             summary.executor = handle.kind
-            _drive(spec, todo, store, handle, summary, max_in_flight or 2 * handle.n_workers,
-                   progress, on_record)
+            size = chunk or auto_chunk(len(todo), handle.n_workers)
+            chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
+            _drive(spec, chunks, len(todo), store, handle, summary,
+                   max_in_flight or 2 * handle.n_workers, progress, on_record)
         finally:
             if executor is None:
                 handle.close()
@@ -93,14 +109,14 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
         store.close()
 
 
-def _drive(spec: Spec, todo: list[tuple[str, dict[str, Any]]], store: Store, handle: ExecutorHandle,
-           summary: RunSummary, bound: int, progress: bool,
+def _drive(spec: Spec, chunks: list[list[tuple[str, dict[str, Any]]]], n_tasks: int, store: Store,
+           handle: ExecutorHandle, summary: RunSummary, bound: int, progress: bool,
            on_record: Callable[[dict[str, Any]], None] | None) -> None:
     from tqdm import tqdm
 
-    pending = iter(todo)
-    in_flight: dict[Future, str] = {}
-    bar = tqdm(total=len(todo), unit="task", disable=not progress, dynamic_ncols=True,
+    pending = iter(chunks)
+    in_flight: dict[Future, list[str]] = {}
+    bar = tqdm(total=n_tasks, unit="task", disable=not progress, dynamic_ncols=True,
                desc="sweep", file=sys.stderr)
 
     def submit_more() -> None:
@@ -108,26 +124,30 @@ def _drive(spec: Spec, todo: list[tuple[str, dict[str, Any]]], store: Store, han
             nxt = next(pending, None)
             if nxt is None:
                 return
-            key, task = nxt
-            payload = {"key": key, "task": task, "base_dir": spec.base_dir}
-            in_flight[handle.executor.submit(run_task, payload)] = key
+            payloads = [{"key": key, "task": task, "base_dir": spec.base_dir} for key, task in nxt]
+            in_flight[handle.executor.submit(run_tasks, payloads)] = [key for key, _ in nxt]
 
     try:
         submit_more()
         while in_flight:
             finished, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
+            batch = []
             for fut in [f for f in in_flight if f in finished]:  # in submission order
-                key = in_flight.pop(fut)
-                rec = fut.result() if fut.exception() is None else _failure(key, fut)
-                rec = store.append(rec)
-                summary.ran += 1
-                if rec["status"] == "ok":
-                    summary.ok += 1
-                else:
-                    summary.failed += 1
+                keys = in_flight.pop(fut)
+                recs = fut.result() if fut.exception() is None else _failures(keys, fut)
+                for rec in recs:
+                    rec = store.append(rec, sync=False)
+                    summary.ran += 1
+                    if rec["status"] == "ok":
+                        summary.ok += 1
+                    else:
+                        summary.failed += 1
+                    batch.append(rec)
                 bar.set_postfix(ok=summary.ok, failed=summary.failed, refresh=False)
-                bar.update(1)
-                if on_record is not None:
+                bar.update(len(recs))
+            store.sync()  # one fsync per batch of records that finished together
+            if on_record is not None:
+                for rec in batch:
                     on_record(rec)
             submit_more()
     finally:

@@ -137,8 +137,11 @@ class Store:
                 if r["status"] == "ok" or (r["status"] == "error" and not retry_failed)}
 
     # ------------------------------------------------------------------ writing
-    def append(self, rec: dict[str, Any]) -> dict[str, Any]:
-        """Write a task record (and first its result file, if it carries one); fsync."""
+    def append(self, rec: dict[str, Any], sync: bool = True) -> dict[str, Any]:
+        """Write a task record (and first its result file, if it carries one); fsync unless
+        ``sync=False`` (the driver then calls :meth:`sync` once for the records that finished
+        together: a crash can only tear lines written after the last sync, and those tasks
+        run again)."""
         rec = dict(rec)
         blob = rec.pop("result_npz", None)
         if blob is not None:
@@ -157,9 +160,14 @@ class Store:
         while data:
             n = os.write(self._fd, data)
             data = data[n:]
-        os.fsync(self._fd)
+        if sync:
+            self.sync()
         self.log.records[rec["key"]] = rec
         return rec
+
+    def sync(self) -> None:
+        """fsync the log."""
+        os.fsync(self._fd)
 
     def close(self) -> None:
         for fd in (self._fd, self._lock_fd):

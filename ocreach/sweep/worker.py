@@ -138,6 +138,11 @@ def _result_bytes(result) -> bytes:
         return path.read_bytes()
 
 
+def run_tasks(payloads: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """:func:`run_task` for each payload of a chunk (one round trip for several small tasks)."""
+    return [run_task(p) for p in payloads]
+
+
 def run_task(payload: dict[str, Any]) -> dict[str, Any]:
     """Run one task ``{"key", "task", "base_dir"}``; return its record (never raises for a task
     failure: the error is in the record)."""
