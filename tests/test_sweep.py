@@ -180,6 +180,11 @@ def test_unreachable_scheduler_and_foreign_folder_fail_before_work(tmp_path, mon
     other = {**SPEC, "product": {"options.seed": [7]}}
     with pytest.raises(SweepError, match="belongs to a different spec"):
         run_sweep(spec_from_dict(other), tmp_path / "o", serial=True, progress=False)
+    from ocreach.sweep.store import Store
+
+    with Store.open(tmp_path / "o", spec_from_dict(SPEC)):  # a second driver on the same folder
+        with pytest.raises(SweepError, match="another sweep driver"):
+            run_sweep(spec_from_dict(SPEC), tmp_path / "o", serial=True, progress=False)
     (tmp_path / "junk").mkdir()
     (tmp_path / "junk" / "x.txt").write_text("x")
     with pytest.raises(SweepError, match="not a sweep folder"):
@@ -268,3 +273,19 @@ def test_example_specs_validate_and_custody_fails_clearly(tmp_path):
     s = run_sweep(custody, tmp_path / "c", serial=True, limit=2, progress=False)
     assert s.failed == 2
     assert status(tmp_path / "c")["errors"][0]["message"].startswith("custody not available")
+
+
+def test_a_dying_worker_is_recorded_and_the_run_stops_clearly(tmp_path):
+    (tmp_path / "die.py").write_text(
+        "import os\nfrom ocreach.problem import get_problem\n\n"
+        "def problem(die=False):\n    if die:\n        os._exit(3)\n    return get_problem('vdp')\n")
+    data = {"base": {"problem": "die.py", "method": "mc", "options": {"samples": 2}},
+            "tasks": [{}, {"overrides": {"die": True}}, {"options": {"seed": 5}}]}
+    spec = spec_from_dict(data, base_dir=tmp_path)
+    with pytest.raises(SweepError, match="broke"):
+        run_sweep(spec, tmp_path / "o", workers=1, chunk=1, max_in_flight=1, progress=False)
+    st = status(tmp_path / "o")
+    assert (st["ok"], st["failed"], st["pending"]) == (1, 1, 1)
+    assert "lost the task" in st["errors"][0]["message"]
+    again = run_sweep(spec, tmp_path / "o", serial=True, progress=False)
+    assert (again.ran, again.ok) == (1, 1)

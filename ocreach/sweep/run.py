@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -125,7 +125,12 @@ def _drive(spec: Spec, chunks: list[list[tuple[str, dict[str, Any]]]], n_tasks: 
             if nxt is None:
                 return
             payloads = [{"key": key, "task": task, "base_dir": spec.base_dir} for key, task in nxt]
-            in_flight[handle.executor.submit(run_tasks, payloads)] = [key for key, _ in nxt]
+            try:
+                fut = handle.executor.submit(run_tasks, payloads)
+            except BrokenExecutor as exc:
+                raise SweepError(f"the executor ({handle.kind}) broke, e.g. a worker process died "
+                                 f"({exc}); the finished records are kept, re-run to continue") from None
+            in_flight[fut] = [key for key, _ in nxt]
 
     try:
         submit_more()
