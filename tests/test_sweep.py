@@ -5,6 +5,7 @@ Tasks are tiny (Monte Carlo with 4 samples on Van der Pol) so the whole file sta
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import json
 import os
 from pathlib import Path
@@ -236,6 +237,13 @@ def test_cli_run_status_collect_and_result_files(tmp_path, capsys):
     assert main(["sweep", "collect", str(out)]) == 0
     rows = (out / "table.csv").read_text().splitlines()
     assert len(rows) == 2 and "out.x1_max" in rows[0]
+    if importlib.util.find_spec("pyarrow") is None:
+        with pytest.raises(SweepError, match="needs pyarrow"):
+            write_table(out, "csv,parquet")
+    else:
+        assert [p.name for p in write_table(out, "csv,parquet")] == ["table.csv", "table.parquet"]
+    with pytest.raises(SweepError, match="--format"):
+        write_table(out, "xlsx")
     rec = json.loads((out / LOG).read_text())
     res = load(out / rec["result_file"])
     assert np.max(res.points[-1][:, 0]) == pytest.approx(rec["outputs"]["x1_max"])
@@ -257,8 +265,6 @@ def test_meb_fallback_brackets_the_true_ball():
 
 
 def test_example_specs_validate_and_custody_fails_clearly(tmp_path):
-    import importlib.util
-
     small = load_spec(ROOT / "examples" / "sweep_small.json")
     assert 15 <= len(small) <= 30
     assert len(load_spec(ROOT / "examples" / "sweep_thrust.json")) == 14
