@@ -83,8 +83,13 @@ def single_thread_env() -> Iterator[None]:
 
 
 def _worker_init() -> None:
+    """Pool worker start: one BLAS thread; ignore Ctrl-C (the driver handles it, cancels what has
+    not started and lets running tasks finish, so no task is recorded as failed by an interrupt)."""
+    import signal
+
     from ocreach.sweep.worker import limit_threads
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     limit_threads()
 
 
