@@ -264,6 +264,16 @@ def test_meb_fallback_brackets_the_true_ball():
     assert meb_radius_bounds(tri)["meb_radius"] == pytest.approx(2.0)
 
 
+def test_hull_volume_of_known_sets():
+    from ocreach.sweep.outputs import hull_volume
+
+    cube = np.array([[i, j, k] for i in (0, 2) for j in (0, 1) for k in (0, 3)], dtype=float)
+    inner = np.random.default_rng(1).uniform([0, 0, 0], [2, 1, 3], (50, 3))
+    assert hull_volume(np.vstack([cube, inner])) == pytest.approx(6.0)
+    assert hull_volume(np.array([[0, 0], [1, 0], [0, 1.0]])) == pytest.approx(0.5)
+    assert hull_volume(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])) == 0.0  # flat
+
+
 def test_example_specs_validate_and_custody_fails_clearly(tmp_path):
     small = load_spec(ROOT / "examples" / "sweep_small.json")
     assert 15 <= len(small) <= 30
@@ -295,3 +305,24 @@ def test_a_dying_worker_is_recorded_and_the_run_stops_clearly(tmp_path):
     assert "lost the task" in st["errors"][0]["message"]
     again = run_sweep(spec, tmp_path / "o", serial=True, progress=False)
     assert (again.ran, again.ok) == (1, 1)
+
+
+def test_extents_match_the_free_space_reach_of_the_thrust():
+    """Independent truth for the override pipeline (state in m and m/s, thrust in N, horizon in
+    hours): far from both primaries and over 6 h the CR3BP is nearly free space, where the reach
+    along an axis is +-a t^2 / 2 (width a t^2) with a = T_max / m."""
+    from ocreach.problem import get_problem
+    from ocreach.sweep.worker import run_task
+
+    T, m, t = 2e-3, 14.0, 6 * 3600.0
+    data = {"base": {"problem": "dro", "method": "ffoe", "options": {"samples": 8},
+                     "overrides": {"thrust": T, "mass": m}, "horizon": {"value": 6, "unit": "h"},
+                     "state": {"names": ["x", "y", "vx", "vy"], "values": [1.9e8, 3.3e8, 5.0, -3.0],
+                               "units": ["m", "m", "m/s", "m/s"]}},
+            "tasks": [{}]}
+    spec = spec_from_dict(data)
+    rec = run_task({"key": spec.keys[0], "task": spec.tasks[0], "base_dir": "."})
+    assert rec["status"] == "ok", rec.get("error")
+    L = get_problem("dro").units.length
+    for axis in ("x", "y"):
+        assert rec["outputs"][f"extent_{axis}"] * L == pytest.approx(T / m * t**2, rel=0.02)
