@@ -69,11 +69,11 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
 
     Executor choice: ``executor`` (any Executor), ``serial``, ``scheduler`` (Dask address),
     ``dask_local`` (LocalCluster size) or, by default, a process pool of ``workers`` (default
-    the core count).  ``max_in_flight`` bounds submitted-but-unfinished tasks (default twice the
-    worker count), counted in chunks of ``chunk`` tasks sent together (default
-    :func:`auto_chunk`; 1 for small sweeps); ``limit`` stops after that many new tasks;
-    ``retry_failed`` reruns failed ones.  ``on_record`` is called with every record written.  Everything is checked (spec,
-    folder, executor) before the first task is submitted.
+    the core count).  Tasks go out in chunks of ``chunk`` (default :func:`auto_chunk`; 1 for
+    small sweeps) and at most ``max_in_flight`` chunks are submitted and unfinished (default
+    twice the worker count); ``limit`` stops after that many new tasks; ``retry_failed`` reruns
+    failed ones; ``on_record`` is called with every record written.  Spec, folder and executor
+    are all checked before the first task is submitted.
     """
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
