@@ -69,6 +69,12 @@ def test_process_pool_and_dask_give_the_same_table(serial_table, tmp_path, monke
     with ex_mod.dask_local(1, processes=False) as handle:  # in-process LocalCluster
         run_sweep(spec_from_dict(SPEC), tmp_path / "dask0", executor=handle.executor, progress=False)
     assert table(tmp_path / "dask0") == serial_table
+    import distributed
+
+    with distributed.LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+        run_sweep(spec_from_dict(SPEC), tmp_path / "dask_addr", scheduler=cluster.scheduler_address,
+                  progress=False)  # the --scheduler ADDRESS path
+    assert table(tmp_path / "dask_addr") == serial_table
 
 
 def test_resume_after_limit_and_interrupt_runs_only_the_rest(serial_table, tmp_path):

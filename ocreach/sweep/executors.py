@@ -122,6 +122,12 @@ def dask_client(address: str, timeout: float = CONNECT_TIMEOUT_S) -> ExecutorHan
     except (OSError, TimeoutError) as exc:
         raise SweepError(f"cannot reach the Dask scheduler at {address!r} within {timeout:g} s "
                          f"({type(exc).__name__}: {exc}); is `dask scheduler` running there?") from None
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except (OSError, TimeoutError):
+        client.close()
+        raise SweepError(f"the Dask scheduler at {address!r} has no workers (waited {timeout:g} s); "
+                         "start some with `dask worker ADDRESS --nthreads 1`") from None
     n = max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values()))
     return ExecutorHandle(client.get_executor(pure=False), n, f"Dask scheduler {address} ({n} threads)",
                           [client.close])
