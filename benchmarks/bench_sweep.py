@@ -212,7 +212,7 @@ def markdown(cat, ov, t_recs, est, objects, share) -> str:
         "## Sweep",
         "",
         "`python benchmarks/bench_sweep.py` (issue #15; one run, measured while the 2-core machine "
-        "was shared with the other developers' jobs (load average 6-10 on 2 cores), so wall clocks "
+        "was shared with the other developers' jobs (load average 6-14 on 2 cores), so wall clocks "
         "are noisy).  Serial and pool runs alternate over slices of the catalog so that load "
         "changes hit both alike.",
         "",
@@ -256,17 +256,22 @@ def markdown(cat, ov, t_recs, est, objects, share) -> str:
         "**Why the speed-up depends on the session.**  The kernel here shares CPU time between "
         "sessions (`sched_autogroup_enabled = 1`), not between processes, and seven other "
         "developers' sessions keep both cores busy: a driver and its two workers in one session "
-        "get one session's share, so each task runs about twice as long when two run at once "
-        "(task-time ratio above) and the pool cannot beat serial by much.  The busy-workers row "
-        "shows the engine keeps both workers fed; the CPU-bound loop row shows the machine, not "
-        "the engine, sets the cap.  With the workers in their own sessions (a `ProcessPoolExecutor` "
-        "whose initializer calls `os.setsid()`, passed as `run_sweep(executor=...)`) they compete "
-        "like separate jobs, as on a dedicated machine or a cluster.  `ocreach sweep` keeps its "
-        "workers in the caller's session (Ctrl-C and job control reach them; no unfair share on a "
-        "shared machine).",
+        f"get one session's share, so each task runs {cat['pool']['inflation']:.2f}x as long as "
+        "in the serial run (task-time ratio above) and the default pool cannot beat serial by "
+        "much.  The busy-workers row shows the engine keeps both workers fed; the CPU-bound loop "
+        "row shows the machine, not the engine, sets the cap.  With the workers in their own "
+        "sessions (a `ProcessPoolExecutor` whose initializer calls `os.setsid()`, passed as "
+        "`run_sweep(executor=...)`) they compete like separate jobs; that row overstates a "
+        "dedicated machine (its tasks ran faster than the serial ones, which shared the driver's "
+        "session), where the expected speed-up is about busy pool / busy serial = "
+        f"{cat['pool']['busy'] / cat['busy_serial']:.2f}x less the start-up.  `ocreach sweep` keeps "
+        "its workers in the caller's session (Ctrl-C and job control reach them; no unfair share "
+        "on a shared machine).  The >= 1.8x target is therefore met only with own-session "
+        "workers here; it is not demonstrated for the default pool on this shared machine.",
         "",
         "**Estimate, 10^4 objects x 3 thrust levels x 5 horizons (1, 2, 3, 5, 7 d) on a 64-core "
-        "Dask cluster** (paper arithmetic from the numbers above, not a measurement): "
+        "Dask cluster** (paper arithmetic from the numbers above, not a measurement; the task times come from "
+        "this loaded machine, so they are pessimistic for dedicated cores): "
         f"{est['tasks']:,} tasks x ({1e3 * est['t_task']:.0f} ms mean ffoe task + "
         f"{1e3 * max(ov[('dask', 16)]['per_task'], 0):.1f} ms Dask overhead at chunk 16) = {est['cpu_h']:.1f} core-hours; "
         f"at the measured worker utilisation {est['eff']:.2f} (busy pool workers above) that is {est['wall_workers'] / 60:.1f} min "

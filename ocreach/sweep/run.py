@@ -19,7 +19,7 @@ from typing import Any
 from ocreach.sweep.errors import SweepError
 from ocreach.sweep.executors import ExecutorHandle, make_executor
 from ocreach.sweep.spec import Spec, load_spec
-from ocreach.sweep.store import Store
+from ocreach.sweep.store import LOG, Store, finished_keys, read_log
 from ocreach.sweep.worker import run_tasks
 
 
@@ -65,7 +65,7 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
               max_in_flight: int | None = None, limit: int | None = None, chunk: int | None = None,
               progress: bool = True,
               on_record: Callable[[dict[str, Any]], None] | None = None) -> RunSummary:
-    """Run the pending tasks of ``spec`` into the folder ``out``.
+    """Run the pending tasks of ``spec`` into the folder ``out`` (created when new).
 
     Executor choice: ``executor`` (any Executor), ``serial``, ``scheduler`` (Dask address),
     ``dask_local`` (LocalCluster size) or, by default, a process pool of ``workers`` (default
@@ -73,40 +73,42 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
     small sweeps) and at most ``max_in_flight`` chunks are submitted and unfinished (default
     twice the worker count); ``limit`` stops after that many new tasks; ``retry_failed`` reruns
     failed ones; ``on_record`` is called with every record written.  Spec, folder and executor
-    are all checked before the first task is submitted.
+    are all checked before the first task is submitted (the folder first: a foreign folder or
+    an unreachable scheduler leaves nothing behind).
     """
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
     for name, v in (("max_in_flight", max_in_flight), ("limit", limit), ("chunk", chunk)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
             raise SweepError(f"{name} must be an integer >= 1; got {v!r}")
-    store = Store.open(out, spec)
-    try:
-        summary = RunSummary(total=len(spec), skipped=0, notes=list(store.log.notes), out=str(out))
-        done = store.finished(retry_failed)
-        todo = [(k, t) for k, t in zip(spec.keys, spec.tasks) if k not in done]
-        summary.skipped = len(spec) - len(todo)
-        if limit is not None:
-            todo = todo[:limit]
-        for note in summary.notes:
+    Store.check(out, spec)  # a foreign folder fails before an executor is started
+    previous = read_log(Path(out) / LOG)
+    if all(k in finished_keys(previous.records, retry_failed) for k in spec.keys):
+        for note in previous.notes:
             print(f"note: {note}", file=sys.stderr)
-        if not todo:
-            summary.executor = "nothing to run"
-            return summary
-        handle = make_executor(workers, scheduler=scheduler, dask_local_workers=dask_local,
-                               serial=serial, executor=executor)
-        try:
-            summary.executor = handle.kind
+        return RunSummary(total=len(spec), skipped=len(spec), notes=previous.notes,
+                          executor="nothing to run", out=str(out))
+    handle = make_executor(workers, scheduler=scheduler, dask_local_workers=dask_local,
+                           serial=serial, executor=executor)
+    try:
+        with Store.open(out, spec) as store:
+            summary = RunSummary(total=len(spec), skipped=0, notes=list(store.log.notes),
+                                 out=str(out), executor=handle.kind)
+            done = store.finished(retry_failed)
+            todo = [(k, t) for k, t in zip(spec.keys, spec.tasks) if k not in done]
+            summary.skipped = len(spec) - len(todo)
+            if limit is not None:
+                todo = todo[:limit]
+            for note in summary.notes:
+                print(f"note: {note}", file=sys.stderr)
             size = chunk or auto_chunk(len(todo), handle.n_workers)
             chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
             _drive(spec, chunks, len(todo), store, handle, summary,
                    max_in_flight or 2 * handle.n_workers, progress, on_record)
-        finally:
-            if executor is None:
-                handle.close()
-        return summary
+            return summary
     finally:
-        store.close()
+        if executor is None:
+            handle.close()
 
 
 def _drive(spec: Spec, chunks: list[list[tuple[str, dict[str, Any]]]], n_tasks: int, store: Store,

@@ -77,6 +77,11 @@ def read_log(path: Path) -> LogContents:
     return out
 
 
+def finished_keys(records: dict[str, dict[str, Any]], retry_failed: bool = False) -> set[str]:
+    """Keys not to run again: ok tasks, and failed ones unless ``retry_failed``."""
+    return {k for k, r in records.items() if r["status"] == "ok" or not retry_failed}
+
+
 def read_meta(out: str | Path) -> dict[str, Any]:
     path = Path(out) / META
     if not path.is_file():
@@ -96,9 +101,10 @@ class Store:
         self._fd = os.open(out / LOG, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o666)
 
     # ------------------------------------------------------------------ opening
-    @classmethod
-    def open(cls, out: str | Path, spec) -> Store:
-        """Create ``out`` for ``spec`` or reopen it (same spec and versions), locked, log repaired."""
+    @staticmethod
+    def check(out: str | Path, spec) -> dict[str, Any] | None:
+        """Refuse ``out`` if it is not new, empty, or a folder of this spec and these versions
+        (writes nothing); return its ``sweep.json`` contents if it has one."""
         out = Path(out)
         vers = spec.package_versions or current_versions()
         if (out / META).is_file():
@@ -111,13 +117,22 @@ class Store:
                 raise SweepError(f"{str(out)!r} was written with versions {meta.get('versions')}; "
                                  f"this run has {vers}; results would not be comparable "
                                  "(use another --out)")
-        elif out.exists() and (not out.is_dir() or any(out.iterdir())):
+            return meta
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
             raise SweepError(f"{str(out)!r} exists and is not a sweep folder (no {META}); "
                              "give a new or empty --out")
-        else:
+        return None
+
+    @classmethod
+    def open(cls, out: str | Path, spec) -> Store:
+        """Create ``out`` for ``spec`` or reopen it (same spec and versions), locked, log repaired."""
+        out = Path(out)
+        meta = cls.check(out, spec)
+        if meta is None:
             out.mkdir(parents=True, exist_ok=True)
             meta = {"format": FORMAT, "name": spec.name, "spec_path": spec.path,
-                    "base_dir": spec.base_dir, "spec_hash": spec.spec_hash, "versions": vers,
+                    "base_dir": spec.base_dir, "spec_hash": spec.spec_hash,
+                    "versions": spec.package_versions or current_versions(),
                     "created": now(), "spec": spec.raw,
                     "tasks": [{"key": k, **t} for k, t in zip(spec.keys, spec.tasks)]}
             atomic_write_text(out / META, json.dumps(meta, indent=1, allow_nan=False))
@@ -132,9 +147,8 @@ class Store:
 
     # ------------------------------------------------------------------ queries
     def finished(self, retry_failed: bool = False) -> set[str]:
-        """Keys not to run again: ok tasks, and failed ones unless ``retry_failed``."""
-        return {k for k, r in self.log.records.items()
-                if r["status"] == "ok" or (r["status"] == "error" and not retry_failed)}
+        """Keys not to run again (:func:`finished_keys` of the log)."""
+        return finished_keys(self.log.records, retry_failed)
 
     # ------------------------------------------------------------------ writing
     def append(self, rec: dict[str, Any], sync: bool = True) -> dict[str, Any]:
