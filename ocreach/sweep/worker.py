@@ -10,6 +10,7 @@ and horizon overrides are applied to a copy.  A task that raises becomes an ``"e
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import socket
 import tempfile
@@ -17,7 +18,7 @@ import threading
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,7 +26,12 @@ from ocreach.sweep.catalog import UNITS
 from ocreach.sweep.errors import SweepError
 from ocreach.sweep.keys import canonical_json
 
+if TYPE_CHECKING:
+    from ocreach.problem import Problem
+
+#: problems built in this process, oldest first (at most MAX_PROBLEMS are kept)
 _PROBLEMS: dict[str, Any] = {}
+MAX_PROBLEMS = 128
 _THREADS_LIMITED = False
 #: tasks in one process run one at a time (a threaded executor, e.g. a Dask worker with several
 #: threads, would otherwise share the problem cache and CasADi objects between threads)
@@ -51,7 +57,7 @@ def limit_threads() -> None:
     threadpool_limits(1)
 
 
-def base_problem(task: dict[str, Any], base_dir: str):
+def base_problem(task: dict[str, Any], base_dir: str) -> Problem:
     """The task's problem before state/horizon overrides, cached per process."""
     from ocreach.problem import get_problem, load_problem_file
     from ocreach.sweep.spec import split_problem_ref
@@ -61,8 +67,6 @@ def base_problem(task: dict[str, Any], base_dir: str):
     if cache_key in _PROBLEMS:
         return _PROBLEMS[cache_key]
     if task["problem_sha256"] is not None:
-        import hashlib
-
         path, pid = split_problem_ref(ref)
         full = Path(base_dir) / path
         if hashlib.sha256(full.read_bytes()).hexdigest() != task["problem_sha256"]:
@@ -72,10 +76,12 @@ def base_problem(task: dict[str, Any], base_dir: str):
     else:
         prob = get_problem(ref, **task["overrides"])
     _PROBLEMS[cache_key] = prob
+    while len(_PROBLEMS) > MAX_PROBLEMS:
+        del _PROBLEMS[next(iter(_PROBLEMS))]
     return prob
 
 
-def _state(problem, state: dict[str, Any]) -> np.ndarray:
+def _state(problem: Problem, state: dict[str, Any]) -> np.ndarray:
     names = list(problem.model.state_names)
     values = np.asarray(state["values"], dtype=float)
     if state["names"] is None:
@@ -103,7 +109,7 @@ def _state(problem, state: dict[str, Any]) -> np.ndarray:
     return x0
 
 
-def _grid(problem, horizon: dict[str, Any]) -> np.ndarray:
+def _grid(problem: Problem, horizon: dict[str, Any]) -> np.ndarray:
     from ocreach.sweep.spec import HORIZON_UNITS
 
     factor = HORIZON_UNITS[horizon["unit"]]
@@ -117,7 +123,7 @@ def _grid(problem, horizon: dict[str, Any]) -> np.ndarray:
     return g[0] + np.sign(step) * np.linspace(0.0, H, n + 1)
 
 
-def build_problem(task: dict[str, Any], base_dir: str):
+def build_problem(task: dict[str, Any], base_dir: str) -> Problem:
     """The task's :class:`~ocreach.problem.Problem` with its state and horizon overrides."""
     prob = base_problem(task, base_dir)
     changes: dict[str, Any] = {}
