@@ -249,14 +249,17 @@ def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
     if not isinstance(ref, str) or not ref:
         raise SweepError(f"{where}: 'problem' must be a problem id or a .py file; got {ref!r}")
     if ref.endswith(".py") or ".py:" in ref:
+        if "\0file " + ref in files:
+            return None, files["\0file " + ref]
         path, _pid = split_problem_ref(ref)
         full = (base / path).resolve()
-        if str(full) not in files:
-            if not full.is_file():
-                raise SweepError(f"{where}: problem file {path!r} does not exist (looked in {full})")
-            files[str(full)] = hashlib.sha256(full.read_bytes()).hexdigest()
-        return None, files[str(full)]
-    reg = _registry()
+        if not full.is_file():
+            raise SweepError(f"{where}: problem file {path!r} does not exist (looked in {full})")
+        files["\0file " + ref] = hashlib.sha256(full.read_bytes()).hexdigest()
+        return None, files["\0file " + ref]
+    if "\0registry" not in files:
+        files["\0registry"] = _registry()  # type: ignore[assignment]
+    reg = files["\0registry"]
     if ref not in reg:
         raise SweepError(f"{where}: unknown problem {ref!r}; available: {sorted(reg)} or a .py file")
     return reg[ref], None
@@ -362,8 +365,11 @@ def _normalize_keep(keep: dict[str, Any], where: str) -> dict[str, Any]:
     return out
 
 
-def normalize_task(task: dict[str, Any], i: int, base: Path, files: dict[str, str]) -> dict[str, Any]:
-    """The canonical plain-data form of a merged task (every field present), validated."""
+def normalize_task(task: dict[str, Any], i: int, base: Path, files: dict[str, Any]) -> dict[str, Any]:
+    """The canonical plain-data form of a merged task (every field present), validated.
+
+    ``files`` caches work shared by the tasks of one spec (problem-file hashes, the problem
+    registry, method/option checks already passed)."""
     where = _where(i, task)
     _check_keys(task, TASK_KEYS, where)
     for req in ("problem", "method"):
@@ -374,7 +380,11 @@ def normalize_task(task: dict[str, Any], i: int, base: Path, files: dict[str, st
     overrides = dict(task.get("overrides") or {})
     options = dict(task.get("options") or {})
     _check_overrides(factory, overrides, ref, where)
-    _check_method(task["method"], options, where)
+    checked = "\0method " + canonical_json([task["method"], options]) if _plain(options) else None
+    if checked is None or checked not in files:
+        _check_method(task["method"], options, where)
+        if checked is not None:
+            files[checked] = ""
     tags = dict(task.get("tags") or {})
     for k, v in tags.items():
         if not isinstance(v, (str, int, float, bool)) or isinstance(v, float) and not math.isfinite(v):
@@ -395,6 +405,14 @@ def normalize_task(task: dict[str, Any], i: int, base: Path, files: dict[str, st
     except (TypeError, ValueError) as exc:
         raise SweepError(f"{where}: the task is not plain JSON data ({exc})") from None
     return out
+
+
+def _plain(obj: Any) -> bool:
+    try:
+        canonical_json(obj)
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _check_unique(spec: Spec) -> None:
