@@ -53,7 +53,7 @@ def test_serial_table_content(serial_table):
     assert [r["out.t_final"] for r in rows] == pytest.approx([1.0, 2.0] * 3)
     for r in rows:  # independent check of the recorded post-processing: the support values
         assert r["out.support_0"] == r["out.x1_max"]  # direction e_1 equals the extent's max
-        assert r["out.meb_radius_lower"] <= r["out.meb_radius"]
+        assert r.get("out.meb_radius_lower", 0.0) <= r["out.meb_radius"]
 
 
 def test_process_pool_and_dask_give_the_same_table(serial_table, tmp_path, monkeypatch):
@@ -269,6 +269,18 @@ def test_meb_fallback_brackets_the_true_ball():
     assert b["meb_radius"] <= 2.0 * 1.1 and b["meb_radius_lower"] >= 2.0 * 0.95
     tri = np.array([[0.0, 0.0], [4.0, 0.0], [2.0, 0.1]])  # obtuse: MEB on the long side, r = 2
     assert meb_radius_bounds(tri)["meb_radius"] == pytest.approx(2.0)
+
+
+def test_meb_uses_the_exact_routine_when_geometry_has_one(monkeypatch):
+    from types import SimpleNamespace
+
+    import ocreach.geometry
+    from ocreach.sweep.outputs import meb_radius
+
+    monkeypatch.setattr(ocreach.geometry, "minimum_enclosing_ball",
+                        lambda pts: SimpleNamespace(radius=0.5 * np.ptp(pts[:, 0])), raising=False)
+    out = meb_radius(np.array([[0.0, 0.0], [3.0, 0.0]]))
+    assert out == {"meb_radius": 1.5, "meb_method": "exact (ocreach.geometry)"}
 
 
 def test_hull_volume_of_known_sets():
