@@ -244,7 +244,7 @@ def split_problem_ref(ref: str) -> tuple[str, str | None]:
 
 def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
     """``(factory or None, sha256 of the file or None)``; unknown ids and missing files raise."""
-    from ocreach.problem import _registry
+    from ocreach.problem import problem_factories
 
     if not isinstance(ref, str) or not ref:
         raise SweepError(f"{where}: 'problem' must be a problem id or a .py file; got {ref!r}")
@@ -258,7 +258,7 @@ def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
         files["\0file " + ref] = hashlib.sha256(full.read_bytes()).hexdigest()
         return None, files["\0file " + ref]
     if "\0registry" not in files:
-        files["\0registry"] = _registry()  # type: ignore[assignment]
+        files["\0registry"] = problem_factories()  # type: ignore[assignment]
     reg = files["\0registry"]
     if ref not in reg:
         raise SweepError(f"{where}: unknown problem {ref!r}; available: {sorted(reg)} or a .py file")
