@@ -112,8 +112,11 @@ def _dask():
     return distributed
 
 
-def dask_client(address: str, timeout: float = CONNECT_TIMEOUT_S) -> ExecutorHandle:
-    """Connect to the Dask scheduler at ``address`` (``tcp://HOST:PORT``)."""
+def dask_client(address: str, timeout: float | None = None) -> ExecutorHandle:
+    """Connect to the Dask scheduler at ``address`` (``tcp://HOST:PORT``) within ``timeout``
+    seconds (default :data:`CONNECT_TIMEOUT_S`, read at call time)."""
+    if timeout is None:
+        timeout = CONNECT_TIMEOUT_S
     if not isinstance(address, str) or "://" not in address:
         raise SweepError(f"--scheduler must be an address like tcp://HOST:PORT; got {address!r}")
     distributed = _dask()
