@@ -193,6 +193,10 @@ def test_unreachable_scheduler_and_foreign_folder_fail_before_work(tmp_path, mon
     with Store.open(tmp_path / "o", spec_from_dict(SPEC)):  # a second driver on the same folder
         with pytest.raises(SweepError, match="another sweep driver"):
             run_sweep(spec_from_dict(SPEC), tmp_path / "o", serial=True, progress=False)
+    (tmp_path / "new").mkdir()  # a driver killed after taking the lock, before sweep.json
+    (tmp_path / "new" / ".sweep.lock").write_text("")
+    assert run_sweep(spec_from_dict(SPEC), tmp_path / "new", serial=True, limit=1,
+                     progress=False).ok == 1
     (tmp_path / "junk").mkdir()
     (tmp_path / "junk" / "x.txt").write_text("x")
     with pytest.raises(SweepError, match="not a sweep folder"):

@@ -118,7 +118,7 @@ class Store:
                                  f"this run has {vers}; results would not be comparable "
                                  "(use another --out)")
             return meta
-        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        if out.exists() and (not out.is_dir() or any(p.name != LOCK for p in out.iterdir())):
             raise SweepError(f"{str(out)!r} exists and is not a sweep folder (no {META}); "
                              "give a new or empty --out")
         return None
@@ -127,23 +127,28 @@ class Store:
     def open(cls, out: str | Path, spec) -> Store:
         """Create ``out`` for ``spec`` or reopen it (same spec and versions), locked, log repaired."""
         out = Path(out)
-        meta = cls.check(out, spec)
-        if meta is None:
-            out.mkdir(parents=True, exist_ok=True)
-            meta = {"format": FORMAT, "name": spec.name, "spec_path": spec.path,
-                    "base_dir": spec.base_dir, "spec_hash": spec.spec_hash,
-                    "versions": spec.package_versions or current_versions(),
-                    "created": now(), "spec": spec.raw,
-                    "tasks": [{"key": k, **t} for k, t in zip(spec.keys, spec.tasks)]}
-            atomic_write_text(out / META, json.dumps(meta, indent=1, allow_nan=False))
+        cls.check(out, spec)  # refuse a foreign folder before creating anything
+        out.mkdir(parents=True, exist_ok=True)
         lock_fd = _lock(out)
-        log = read_log(out / LOG)
-        if log.torn_tail:
-            with open(out / LOG, "r+b") as fh:
-                fh.truncate(log.good_bytes)
-                fh.flush()
-                os.fsync(fh.fileno())
-        return cls(out, meta, log, lock_fd)
+        try:  # under the lock: check again (another driver may have written sweep.json meanwhile)
+            meta = cls.check(out, spec)
+            if meta is None:
+                meta = {"format": FORMAT, "name": spec.name, "spec_path": spec.path,
+                        "base_dir": spec.base_dir, "spec_hash": spec.spec_hash,
+                        "versions": spec.package_versions or current_versions(),
+                        "created": now(), "spec": spec.raw,
+                        "tasks": [{"key": k, **t} for k, t in zip(spec.keys, spec.tasks)]}
+                atomic_write_text(out / META, json.dumps(meta, indent=1, allow_nan=False))
+            log = read_log(out / LOG)
+            if log.torn_tail:
+                with open(out / LOG, "r+b") as fh:
+                    fh.truncate(log.good_bytes)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+            return cls(out, meta, log, lock_fd)
+        except BaseException:
+            os.close(lock_fd)
+            raise
 
     # ------------------------------------------------------------------ queries
     def finished(self, retry_failed: bool = False) -> set[str]:
@@ -160,7 +165,7 @@ class Store:
         blob = rec.pop("result_npz", None)
         if blob is not None:
             rel = f"{RESULTS}/{rec['key']}.npz"
-            atomic_write_bytes(self.out / rel, blob)
+            _fsync_file(atomic_write_bytes(self.out / rel, blob))  # on disk before its record
             rec["result_file"] = rel
         rec["finished"] = now()
         try:
@@ -195,6 +200,14 @@ class Store:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def _lock(out: Path) -> int:
