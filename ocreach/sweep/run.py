@@ -50,7 +50,9 @@ MAX_AUTO_CHUNK = 16
 def _failures(keys: list[str], fut: Future) -> list[dict[str, Any]]:
     exc = fut.exception()
     return [{"key": key, "status": "error", "worker": None, "runtime_s": None,
-             "error": {"type": type(exc).__name__, "message": f"the executor lost the task: {exc}"}}
+             "error": {"type": type(exc).__name__,
+                       "message": f"the executor lost the task: {exc} (when a worker dies, every "
+                                  "task in flight is recorded so; --retry-failed runs them again)"}}
             for key in keys]
 
 
