@@ -21,6 +21,8 @@ from ocreach.interrupt import restore as restore_interrupt_handler
 
 #: Modules that add commands: each has ``register(subparsers) -> None``.  One line per module.
 COMMAND_MODULES: list[str] = [
+    "ocreach.custody_cli",
+    "ocreach.sweep.cli",
 ]
 
 #: Optional peers of each benchmark (``bench_NAME.py``): [(import name, pip name)].
@@ -408,9 +410,6 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--controllers", help="station-keeping: e.g. event-mpc,tube-mpc,mpc,lqr")
     rp.add_argument("--revolutions", type=float, help="station-keeping: revolutions (default 10)")
     rp.set_defaults(func=cmd_report)
-
-    from ocreach.custody_cli import register as register_custody
-    register_custody(sub)
 
     b = sub.add_parser("bench", help="run the benchmarks in benchmarks/")
     b.add_argument("--only", help="comma-separated substrings of benchmark names")

@@ -308,6 +308,11 @@ def _registry() -> dict[str, Callable[..., Problem]]:
     return found
 
 
+def problem_factories() -> dict[str, Callable[..., Problem]]:
+    """``{id: factory}`` of every bundled problem (one scan of ``ocreach.problems``)."""
+    return _registry()
+
+
 def list_problems() -> dict[str, str]:
     """``{id: one-line description}`` of every bundled problem."""
     out = {}

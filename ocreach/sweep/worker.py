@@ -1,0 +1,181 @@
+"""What runs on a worker: build the task's problem (cached per process), solve, post-process.
+
+Tasks arrive as plain data (:func:`ocreach.sweep.spec.normalize_task` plus the key); nothing
+CasADi- or ctypes-backed crosses a process boundary.  Each worker process keeps its problems in
+:data:`_PROBLEMS` (keyed by the canonical problem reference and overrides) so the models, their
+cached CasADi Functions and the loaded compiled kernels are built once per process; the state
+and horizon overrides are applied to a copy.  A task that raises becomes an ``"error"`` record
+(type, message, traceback tail): the sweep goes on.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import socket
+import tempfile
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ocreach.sweep.catalog import UNITS
+from ocreach.sweep.errors import SweepError
+from ocreach.sweep.keys import canonical_json
+
+if TYPE_CHECKING:
+    from ocreach.problem import Problem
+
+#: problems built in this process, oldest first (at most MAX_PROBLEMS are kept)
+_PROBLEMS: dict[str, Any] = {}
+MAX_PROBLEMS = 128
+_THREADS_LIMITED = False
+#: tasks in one process run one at a time (a threaded executor, e.g. a Dask worker with several
+#: threads, would otherwise share the problem cache and CasADi objects between threads)
+_TASK_LOCK = threading.Lock()
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+              "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+def limit_threads() -> None:
+    """One BLAS/OpenMP thread in this process (threadpoolctl when installed; once per process).
+
+    The process pool also starts its workers with :data:`THREAD_ENV` set to 1
+    (:mod:`ocreach.sweep.executors`), which covers libraries loaded after this call.
+    """
+    global _THREADS_LIMITED
+    if _THREADS_LIMITED:
+        return
+    _THREADS_LIMITED = True
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return
+    threadpool_limits(1)
+
+
+def base_problem(task: dict[str, Any], base_dir: str) -> Problem:
+    """The task's problem before state/horizon overrides, cached per process."""
+    from ocreach.problem import get_problem, load_problem_file
+    from ocreach.sweep.spec import split_problem_ref
+
+    ref = task["problem"]
+    cache_key = canonical_json([ref, task["problem_sha256"], task["overrides"], base_dir])
+    if cache_key in _PROBLEMS:
+        return _PROBLEMS[cache_key]
+    if task["problem_sha256"] is not None:
+        path, pid = split_problem_ref(ref)
+        full = Path(base_dir) / path
+        if hashlib.sha256(full.read_bytes()).hexdigest() != task["problem_sha256"]:
+            raise SweepError(f"problem file {str(full)!r} changed after the spec was read "
+                             "(its SHA-256 differs); re-run to make new tasks")
+        prob = load_problem_file(full, pid, **task["overrides"])
+    else:
+        prob = get_problem(ref, **task["overrides"])
+    _PROBLEMS[cache_key] = prob
+    while len(_PROBLEMS) > MAX_PROBLEMS:
+        del _PROBLEMS[next(iter(_PROBLEMS))]
+    return prob
+
+
+def _state(problem: Problem, state: dict[str, Any]) -> np.ndarray:
+    names = list(problem.model.state_names)
+    values = np.asarray(state["values"], dtype=float)
+    if state["names"] is None:
+        if values.size != len(names):
+            raise SweepError(f"state has {values.size} values; problem {problem.id!r} has "
+                             f"{len(names)} states {names}")
+        order = list(range(len(names)))
+    else:
+        missing = sorted(set(names) - set(state["names"]))
+        extra = sorted(set(state["names"]) - set(names))
+        if missing or extra or len(set(state["names"])) != len(state["names"]):
+            raise SweepError(f"state names {state['names']} must be exactly the states {names} of "
+                             f"problem {problem.id!r} (missing {missing}, unknown {extra})")
+        order = [names.index(n) for n in state["names"]]
+    u = problem.units
+    scale = {"nd": 1.0} if u is None else {"nd": 1.0, "length": 1.0 / u.length,
+                                            "velocity": 1.0 / u.velocity, "mass": 1.0 / u.mass}
+    x0 = np.empty(len(names))
+    for j, i in enumerate(order):
+        kind, factor = UNITS[state["units"][j]] if state["units"] else ("nd", 1.0)
+        if kind not in scale:
+            raise SweepError(f"state {state['names'][j]!r} is given in {state['units'][j]!r} but "
+                             f"problem {problem.id!r} has no units; give it in 'nd'")
+        x0[i] = values[j] * factor * scale[kind]
+    return x0
+
+
+def _grid(problem: Problem, horizon: dict[str, Any]) -> np.ndarray:
+    from ocreach.sweep.spec import HORIZON_UNITS
+
+    factor = HORIZON_UNITS[horizon["unit"]]
+    if factor is not None and problem.units is None:
+        raise SweepError(f"horizon in {horizon['unit']!r} needs units; problem {problem.id!r} has "
+                         "none (give the horizon in 'TU', the model's time unit)")
+    H = horizon["value"] if factor is None else horizon["value"] * factor / problem.units.time
+    g = problem.grid
+    step = g[1] - g[0]
+    n = max(1, int(round(H / abs(step))))
+    return g[0] + np.sign(step) * np.linspace(0.0, H, n + 1)
+
+
+def build_problem(task: dict[str, Any], base_dir: str) -> Problem:
+    """The task's :class:`~ocreach.problem.Problem` with its state and horizon overrides."""
+    prob = base_problem(task, base_dir)
+    changes: dict[str, Any] = {}
+    if task["state"] is not None:
+        if prob.initial_set is not None or prob.stochastic is not None:
+            raise SweepError(f"problem {prob.id!r} has an initial set / stochastic spec centred on "
+                             "its own x0; a 'state' override would leave it there")
+        changes["x0"] = _state(prob, task["state"])
+    if task["horizon"] is not None:
+        changes["grid"] = _grid(prob, task["horizon"])
+    return dataclasses.replace(prob, **changes) if changes else prob
+
+
+def _result_bytes(result) -> bytes:
+    with tempfile.TemporaryDirectory(prefix="ocreach-sweep-") as tmp:
+        path = Path(tmp) / "result.npz"
+        result.save(path)
+        return path.read_bytes()
+
+
+def run_tasks(payloads: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """:func:`run_task` for each payload of a chunk (one round trip for several small tasks)."""
+    return [run_task(p) for p in payloads]
+
+
+def run_task(payload: dict[str, Any]) -> dict[str, Any]:
+    """Run one task ``{"key", "task", "base_dir"}``; return its record (never raises for a task
+    failure: the error is in the record)."""
+    with _TASK_LOCK:
+        return _run_task(payload)
+
+
+def _run_task(payload: dict[str, Any]) -> dict[str, Any]:
+    from ocreach.reach.base import reach
+    from ocreach.sweep.outputs import compute_outputs, custody_hook
+
+    limit_threads()
+    t0 = time.perf_counter()
+    task = payload["task"]
+    rec: dict[str, Any] = {"key": payload["key"], "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    try:
+        if task["keep"]["custody"] is not None:
+            custody_hook()  # fail before the reach computation when custody is not available
+        problem = build_problem(task, payload["base_dir"])
+        result = reach(problem, task["method"], **task["options"])
+        rec["outputs"] = compute_outputs(result, problem, task["keep"])
+        if task["keep"]["result"]:
+            rec["result_npz"] = _result_bytes(result)
+        rec["status"] = "ok"
+    except Exception as exc:  # noqa: BLE001 - a failing task is recorded, the sweep goes on
+        rec["status"] = "error"
+        rec["error"] = {"type": type(exc).__name__, "message": str(exc),
+                        "traceback": "".join(traceback.format_exc(limit=-4))[-4000:]}
+    rec["runtime_s"] = time.perf_counter() - t0
+    return rec
