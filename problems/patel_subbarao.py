@@ -11,7 +11,7 @@ from functools import cache
 
 import numpy as np
 
-from ocreach.errors import check_positive
+from ocreach.errors import ProblemError, check_positive
 from ocreach.models import cr3bp, twobody
 from ocreach.orbits import PeriodicOrbit, correct_symmetric, nrho_9_2
 from ocreach.problem import Problem, time_grid

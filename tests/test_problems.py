@@ -98,3 +98,9 @@ def test_dro_reference():
     assert 6.0 < ref.period < 6.5
     # problem state itself is still the paper's
     np.testing.assert_array_equal(p.x0, [0.2765, 0, 0, 2.1379])
+
+
+def test_patel_subbarao_initial_set_option_is_checked():
+    with pytest.raises(ProblemError, match="initial_set must be one of"):
+        get_problem("nrho-9-2", initial_set="bogus")
+    assert get_problem("nrho-9-2", initial_set="point").initial_set is None
