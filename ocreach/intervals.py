@@ -262,6 +262,9 @@ def _contains_point(lo, hi, c, period):
 
 
 def _trig(fn, c_max, c_min, alo, ahi):
+    # an argument lying entirely at an infinity (an overflowed value) has no sine or cosine
+    # (floats give NaN): a domain error, not a falsely informative [-1, 1]
+    _require((alo == _INF) | (ahi == -_INF), "sin/cos of an argument that overflowed to +-inf")
     with np.errstate(all="ignore"):
         ya, yb = fn(alo), fn(ahi)
     lo = _ldn(np.minimum(ya, yb))

@@ -635,7 +635,12 @@ def test_model_boxes_contain_sampled_values(seed, r):
     rng = np.random.default_rng(seed)
     c = np.array([0.9, 0.1, 0.05, 0.0, 0.2, 0.0]) + 0.05 * rng.normal(size=6)
     rr = r * rng.uniform(size=6)
-    out = iv.for_model(model).all((c - rr, c + rr), (-np.ones(3), np.ones(3)))
+    try:
+        out = iv.for_model(model).all((c - rr, c + rr), (-np.ones(3), np.ones(3)))
+    except IntervalDomainError:  # only where the box really holds the Moon (a singularity)
+        moon = np.array([1.0 - float(model.p_default[0]), 0.0, 0.0])
+        assert np.all(np.abs(c[:3] - moon) <= rr[:3] * (1 + 1e-9))
+        assume(False)
     xs = c[:, None] + rr[:, None] * rng.uniform(-1, 1, (6, 50))
     us = rng.normal(size=(3, 50))
     us /= np.maximum(1, np.linalg.norm(us, axis=0))
@@ -646,3 +651,11 @@ def test_model_boxes_contain_sampled_values(seed, r):
     fv = np.asarray(model.f_fun.map(50)(xs, us, 0.0, model.p_default))
     assert np.all(out["f"][0] <= fv) and np.all(fv <= out["f"][1])
     assert math.isfinite(float(out["H"][1].max()))
+
+
+def test_sine_of_an_overflowed_argument_is_a_domain_error():
+    # found by hypothesis: sin(sin(x + inf)) is NaN in floats; [-1, 1] would claim a finite value
+    x, y = ca.SX.sym("x"), ca.SX.sym("y")
+    f = IntervalFunction(ca.Function("f", [x, y], [ca.sin(ca.sin(x + np.inf))]))
+    with pytest.raises(IntervalDomainError, match="overflowed"):
+        f([np.zeros(1), np.zeros(1)], [np.zeros(1), np.zeros(1)])
