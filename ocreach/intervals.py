@@ -262,9 +262,10 @@ def _contains_point(lo, hi, c, period):
 
 
 def _trig(fn, c_max, c_min, alo, ahi):
-    # an argument lying entirely at an infinity (an overflowed value) has no sine or cosine
-    # (floats give NaN): a domain error, not a falsely informative [-1, 1]
-    _require((alo == _INF) | (ahi == -_INF), "sin/cos of an argument that overflowed to +-inf")
+    # an argument lying entirely beyond 1e300 is an overflowed value (its lower bound is the
+    # largest float rounded down, its upper inf): floats give NaN for its sine, so this is a
+    # domain error, not a falsely informative [-1, 1]
+    _require((alo > 1e300) | (ahi < -1e300), "sin/cos of an argument beyond 1e300 (overflowed to +-inf)")
     with np.errstate(all="ignore"):
         ya, yb = fn(alo), fn(ahi)
     lo = _ldn(np.minimum(ya, yb))
