@@ -235,11 +235,14 @@ def _finite(value: Any, what: str) -> float:
 
 
 def split_problem_ref(ref: str) -> tuple[str, str | None]:
-    """``"FILE.py:ID"`` -> ``("FILE.py", "ID")``; ``"FILE.py"`` -> ``("FILE.py", None)``."""
-    if ".py:" in ref:
-        path, pid = ref.rsplit(".py:", 1)
-        return path + ".py", pid
-    return ref, None
+    """``"FILE.py:ID"`` -> ``("FILE.py", "ID")``; ``"FILE.py"`` -> ``("FILE.py", None)`` (the
+    problem registry's own rule, :func:`ocreach.problem.split_file_id`)."""
+    from ocreach.problem import split_file_id
+
+    file_spec = split_file_id(ref)
+    if file_spec is None:
+        return ref, None
+    return str(file_spec[0]), file_spec[1]
 
 
 def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
