@@ -17,7 +17,6 @@ from ocreach.sweep import SweepError, collect_table, load_spec, run_sweep, spec_
 from ocreach.sweep import executors as ex_mod
 from ocreach.sweep.collect import RUN_COLUMNS, write_table
 from ocreach.sweep.keys import task_key
-from ocreach.sweep.outputs import meb_radius_bounds
 from ocreach.sweep.store import LOG, META
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -265,29 +264,6 @@ def test_cli_run_status_collect_and_result_files(tmp_path, capsys):
     assert "--out" in capsys.readouterr().err
 
 
-def test_meb_fallback_brackets_the_true_ball():
-    rng = np.random.default_rng(0)
-    g = rng.standard_normal((400, 3))
-    sphere = 2.0 * g / np.linalg.norm(g, axis=1, keepdims=True) + [1.0, -1.0, 0.5]
-    b = meb_radius_bounds(sphere)  # the MEB of points spread over a sphere is that sphere
-    assert b["meb_radius_lower"] <= 2.0 + 1e-12 and b["meb_radius"] >= 2.0 - 1e-12
-    assert b["meb_radius"] <= 2.0 * 1.1 and b["meb_radius_lower"] >= 2.0 * 0.95
-    tri = np.array([[0.0, 0.0], [4.0, 0.0], [2.0, 0.1]])  # obtuse: MEB on the long side, r = 2
-    assert meb_radius_bounds(tri)["meb_radius"] == pytest.approx(2.0)
-
-
-def test_meb_uses_the_exact_routine_when_geometry_has_one(monkeypatch):
-    from types import SimpleNamespace
-
-    import ocreach.geometry
-    from ocreach.sweep.outputs import meb_radius
-
-    monkeypatch.setattr(ocreach.geometry, "minimum_enclosing_ball",
-                        lambda pts: SimpleNamespace(radius=0.5 * np.ptp(pts[:, 0])), raising=False)
-    out = meb_radius(np.array([[0.0, 0.0], [3.0, 0.0]]))
-    assert out == {"meb_radius": 1.5, "meb_method": "exact (ocreach.geometry)"}
-
-
 def test_hull_volume_of_known_sets():
     from ocreach.sweep.outputs import hull_volume
 
@@ -298,21 +274,13 @@ def test_hull_volume_of_known_sets():
     assert hull_volume(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])) == 0.0  # flat
 
 
-def test_example_specs_validate_and_custody_fails_clearly(tmp_path):
+def test_example_specs_validate():
     small = load_spec(ROOT / "examples" / "sweep_small.json")
     assert 15 <= len(small) <= 30
     assert len(load_spec(ROOT / "examples" / "sweep_thrust.json")) == 14
     assert len(load_spec(ROOT / "examples" / "sweep_catalog.json")) == 3000
     custody = load_spec(ROOT / "examples" / "sweep_custody.json")
     assert len(custody) == 180 and all(t["keep"]["custody"]["fov_deg"] for t in custody.tasks)
-    from ocreach.sweep.outputs import CUSTODY_HOOK
-
-    spec = importlib.util.find_spec("ocreach.custody")
-    if spec is not None and hasattr(importlib.import_module("ocreach.custody"), CUSTODY_HOOK):
-        pytest.skip("ocreach.custody provides the sweep hook: the custody sweep runs for real")
-    s = run_sweep(custody, tmp_path / "c", serial=True, limit=2, progress=False)
-    assert s.failed == 2
-    assert status(tmp_path / "c")["errors"][0]["message"].startswith("custody not available")
 
 
 def test_a_dying_worker_is_recorded_and_the_run_stops_clearly(tmp_path):

@@ -158,15 +158,13 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
 
 def _run_task(payload: dict[str, Any]) -> dict[str, Any]:
     from ocreach.reach.base import reach
-    from ocreach.sweep.outputs import compute_outputs, custody_hook
+    from ocreach.sweep.outputs import compute_outputs
 
     limit_threads()
     t0 = time.perf_counter()
     task = payload["task"]
     rec: dict[str, Any] = {"key": payload["key"], "worker": f"{socket.gethostname()}:{os.getpid()}"}
     try:
-        if task["keep"]["custody"] is not None:
-            custody_hook()  # fail before the reach computation when custody is not available
         problem = build_problem(task, payload["base_dir"])
         result = reach(problem, task["method"], **task["options"])
         rec["outputs"] = compute_outputs(result, problem, task["keep"])
