@@ -101,19 +101,26 @@ def test_resume_after_limit_and_interrupt_runs_only_the_rest(serial_table, tmp_p
 
 
 def test_a_raising_task_is_recorded_and_the_rest_finish(tmp_path):
-    data = {"base": {"problem": "vdp", "options": {"samples": 4}},
-            "tasks": [{"method": "mc"}, {"method": "mc", "overrides": {"t_final": 3.05}},
+    # a failure only the computation can find: Van der Pol with negative damping started outside
+    # its unstable limit cycle escapes to infinity in finite time (the integrator stops, SolverError)
+    (tmp_path / "unstable.py").write_text(
+        "import dataclasses\n\nimport numpy as np\n\nfrom ocreach.problem import get_problem\n\n\n"
+        "def problem(mu: float = 1.0):\n    base = get_problem('vdp')\n"
+        "    return dataclasses.replace(base, params=np.array([mu, base.params[1]]))\n")
+    data = {"base": {"problem": "unstable.py", "options": {"samples": 4}},
+            "tasks": [{"method": "mc"}, {"method": "mc", "overrides": {"mu": -5.0}, "state": [3.0, 0.0]},
                       {"method": "mc", "options": {"seed": 3}}]}
     out = tmp_path / "o"
-    s = run_sweep(spec_from_dict(data), out, serial=True, progress=False)
-    assert (s.ok, s.failed) == (2, 1)  # t_final = 3.05 is no whole multiple of dt = 0.1: the worker raises
+    s = run_sweep(spec_from_dict(data, base_dir=tmp_path), out, serial=True, progress=False)
+    assert (s.ok, s.failed) == (2, 1)
     st = status(out)
-    assert st["failed"] == 1 and "t_final" in st["errors"][0]["message"]
+    assert st["failed"] == 1 and "step size underflow" in st["errors"][0]["message"]
     rows = table(out)
     assert [r["status"] for r in rows] == ["ok", "error", "ok"]
-    assert rows[1]["error"].startswith("ProblemError")
-    assert run_sweep(spec_from_dict(data), out, serial=True, progress=False).ran == 0
-    retry = run_sweep(spec_from_dict(data), out, serial=True, progress=False, retry_failed=True)
+    assert rows[1]["error"].startswith("SolverError")
+    assert run_sweep(spec_from_dict(data, base_dir=tmp_path), out, serial=True, progress=False).ran == 0
+    retry = run_sweep(spec_from_dict(data, base_dir=tmp_path), out, serial=True, progress=False,
+                      retry_failed=True)
     assert (retry.ran, retry.failed) == (1, 1)
 
 
@@ -175,6 +182,82 @@ def test_bad_specs_are_rejected_before_work(change, message):
     with pytest.raises(SweepError) as err:
         spec_from_dict({**SPEC, **change})
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize("header, expected", [
+    ("name,x[km],q[km],vx[km/s],vy[km/s]", ["catalog cat.csv data row 1", "unknown state column(s) "
+                                             "['q[km]']", "missing state(s) ['y']", "['x', 'y', 'vx', 'vy']"]),
+    ("name,x[km],vx[km/s],vy[km/s],family", ["data row 1", "missing state(s) ['y']"]),
+    ("name,x[km],y[km/s],vx[km/s],vy[km/s]", ["state y[km/s]", "'km/s' is a velocity unit and 'y' is a "
+                                              "position state", "allowed units for 'y'", "'km'"]),
+    ("name,x[km],y[km],vx[km/s],vy[kg]", ["state vy[kg]", "mass unit", "allowed units for 'vy'", "'m/s'"]),
+    ("name,x[km],x[m],vx[km/s],vy[km/s]", ["repeated state column(s) ['x[km]', 'x[m]']"]),
+])
+def test_bad_catalog_columns_are_rejected_by_the_driver(tmp_path, header, expected):
+    """Catalog columns against the problem's states (the driver builds the problem once; nothing runs)."""
+    values = ["105764.0", "0", "0", "0.8", "DRO"][: header.count(",")]
+    (tmp_path / "cat.csv").write_text(f"{header}\na,{','.join(values)}\n")
+    data = {"catalog": {"file": "cat.csv"}, "base": {"problem": "dro", "method": "mc",
+                                                     "options": {"samples": 4}}, "tasks": [{}]}
+    with pytest.raises(SweepError) as err:
+        spec_from_dict(data, base_dir=tmp_path)
+    for text in expected:
+        assert text in str(err.value)
+    assert not (tmp_path / "o").exists()
+
+
+def test_catalog_units_need_a_problem_with_units(tmp_path):
+    (tmp_path / "cat.csv").write_text("name,x1[km],x2[nd]\na,1,2\nb,1,3\n")
+    data = {"catalog": {"file": "cat.csv"}, "base": {"problem": "vdp", "method": "mc"}, "tasks": [{}]}
+    with pytest.raises(SweepError, match=r"task 0 \(a\), catalog cat.csv data row 1: state x1\[km\] "
+                                         r"of problem 'vdp': problem 'vdp' has no units; allowed units "
+                                         r"for 'x1': \['DU', 'DU/TU', 'nd'\]"):
+        spec_from_dict(data, base_dir=tmp_path)
+    (tmp_path / "cat.csv").write_text("name,x1[nd],x2[DU/TU]\na,1,2\nb,1,3\n")
+    spec = spec_from_dict(data, base_dir=tmp_path)
+    from ocreach.sweep.worker import build_problem
+
+    assert build_problem(spec.tasks[1], spec.base_dir).x0.tolist() == [1.0, 3.0]
+
+
+@pytest.mark.parametrize("problem, overrides, expected", [
+    ("dro", {"thrust": "lots"}, "task 0: problem 'dro' override 'thrust' = 'lots' does not fit its declared "
+                                "type float: thrust must be a finite number; got 'lots'"),
+    ("dro", {"thrust": True}, "override 'thrust' = True does not fit its declared type float"),
+    ("dro", {"thrust": [1e-3]}, "override 'thrust' = [0.001] does not fit its declared type float"),
+    ("dro", {"input_set": 3}, "override 'input_set' must be text (declared str); got 3"),
+    ("elliptic-earth", {"segments": 2.5}, "segments must be an integer; got 2.5"),
+    ("custody-l1", {"uncertain": "maybe"}, "uncertain must be a boolean"),
+    ("prob.py", {"thrus": 1e-3}, "problem 'prob.py' has no override(s) ['thrus']; allowed: ['thrust']"),
+    ("prob.py", {"thrust": "x"}, "problem 'prob.py' override 'thrust' = 'x' does not fit"),
+    ("prob.py", {"thrust": -1e-3}, "problem 'prob.py' with overrides {'thrust': -0.001} cannot be built: "
+                                   "ProblemError: thrust"),
+    ("vdp", {"t_final": 3.05}, "problem 'vdp' with overrides {'t_final': 3.05} cannot be built: "
+                               "ProblemError: t_final = 3.05 TU must be a whole multiple of dt"),
+])
+def test_bad_problem_overrides_are_rejected_by_the_driver(tmp_path, problem, overrides, expected):
+    (tmp_path / "prob.py").write_text("from ocreach.problem import get_problem\n\n"
+                                      "def problem(thrust: float = 1.1e-3):\n"
+                                      "    return get_problem('dro', thrust=thrust)\n")
+    data = {"base": {"problem": problem, "method": "mc", "options": {"samples": 4}},
+            "tasks": [{"overrides": overrides}]}
+    with pytest.raises(SweepError) as err:
+        spec_from_dict(data, base_dir=tmp_path)
+    assert expected in str(err.value)
+
+
+@pytest.mark.parametrize("task, expected", [
+    ({"horizon": {"value": 1, "unit": "d"}}, "horizon in 'd' needs units; problem 'vdp' has none"),
+    ({"keep": {"dims": [5]}}, "task 0: dims [5] out of range"),
+    ({"keep": {"support": [[1.0, 0.0, 0.0]]}}, "keep.support directions have 3 entries"),
+    ({"keep": {"custody": {"fov": 1.0}}}, "keep.custody has unknown argument(s) ['fov']; allowed:"),
+    ({"keep": {"custody": {"observer": "L1"}}}, "keep.custody needs fov_deg"),
+    ({"state": [1.0, 2.0, 3.0]}, "state has 3 values; problem 'vdp' has 2 states ['x1', 'x2']"),
+])
+def test_task_fields_are_checked_against_the_problem(task, expected):
+    with pytest.raises(SweepError) as err:
+        spec_from_dict({"base": {"problem": "vdp", "method": "mc"}, "tasks": [task]})
+    assert expected in str(err.value)
 
 
 def test_unreachable_scheduler_and_foreign_folder_fail_before_work(tmp_path, monkeypatch):
@@ -286,7 +369,10 @@ def test_example_specs_validate():
 def test_a_dying_worker_is_recorded_and_the_run_stops_clearly(tmp_path):
     (tmp_path / "die.py").write_text(
         "import os\nfrom ocreach.problem import get_problem\n\n"
-        "def problem(die=False):\n    if die:\n        os._exit(3)\n    return get_problem('vdp')\n")
+        "import multiprocessing\n\n"
+        "def problem(die=False):\n    if die and multiprocessing.parent_process() is not None:\n"
+        "        os._exit(3)  # only in a worker process: the driver builds every problem once to check it\n"
+        "    return get_problem('vdp')\n")
     data = {"base": {"problem": "die.py", "method": "mc", "options": {"samples": 2}},
             "tasks": [{}, {"overrides": {"die": True}}, {"options": {"seed": 5}}]}
     spec = spec_from_dict(data, base_dir=tmp_path)

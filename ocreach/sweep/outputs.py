@@ -58,9 +58,29 @@ def custody_outputs(problem, result, params: dict[str, Any]) -> dict[str, Any]:
     return {"custody_horizon": float(value)}
 
 
+def check_keep(keep: dict[str, Any], problem) -> tuple[int, ...]:
+    """``keep`` against the task's problem (the driver checks it before any task runs): ``dims``
+    indices of its state, ``support`` directions of that length, custody argument names.  Returns
+    the dims."""
+    dims = resolve_dims(keep["dims"], problem)
+    if keep["support"] and len(keep["support"][0]) != len(dims):
+        names = [problem.model.state_names[d] for d in dims]
+        raise SweepError(f"keep.support directions have {len(keep['support'][0])} entries; keep.dims "
+                         f"{keep['dims']!r} of problem {problem.id!r} has {len(dims)} ({names})")
+    if keep["custody"] is not None:
+        from ocreach.custody import SWEEP_PARAMS
+
+        unknown = sorted(set(keep["custody"]) - set(SWEEP_PARAMS))
+        if unknown:
+            raise SweepError(f"keep.custody has unknown argument(s) {unknown}; allowed: {list(SWEEP_PARAMS)}")
+        if "fov_deg" not in keep["custody"]:
+            raise SweepError("keep.custody needs fov_deg (full field-of-view angle in degrees, in (0, 180))")
+    return dims
+
+
 def compute_outputs(result, problem, keep: dict[str, Any]) -> dict[str, Any]:
     """The scalars a task records (see the module docstring); every number is finite."""
-    dims = resolve_dims(keep["dims"], problem)
+    dims = check_keep(keep, problem)
     names = [problem.model.state_names[d] for d in dims]
     out: dict[str, Any] = {"t_final": float(result.times[-1])}
     if problem.units is not None:
@@ -73,9 +93,6 @@ def compute_outputs(result, problem, keep: dict[str, Any]) -> dict[str, Any]:
             out[f"{n}_min"], out[f"{n}_max"], out[f"extent_{n}"] = float(a), float(b), float(b - a)
     if keep["support"]:
         D = np.asarray(keep["support"], dtype=float)
-        if D.shape[1] != len(dims):
-            raise SweepError(f"keep.support directions have {D.shape[1]} entries; keep.dims "
-                             f"{keep['dims']!r} has {len(dims)} ({names})")
         vals = np.atleast_1d(result.support(D, k=-1, dims=dims))
         out.update({f"support_{i}": float(v) for i, v in enumerate(vals)})
     if keep["meb"] or keep["volume"]:
