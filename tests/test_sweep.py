@@ -45,14 +45,63 @@ def serial_table(tmp_path_factory):
     return table(out)
 
 
+def _brute_force_meb_radius(P: np.ndarray) -> float:
+    """Smallest circle containing the 2-D points ``P``: the best of all circles through two points
+    (as diameter) or three points (circumcircle) that contain every point."""
+    from itertools import combinations
+
+    best = np.inf
+    cands = [((P[i] + P[j]) / 2, np.linalg.norm(P[i] - P[j]) / 2) for i, j in combinations(range(len(P)), 2)]
+    for i, j, k in combinations(range(len(P)), 3):
+        A = 2 * np.array([P[j] - P[i], P[k] - P[i]])
+        if abs(np.linalg.det(A)) > 1e-14:
+            c = np.linalg.solve(A, [P[j] @ P[j] - P[i] @ P[i], P[k] @ P[k] - P[i] @ P[i]])
+            cands.append((c, np.linalg.norm(P[i] - c)))
+    for c, r in cands:
+        if np.all(np.linalg.norm(P - c, axis=1) <= r * (1 + 1e-12)):
+            best = min(best, r)
+    return float(best)
+
+
+def _hull_area(P: np.ndarray) -> float:
+    """Area of the convex hull of 2-D points: monotone chain, then the shoelace formula."""
+    pts = sorted(map(tuple, P))
+
+    def half(seq):
+        out: list = []
+        for p in seq:
+            while len(out) >= 2 and np.cross(np.subtract(out[-1], out[-2]), np.subtract(p, out[-2])) <= 0:
+                out.pop()
+            out.append(p)
+        return out[:-1]
+
+    h = np.array(half(pts) + half(pts[::-1]))
+    return 0.5 * abs(np.dot(h[:, 0], np.roll(h[:, 1], -1)) - np.dot(h[:, 1], np.roll(h[:, 0], -1)))
+
+
 def test_serial_table_content(serial_table):
+    """Each row against the same problem and method run directly through ``ocreach.reach`` at
+    that seed and horizon, post-processed here by independent code (maxima of dot products,
+    brute-force smallest circle, monotone-chain hull)."""
+    import ocreach
+
     rows = serial_table
     assert [r["status"] for r in rows] == ["ok"] * 6
-    assert [r["options.seed"] for r in rows] == [0, 0, 1, 1, 2, 2]
-    assert [r["out.t_final"] for r in rows] == pytest.approx([1.0, 2.0] * 3)
-    for r in rows:  # independent check of the recorded post-processing: the support values
-        assert r["out.support_0"] == r["out.x1_max"]  # direction e_1 equals the extent's max
-        assert r.get("out.meb_radius_lower", 0.0) <= r["out.meb_radius"]
+    assert [(r["options.seed"], r["out.t_final"]) for r in rows] == [
+        (s, pytest.approx(h)) for s in (0, 1, 2) for h in (1.0, 2.0)]
+    D = np.array(SPEC["base"]["keep"]["support"])
+    for r in rows:
+        prob = ocreach.get_problem("vdp", t_final=r["out.t_final"])
+        P = ocreach.reach(prob, "mc", samples=4, seed=r["options.seed"]).points[-1][:, :2]
+        assert P.shape == (4, 2)
+        for j, name in enumerate(("x1", "x2")):
+            assert r[f"out.{name}_min"] == pytest.approx(P[:, j].min(), rel=1e-9, abs=1e-12)
+            assert r[f"out.{name}_max"] == pytest.approx(P[:, j].max(), rel=1e-9, abs=1e-12)
+        for i, d in enumerate(D):
+            assert r[f"out.support_{i}"] == pytest.approx(np.max(P @ d), rel=1e-9, abs=1e-12)
+        assert r["out.meb_radius"] == pytest.approx(_brute_force_meb_radius(P), rel=1e-9)
+        assert r["out.hull_volume"] == pytest.approx(_hull_area(P), rel=1e-9)
+    assert len({r["out.x1_max"] for r in rows}) == 6  # seeds and horizons really differ
 
 
 def test_process_pool_and_dask_give_the_same_table(serial_table, tmp_path, monkeypatch):
