@@ -4,8 +4,6 @@ Tasks are tiny (Monte Carlo with 4 samples on Van der Pol) so the whole file sta
 """
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import json
 import os
 from pathlib import Path
@@ -380,11 +378,6 @@ def test_cli_run_status_collect_and_result_files(tmp_path, capsys):
     assert main(["sweep", "collect", str(out)]) == 0
     rows = (out / "table.csv").read_text().splitlines()
     assert len(rows) == 2 and "out.x1_max" in rows[0]
-    if importlib.util.find_spec("pyarrow") is None:
-        with pytest.raises(SweepError, match="needs pyarrow"):
-            write_table(out, "csv,parquet")
-    else:
-        assert [p.name for p in write_table(out, "csv,parquet")] == ["table.csv", "table.parquet"]
     with pytest.raises(SweepError, match="--format"):
         write_table(out, "xlsx")
     rec = json.loads((out / LOG).read_text())
@@ -394,6 +387,29 @@ def test_cli_run_status_collect_and_result_files(tmp_path, capsys):
     assert meta["tasks"][0]["key"] == rec["key"] and meta["versions"]["casadi"]
     assert main(["sweep", str(spec)]) == 2  # --out missing: a clear error, exit code 2
     assert "--out" in capsys.readouterr().err
+
+
+def test_parquet_table_matches_the_csv(serial_table, tmp_path):
+    pq = pytest.importorskip("pyarrow.parquet")
+    out = tmp_path / "o"
+    run_sweep(spec_from_dict(SPEC), out, serial=True, progress=False)
+    assert [p.name for p in write_table(out, "csv,parquet")] == ["table.csv", "table.parquet"]
+    back = pq.read_table(out / "table.parquet").to_pylist()  # read back by pyarrow itself
+    columns, rows = collect_table(out)
+    assert list(back[0]) == columns and len(back) == len(rows) == 6
+    for b, r in zip(back, rows):
+        assert {c: b[c] for c in columns} == {c: r.get(c) for c in columns}
+
+
+def test_parquet_without_pyarrow_names_the_extra(serial_table, tmp_path, monkeypatch):
+    import sys
+
+    out = tmp_path / "o"
+    run_sweep(spec_from_dict(SPEC), out, serial=True, limit=1, progress=False)
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
+    with pytest.raises(SweepError, match=r"pip install 'ocreach\[parquet\]'"):
+        write_table(out, "csv,parquet")
+    assert not (out / "table.csv").exists()  # nothing written before the error
 
 
 def test_hull_volume_of_known_sets():
