@@ -8,7 +8,7 @@ import pytest
 
 from ocreach import custody as cu
 from ocreach.custody_reach import ReachableBalls, validate_with_mc
-from ocreach.errors import ProblemError, SetError
+from ocreach.errors import ProblemError, SolverError, SetError
 from ocreach.geometry import minimum_enclosing_ball
 from ocreach.problem import get_problem
 from ocreach.reach.base import reach
@@ -213,8 +213,68 @@ def test_horizon_search_recovers_synthetic_step():
     t_star = 2.3456789
     h = cu.custody_horizon(lambda t: 1.0 if t < t_star else 0.5, 0.95, 5.0, t_step=1.0, tol=1e-6)
     assert h.t_safe <= t_star <= h.t_loss and h.t_loss - h.t_safe <= 1e-6
+    assert h.converged and h.message == "" and not h.lost_at_start
+    assert h.evaluations[0] == (0.0, 1.0)  # t_min is evaluated first
     never = cu.custody_horizon(lambda t: 1.0, 0.95, 5.0, t_step=1.0, tol=1e-3)
-    assert never.t_loss is None and never.t_safe == 5.0
+    assert never.t_loss is None and never.t_safe == 5.0 and never.converged
+
+
+def test_horizon_search_reports_when_it_did_not_converge():
+    t_star = 2.3456789
+    step = lambda t: 1.0 if t < t_star else 0.5  # noqa: E731
+    # bisection budget: 3 halvings of the [2, 3] bracket leave 1/8, far above tol
+    h = cu.custody_horizon(step, 0.95, 5.0, t_step=1.0, tol=1e-6, max_bisections=3)
+    assert not h.converged and "max_bisections = 3" in h.message
+    assert h.t_safe <= t_star <= h.t_loss and h.t_loss - h.t_safe == pytest.approx(1 / 8)
+    assert cu.custody_horizon(step, 0.95, 5.0, t_step=1.0, tol=0.2, max_bisections=3).converged
+    # a tolerance below the float spacing of t: the search stops (it looped forever before)
+    h = cu.custody_horizon(step, 0.95, 5.0, t_step=1.0, tol=1e-300)
+    assert not h.converged and "floating-point resolution" in h.message
+    assert h.t_safe <= t_star <= h.t_loss and h.t_loss == np.nextafter(h.t_safe, np.inf)
+    # an evaluation that fails inside the bracket (e.g. a bvp continuation): the bracket so far
+    def flaky(t):
+        if t == 2.25:  # the second bisection point of [2, 3]
+            raise SolverError("bvp: continuation failed (test)")
+        return step(t)
+
+    h = cu.custody_horizon(flaky, 0.95, 5.0, t_step=1.0, tol=1e-6)
+    assert not h.converged and "failed at t = 2.25" in h.message and "continuation failed" in h.message
+    assert (h.t_safe, h.t_loss) == (2.0, 2.5)
+
+    def broken(t):
+        if t > 0:
+            raise SolverError("bvp: no solution (test)")
+        return 1.0
+
+    with pytest.raises(SolverError, match="no solution"):  # no bracket yet: the failure is raised
+        cu.custody_horizon(broken, 0.95, 5.0, t_step=1.0, tol=1e-6)
+
+
+def test_horizon_search_evaluates_t_min():
+    # custody already lost at the start (and regained later): no horizon, lost at t_min; the
+    # scan alone (t_min + k t_step) would have reported custody held to t_max
+    late = lambda t: 0.5 if t < 0.1 else 1.0  # noqa: E731
+    h = cu.custody_horizon(late, 0.95, 5.0, t_step=1.0, tol=1e-6)
+    assert h.lost_at_start and h.t_safe is None and h.t_loss == 0.0 and h.converged
+    assert h.evaluations == ((0.0, 0.5),) and "already lost at t_min = 0" in h.message
+    h = cu.custody_horizon(lambda t: 1.0 if t < 1.2 else 0.5, 0.95, 5.0, t_step=1.0, tol=1e-6, t_min=1.5)
+    assert h.lost_at_start and h.t_loss == 1.5 and h.evaluations == ((1.5, 0.5),)
+    h = cu.custody_horizon(lambda t: 1.0 if t < 2.2 else 0.5, 0.95, 5.0, t_step=1.0, tol=1e-6, t_min=1.5)
+    assert not h.lost_at_start and h.t_safe <= 2.2 <= h.t_loss and h.evaluations[0] == (1.5, 1.0)
+
+
+def test_custody_report_start_ball_and_search_at_start():
+    from ocreach.custody_reach import ReachableBalls
+    from ocreach.custody_report import _search
+
+    point = ReachableBalls("custody-l1")
+    c, r = point.start_ball()
+    assert r == 0.0 and np.allclose(c, point.base.x0[:3])
+    fuzzy = ReachableBalls("custody-l1", overrides={"uncertain": True, "sigma_pos_km": 3.0})
+    c, r = fuzzy.start_ball()
+    assert r * fuzzy.base.units.length / 1e3 == pytest.approx(3.0, rel=1e-12)
+    below = _search(lambda t: 1.0, 0.95, 5.0, 1.0, 1e-3, t_set=0.0)  # set below the mask at t = 0
+    assert below.lost_at_start and below.t_loss == 0.0
 
 
 def test_horizon_search_recovers_analytic_ball_horizon():
