@@ -9,9 +9,13 @@ Observers (position in the problem's rotating CR3BP frame, model units):
   2010, Eq. 5.15) and placed in the rotating frame whose x-axis points from the Earth to the
   Moon: the frame's orientation at the epoch comes from the DE421 geocentric Moon state and turns
   at the CR3BP rate (1 rad/TU) about the Moon's orbit normal afterwards.  Precession-nutation and
-  polar motion are ignored (the Earth's pole is the ICRF z-axis, ~0.4 deg off in 2026) and UT1 is
-  taken equal to the epoch's TDB (69 s); both shift the site by well under its 6400 km radius
-  against ranges of 3e5 km.  A site only sees objects above its elevation mask;
+  polar motion are ignored (the Earth's pole is the ICRF z-axis, ~0.4 deg off in 2026).  UT1 is
+  the epoch's TDB minus the constant :data:`TT_MINUS_UT1_S` = 69.2 s (TDB - TT < 2 ms is
+  neglected); without it the Earth would be turned 0.29 deg too far (69 s x 15.04 arcsec/s, 32 km
+  at the equator).  The constant is the 2018-2026 value of TT - UT1 to within about 0.3 s (4.5 arcsec,
+  0.14 km); far from those years give the IERS value as ``tt_minus_ut1_s`` (it was 64 s in 2000,
+  and is not predictable to better than ~1 s a few years ahead).  A site only sees objects above
+  its elevation mask;
 * :func:`orbit_observer` -- a spacecraft on an unpowered trajectory of the same CR3BP (e.g. any
   problem's initial state, propagated with :func:`ocreach.flow.propagate`).
 
@@ -51,6 +55,9 @@ import numpy as np
 from ocreach.errors import ProblemError, SolverError, check_count, check_real
 
 WGS84_A_KM = 6378.137
+#: TT - UT1 (s) used for ground sites: 32.184 s + (TAI - UTC = 37 s) - (UT1 - UTC ~ 0 s); the
+#: 2018-2026 values (68.9-69.4 s) lie within about 0.3 s of it; give the epoch's value otherwise
+TT_MINUS_UT1_S = 69.2
 WGS84_F = 1.0 / 298.257223563
 MODELS = ("covered", "tucker-eq14")
 
@@ -128,9 +135,10 @@ def earth_moon_frame(epoch) -> np.ndarray:
 
 
 def ground_site(lat_deg: float, lon_deg: float, alt_km: float, epoch, *, mu: float, units,
-                elevation_mask_deg: float = 0.0) -> Observer:
+                elevation_mask_deg: float = 0.0, tt_minus_ut1_s: float | None = None) -> Observer:
     """A ground telescope (see the module docstring) for a CR3BP with ``mu`` and ``units``;
-    model time 0 is ``epoch`` (TDB date string or Julian date, UT1 taken equal to it)."""
+    model time 0 is ``epoch`` (TDB date string or Julian date); the Earth rotation angle is taken
+    at ``JD_UT1 = JD_TDB - tt_minus_ut1_s / 86400`` (default :data:`TT_MINUS_UT1_S`)."""
     from ocreach.ephemeris import parse_epoch
 
     lat, lon, alt = (check_real("latitude", lat_deg), check_real("longitude", lon_deg),
@@ -142,13 +150,17 @@ def ground_site(lat_deg: float, lon_deg: float, alt_km: float, epoch, *, mu: flo
     mask = check_real("elevation_mask_deg", elevation_mask_deg)
     if not -90 <= mask < 90:
         raise ProblemError(f"elevation_mask_deg must be in [-90, 90); got {elevation_mask_deg!r}")
+    dut = TT_MINUS_UT1_S if tt_minus_ut1_s is None else check_real("tt_minus_ut1_s", tt_minus_ut1_s)
+    if not abs(dut) < 600:
+        raise ProblemError(f"tt_minus_ut1_s (TT - UT1 in seconds) must be within 600 s; got {tt_minus_ut1_s!r}")
     day, frac = parse_epoch(epoch)
     F0 = earth_moon_frame((day, frac))
+    ut1_frac = frac - dut / 86400.0
     r_ecef, up_ecef = geodetic_to_ecef_km(lat, lon, alt)
     du_km, tu_s = units.length / 1e3, units.time
 
     def _rot(t: np.ndarray, vec: np.ndarray) -> np.ndarray:
-        era = earth_rotation_angle(day + frac + t * tu_s / 86400.0)
+        era = earth_rotation_angle(day + ut1_frac + t * tu_s / 86400.0)
         c, s = np.cos(era), np.sin(era)
         inertial = np.stack([c * vec[0] - s * vec[1], s * vec[0] + c * vec[1],
                              np.full_like(era, vec[2])], axis=1)  # Earth pole = ICRF z
@@ -163,7 +175,8 @@ def ground_site(lat_deg: float, lon_deg: float, alt_km: float, epoch, *, mu: flo
 
     return Observer(f"ground({lat:g},{lon:g},{alt:g})", "ground", pos, lambda t: _rot(t, up_ecef),
                     elevation_mask_deg=mask,
-                    info={"lat_deg": lat, "lon_deg": lon, "alt_km": alt, "epoch_jd": day + frac})
+                    info={"lat_deg": lat, "lon_deg": lon, "alt_km": alt, "epoch_jd": day + frac,
+                          "tt_minus_ut1_s": dut})
 
 
 def orbit_observer(model, x0, params=None, name: str = "orbit", rtol: float = 1e-11) -> Observer:

@@ -317,6 +317,28 @@ def test_earth_rotation_angle_and_ground_site():
     assert g.visible([0.0], [above])[0] and not g.visible([0.0], [below])[0]
 
 
+def test_ground_site_applies_tt_minus_ut1():
+    """UT1 = TDB - 69.2 s: an equatorial site sits 2 pi x 1.00273781 x 69.2 / 86400 rad = 0.2891
+    deg behind (about the Earth's pole) the site with UT1 taken equal to TDB."""
+    from ocreach.units import EARTH_MOON_PATEL as U
+
+    mu = 0.01215
+    g = cu.ground_site(0.0, 30.0, 0.0, "2026-12-01", mu=mu, units=U)
+    g0 = cu.ground_site(0.0, 30.0, 0.0, "2026-12-01", mu=mu, units=U, tt_minus_ut1_s=0.0)
+    assert g.info["tt_minus_ut1_s"] == cu.TT_MINUS_UT1_S == 69.2
+    t = np.array([0.0, 0.3])
+    a, b = g.position(t) - [-mu, 0, 0], g0.position(t) - [-mu, 0, 0]
+    expected = 2 * np.pi * 1.00273781191135448 * 69.2 / 86400.0
+    ang = np.arccos(np.clip(np.einsum("ij,ij->i", a, b) / np.einsum("ij,ij->i", a, a), -1, 1))
+    np.testing.assert_allclose(ang, expected, rtol=1e-6)
+    assert np.rad2deg(expected) == pytest.approx(0.2891, abs=1e-4)
+    F = cu.earth_moon_frame("2026-12-01")
+    pole = F[:, 2]  # the ICRF z-axis (the Earth's pole here) in the rotating frame at t = 0
+    assert np.cross(a[0], b[0]) @ pole > 0  # the site with UT1 = TDB is ahead: Earth turned further
+    with pytest.raises(ProblemError, match="tt_minus_ut1_s"):
+        cu.ground_site(0.0, 30.0, 0.0, "2026-12-01", mu=mu, units=U, tt_minus_ut1_s=1e4)
+
+
 def test_orbit_observer_follows_the_problem_orbit():
     prob = get_problem("custody-gateway", t_days=1.0)
     obs = cu.orbit_observer(prob.model, prob.x0, prob.params)
