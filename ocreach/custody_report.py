@@ -22,6 +22,8 @@ from ocreach import custody as cu
 from ocreach.custody_reach import ReachableBalls, validate_with_mc
 from ocreach.errors import ProblemError
 
+#: resolution of the report's figures (with 8-bit palette PNGs they take ~20 KB each)
+FIGURE_DPI = 100
 CUSTODY_PROBLEMS = ("custody-l1", "custody-l2", "custody-l3", "custody-l4", "custody-l5", "custody-gateway")
 
 
@@ -294,7 +296,10 @@ def write_figures(pid: str, cs: str, info: dict, cases, out: Path, p_required: f
 
     from ocreach.geometry import convex_hull_polygon
     from ocreach.orbits import lagrange_points
-    from ocreach.plot import save_figure
+    from ocreach.plot import save_figure as _save
+
+    def save_figure(fig, path):  # committed to docs/figures/tucker: 100 dpi, 8-bit palette PNG
+        return _save(fig, path, dpi=FIGURE_DPI, palette=True)
 
     rb: ReachableBalls = info["balls"]
     prob = rb.base
