@@ -9,9 +9,13 @@ Observers (position in the problem's rotating CR3BP frame, model units):
   2010, Eq. 5.15) and placed in the rotating frame whose x-axis points from the Earth to the
   Moon: the frame's orientation at the epoch comes from the DE421 geocentric Moon state and turns
   at the CR3BP rate (1 rad/TU) about the Moon's orbit normal afterwards.  Precession-nutation and
-  polar motion are ignored (the Earth's pole is the ICRF z-axis, ~0.4 deg off in 2026) and UT1 is
-  taken equal to the epoch's TDB (69 s); both shift the site by well under its 6400 km radius
-  against ranges of 3e5 km.  A site only sees objects above its elevation mask;
+  polar motion are ignored (the Earth's pole is the ICRF z-axis, ~0.4 deg off in 2026).  UT1 is
+  the epoch's TDB minus the constant :data:`TT_MINUS_UT1_S` = 69.2 s (TDB - TT < 2 ms is
+  neglected); without it the Earth would be turned 0.29 deg too far (69 s x 15.04 arcsec/s, 32 km
+  at the equator).  The constant is the 2018-2026 value of TT - UT1 to within about 0.3 s (4.5 arcsec,
+  0.14 km); far from those years give the IERS value as ``tt_minus_ut1_s`` (it was 64 s in 2000,
+  and is not predictable to better than ~1 s a few years ahead).  A site only sees objects above
+  its elevation mask;
 * :func:`orbit_observer` -- a spacecraft on an unpowered trajectory of the same CR3BP (e.g. any
   problem's initial state, propagated with :func:`ocreach.flow.propagate`).
 
@@ -37,7 +41,9 @@ and :func:`tucker_algorithm1` implement the paper as printed, only to show the d
 
 The custody-loss horizon (:func:`custody_horizon`) is the first time the probability falls below
 the requirement, bracketed on a scan and refined by bisection: ``t_safe`` (last time known to
-hold the requirement) and ``t_loss`` (first time known to fail) with ``t_loss - t_safe <= tol``.
+hold the requirement) and ``t_loss`` (first time known to fail) with ``t_loss - t_safe <= tol``
+when ``converged``; the start time is evaluated too (custody already lost there is reported as
+such, with no horizon).
 """
 from __future__ import annotations
 
@@ -46,9 +52,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ocreach.errors import ProblemError, check_real
+from ocreach.errors import ProblemError, SolverError, check_count, check_real
 
 WGS84_A_KM = 6378.137
+#: TT - UT1 (s) used for ground sites: 32.184 s + (TAI - UTC = 37 s) - (UT1 - UTC ~ 0 s); the
+#: 2018-2026 values (68.9-69.4 s) lie within about 0.3 s of it; give the epoch's value otherwise
+TT_MINUS_UT1_S = 69.2
 WGS84_F = 1.0 / 298.257223563
 MODELS = ("covered", "tucker-eq14")
 
@@ -126,9 +135,10 @@ def earth_moon_frame(epoch) -> np.ndarray:
 
 
 def ground_site(lat_deg: float, lon_deg: float, alt_km: float, epoch, *, mu: float, units,
-                elevation_mask_deg: float = 0.0) -> Observer:
+                elevation_mask_deg: float = 0.0, tt_minus_ut1_s: float | None = None) -> Observer:
     """A ground telescope (see the module docstring) for a CR3BP with ``mu`` and ``units``;
-    model time 0 is ``epoch`` (TDB date string or Julian date, UT1 taken equal to it)."""
+    model time 0 is ``epoch`` (TDB date string or Julian date); the Earth rotation angle is taken
+    at ``JD_UT1 = JD_TDB - tt_minus_ut1_s / 86400`` (default :data:`TT_MINUS_UT1_S`)."""
     from ocreach.ephemeris import parse_epoch
 
     lat, lon, alt = (check_real("latitude", lat_deg), check_real("longitude", lon_deg),
@@ -140,13 +150,17 @@ def ground_site(lat_deg: float, lon_deg: float, alt_km: float, epoch, *, mu: flo
     mask = check_real("elevation_mask_deg", elevation_mask_deg)
     if not -90 <= mask < 90:
         raise ProblemError(f"elevation_mask_deg must be in [-90, 90); got {elevation_mask_deg!r}")
+    dut = TT_MINUS_UT1_S if tt_minus_ut1_s is None else check_real("tt_minus_ut1_s", tt_minus_ut1_s)
+    if not abs(dut) < 600:
+        raise ProblemError(f"tt_minus_ut1_s (TT - UT1 in seconds) must be within 600 s; got {tt_minus_ut1_s!r}")
     day, frac = parse_epoch(epoch)
     F0 = earth_moon_frame((day, frac))
+    ut1_frac = frac - dut / 86400.0
     r_ecef, up_ecef = geodetic_to_ecef_km(lat, lon, alt)
     du_km, tu_s = units.length / 1e3, units.time
 
     def _rot(t: np.ndarray, vec: np.ndarray) -> np.ndarray:
-        era = earth_rotation_angle(day + frac + t * tu_s / 86400.0)
+        era = earth_rotation_angle(day + ut1_frac + t * tu_s / 86400.0)
         c, s = np.cos(era), np.sin(era)
         inertial = np.stack([c * vec[0] - s * vec[1], s * vec[0] + c * vec[1],
                              np.full_like(era, vec[2])], axis=1)  # Earth pole = ICRF z
@@ -161,7 +175,8 @@ def ground_site(lat_deg: float, lon_deg: float, alt_km: float, epoch, *, mu: flo
 
     return Observer(f"ground({lat:g},{lon:g},{alt:g})", "ground", pos, lambda t: _rot(t, up_ecef),
                     elevation_mask_deg=mask,
-                    info={"lat_deg": lat, "lon_deg": lon, "alt_km": alt, "epoch_jd": day + frac})
+                    info={"lat_deg": lat, "lon_deg": lon, "alt_km": alt, "epoch_jd": day + frac,
+                          "tt_minus_ut1_s": dut})
 
 
 def orbit_observer(model, x0, params=None, name: str = "orbit", rtol: float = 1e-11) -> Observer:
@@ -415,28 +430,48 @@ def check_probability(p_required) -> float:
 # ====================================================================== horizon
 @dataclass(frozen=True)
 class Horizon:
-    """Custody-loss horizon: ``t_safe`` (last time with ``p >= p_required``), ``t_loss`` (first
-    time with ``p < p_required``; None if custody holds up to ``t_max``), the evaluations
-    ``(t, p)`` in order, and whether the bracket met the tolerance."""
+    """Custody-loss horizon found by :func:`custody_horizon`.
 
-    t_safe: float
+    ``t_safe``: last time known to hold ``p >= p_required`` (None when custody is already lost at
+    ``t_min``: then there is no horizon and ``t_loss = t_min``); ``t_loss``: first time known to
+    fail (None if custody holds at every scanned time up to ``t_max``); ``evaluations``: the
+    ``(t, p)`` pairs in order.  ``converged``: the search met its tolerance (``t_loss - t_safe
+    <= tol``, or no loss up to ``t_max``, or lost at ``t_min``); False when the bisection stopped
+    early with the bracket still valid but wider than ``tol`` (the bisection budget ran out, the
+    bracket reached the floating-point resolution of ``t``, or an evaluation inside the bracket
+    failed, e.g. a bvp continuation); ``message`` says why.
+    """
+
+    t_safe: float | None
     t_loss: float | None
     p_required: float
     evaluations: tuple[tuple[float, float], ...]
     converged: bool
+    message: str = ""
+
+    @property
+    def lost_at_start(self) -> bool:
+        """Custody was already lost at ``t_min`` (no horizon)."""
+        return self.t_safe is None
 
 
 def custody_horizon(probability: Callable[[float], float], p_required: float, t_max: float, *,
-                    t_step: float, tol: float, t_min: float = 0.0) -> Horizon:
+                    t_step: float, tol: float, t_min: float = 0.0, max_bisections: int = 100) -> Horizon:
     """First time the custody probability drops below ``p_required`` (Tucker Sec. 3, corrected).
 
-    Scan ``t_min + t_step, t_min + 2 t_step, ... <= t_max`` (t_max always included) for the
-    first failing time, then bisect the bracket ``[t_safe, t_loss]`` until it is shorter than
-    ``tol``.  Assumes the probability does not recover and fail again inside one scan step.
-    ``p_required`` must be in (0, 1]; ``t_step``, ``tol`` > 0.
+    Evaluate ``t_min`` first (custody already lost there: ``Horizon(t_safe=None, t_loss=t_min)``),
+    then scan ``t_min + t_step, t_min + 2 t_step, ... <= t_max`` (t_max always included) for the
+    first failing time, then bisect the bracket ``[t_safe, t_loss]`` until it is no longer than
+    ``tol`` (``converged``), or until ``max_bisections`` halvings, the float resolution of ``t``
+    or a :class:`SolverError` of ``probability`` inside the bracket stop it (not ``converged``; the
+    bracket is still valid).  A failure before a bracket exists is raised.  Assumes the
+    probability does not recover and fail again inside one scan step.  ``p_required`` must be in
+    (0, 1]; ``t_step``, ``tol`` > 0.
     """
     p_req = check_probability(p_required)
     t_max, t_step, tol = check_real("t_max", t_max), check_real("t_step", t_step), check_real("tol", tol)
+    t_min = check_real("t_min", t_min)
+    max_bisections = check_count("max_bisections", max_bisections, 1)
     if not (t_step > 0 and tol > 0 and t_max > t_min):
         raise ProblemError(f"need t_step > 0, tol > 0 and t_max > t_min; got t_step={t_step!r}, "
                            f"tol={tol!r}, t_min={t_min!r}, t_max={t_max!r}")
@@ -449,6 +484,10 @@ def custody_horizon(probability: Callable[[float], float], p_required: float, t_
         evals.append((t, val))
         return val
 
+    p0 = p_at(t_min)
+    if p0 < p_req:
+        return Horizon(None, t_min, p_req, tuple(evals), True,
+                       f"custody already lost at t_min = {t_min:g}: p = {p0:.6g} < {p_req:g}")
     scan = list(np.arange(t_min + t_step, t_max, t_step)) + [t_max]
     lo = t_min
     hi = None
@@ -459,13 +498,26 @@ def custody_horizon(probability: Callable[[float], float], p_required: float, t_
         lo = float(t)
     if hi is None:
         return Horizon(lo, None, p_req, tuple(evals), True)
-    while hi - lo > tol:
+    message = ""
+    for _ in range(max_bisections):
+        if hi - lo <= tol:
+            break
         mid = 0.5 * (lo + hi)
-        if p_at(mid) < p_req:
-            hi = mid
-        else:
-            lo = mid
-    return Horizon(lo, hi, p_req, tuple(evals), True)
+        if not lo < mid < hi:
+            message = (f"bisection stopped at the floating-point resolution of t: bracket "
+                       f"[{lo!r}, {hi!r}] is wider than tol = {tol:g}")
+            break
+        try:
+            failed = p_at(mid) < p_req
+        except SolverError as exc:
+            message = f"probability evaluation failed at t = {mid:g} inside the bracket: {exc}"
+            break
+        lo, hi = (lo, mid) if failed else (mid, hi)
+    converged = hi - lo <= tol
+    if not converged and not message:
+        message = (f"bisection budget max_bisections = {max_bisections} used up: bracket width "
+                   f"{hi - lo:g} > tol = {tol:g}")
+    return Horizon(lo, hi, p_req, tuple(evals), converged, message)
 
 
 def tucker_algorithm1(area: Callable[[float], float], p_c: float, theta: float, rho: float,
@@ -497,14 +549,15 @@ def sweep_task(problem, result, **params) -> dict:
     ``p`` or ``p_required`` (required probability in (0, 1], default 0.95), ``t_max_days`` (only
     times up to it are used), ``epoch`` (ground sites), ``model`` (``covered`` | ``tucker-eq14``).
 
-    At every time of ``result`` after the start, the exact minimum enclosing ball of the result's
+    At the start and every time of ``result`` after it, the exact minimum enclosing ball of the result's
     position samples (``result.points_at(k, problem.position_dims)``; an inner estimate of the
     ball of the true set when the samples are points of it) is scored by
     :func:`custody_probability` with the boresight on the ball's centre.  The sweep's result is
     fixed, so the horizon is bracketed on the result's own time grid (no bisection; the
     bracket width is ``horizon_resolution_days``): ``t_safe_days`` is the last grid time before
     the first failing one (custody held at every grid time up to it), ``t_loss_days`` the first
-    failing one or None when custody holds at every used time.  Radii in km, times in days.
+    failing one or None when custody holds at every used time; custody already lost at the start
+    gives ``t_safe_days`` None, ``t_loss_days`` 0 and ``lost_at_start``.  Radii in km, times in days.
     """
     from ocreach.custody_report import make_fov, parse_observer
     from ocreach.meb import minimum_enclosing_ball
@@ -544,8 +597,8 @@ def sweep_task(problem, result, **params) -> dict:
     if use.size == 0:
         raise ProblemError(f"custody sweep_task: the result has no time after the start within t_max_days "
                            f"(result times {days.tolist()} days)")
-    t_safe, t_loss, probs, radii = 0.0, None, [], []
-    for k in use:
+    t_safe, t_loss, probs, radii = None, None, [], []
+    for k in np.r_[0, use].astype(int):  # the start (k = 0) too: custody may be lost already
         ball = minimum_enclosing_ball(result.points_at(int(k), pos))
         o = observer.position([times[k]])[0]
         pk = custody_probability(ball.center, ball.radius, o, fov, model=model)
@@ -558,6 +611,7 @@ def sweep_task(problem, result, **params) -> dict:
                 t_safe = float(days[k])
     grid = np.diff(np.r_[0.0, days[use]])
     return {"t_safe_days": t_safe, "t_loss_days": t_loss, "lost": t_loss is not None,
+            "lost_at_start": t_safe is None,
             "horizon_resolution_days": float(grid.max()), "t_end_days": float(days[use[-1]]),
             "meb_radius_km": radii[-1], "meb_radius_km_max": float(max(radii)),
             "p_end": probs[-1], "p_min": float(min(probs)), "p_required": p_req,

@@ -76,6 +76,17 @@ class ReachableBalls:
         self.cache: dict[float, HorizonBalls] = {}
         self.solves = 0
 
+    def start_ball(self) -> tuple[np.ndarray, float]:
+        """Centre and radius of the smallest ball around the positions at t = 0: the point ``x0``,
+        or, with the initial ellipsoid of Tucker Eq. 6, the ball of its position part (radius
+        ``sqrt(lambda_max)`` of the position block of its shape matrix)."""
+        pos = list(self.base.position_dims)
+        E = self.base.initial_set
+        if E is None:
+            return np.asarray(self.base.x0, dtype=float)[pos], 0.0
+        Q = np.asarray(E.Q, dtype=float)[np.ix_(pos, pos)]
+        return np.asarray(E.q, dtype=float)[pos], float(np.sqrt(np.linalg.eigvalsh(Q).max()))
+
     def problem(self, t_days: float):
         from ocreach.problem import get_problem
 

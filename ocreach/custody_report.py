@@ -22,6 +22,8 @@ from ocreach import custody as cu
 from ocreach.custody_reach import ReachableBalls, validate_with_mc
 from ocreach.errors import ProblemError
 
+#: resolution of the report's figures (with 8-bit palette PNGs they take ~20 KB each)
+FIGURE_DPI = 100
 CUSTODY_PROBLEMS = ("custody-l1", "custody-l2", "custody-l3", "custody-l4", "custody-l5", "custody-gateway")
 
 
@@ -72,15 +74,18 @@ class CaseResult:
     fov_shape: str
     control_set: str
     p_required: float
-    t_safe_days: float
+    t_safe_days: float | None
     t_loss_days: float | None
-    t_safe_days_inner: float
+    t_safe_days_inner: float | None
     t_loss_days_inner: float | None
     t_loss_days_tucker_eq14: float | None
     horizons: list = field(default_factory=list)
     evaluations: list = field(default_factory=list)
     #: ground sites: first time (days) the nominal object sets below the elevation mask (None: never)
     t_set_days: float | None = None
+    #: whether the (outer-ball) horizon search met its tolerance, and why not (Horizon.converged)
+    converged: bool = True
+    search_message: str = ""
 
 
 def first_set_time(observer: cu.Observer, problem, t_max: float, tol: float) -> float | None:
@@ -119,12 +124,13 @@ def first_set_time(observer: cu.Observer, problem, t_max: float, tol: float) -> 
 def _search(prob, p_required, t_max, step, tol, t_set):
     """Custody horizon, stopped where a ground site loses sight of the object."""
     if t_set is not None and t_set <= 0:
-        return cu.Horizon(0.0, 0.0, p_required, (), True)
+        return cu.Horizon(None, 0.0, p_required, (), True, "the object is below the site's elevation mask at t = 0")
     if t_set is None or t_set >= t_max:
         return cu.custody_horizon(prob, p_required, t_max, t_step=step, tol=tol)
     h = cu.custody_horizon(prob, p_required, t_set, t_step=min(step, t_set), tol=tol)
     if h.t_loss is None:  # custody holds until the object sets
-        return cu.Horizon(max(h.t_safe - tol, 0.0), t_set, p_required, h.evaluations, True)
+        return cu.Horizon(max(h.t_safe - tol, 0.0), t_set, p_required, h.evaluations, h.converged,
+                          f"custody holds until the object sets at t = {t_set:g} d")
     return h
 
 
@@ -133,10 +139,14 @@ def _probability(rb: ReachableBalls, observer: cu.Observer, fov: cu.FOV, ball: s
     day = rb.base.extra["day_TU"]
 
     def p(t_days: float) -> float:
-        hb = rb.at(t_days)
-        b = hb.outer if ball == "outer" else hb.inner
+        if t_days == 0:  # the start of the search: the initial state (or initial ellipsoid)
+            center, radius = rb.start_ball()
+        else:
+            hb = rb.at(t_days)
+            b = hb.outer if ball == "outer" else hb.inner
+            center, radius = b.center, b.radius
         o = observer.position([t_days * day])[0]
-        return cu.custody_probability(b.center, b.radius, o, fov, model=model)
+        return cu.custody_probability(center, radius, o, fov, model=model)
 
     return p
 
@@ -202,16 +212,21 @@ def analyse(problem_ids: Sequence[str], observers: Sequence[str], fovs: Sequence
                     case = CaseResult(pid, obs.name, float(fdeg), fov_shape, cs, p_required,
                                       res["outer"].t_safe, res["outer"].t_loss, res["inner"].t_safe,
                                       res["inner"].t_loss, tk.t_loss, rows,
-                                      [list(e) for e in res["outer"].evaluations], t_set)
+                                      [list(e) for e in res["outer"].evaluations], t_set,
+                                      res["outer"].converged, res["outer"].message)
                     cases.append(case)
-                    progress(f"{pid} [{cs}] {case.observer} FOV {fov.label()}: t_safe {case.t_safe_days:.3f} d, "
-                             f"t_loss {'> %g' % t_max if case.t_loss_days is None else '%.3f' % case.t_loss_days} d "
+                    progress(f"{pid} [{cs}] {case.observer} FOV {fov.label()}: t_safe {_fmt_safe(case.t_safe_days)} d, "
+                             f"t_loss {_fmt_t(case.t_loss_days, t_max, case.converged)} d "
                              f"({rb.solves} bvp solves so far)")
     return cases, per_problem
 
 
-def _fmt_t(t, t_max) -> str:
-    return f"> {t_max:g}" if t is None else f"{t:.3f}"
+def _fmt_t(t, t_max, converged: bool = True) -> str:
+    return f"> {t_max:g}" if t is None else f"{t:.3f}" + ("" if converged else " (not converged)")
+
+
+def _fmt_safe(t) -> str:
+    return "lost at start" if t is None else f"{t:.3f}"
 
 
 def markdown_table(cases: Sequence[CaseResult]) -> str:
@@ -226,7 +241,7 @@ def markdown_table(cases: Sequence[CaseResult]) -> str:
         cells = [f"{by_t[h]['meb_radius_km']:.1f}" if h in by_t else "-" for h in hz]
         lines.append(f"| {c.problem} | {c.control_set} | {c.observer} | {c.fov_deg:g} {c.fov_shape} | "
                      + " | ".join(cells)
-                     + f" | {by_t[t_max]['outer_radius_km']:.1f} | {c.t_safe_days:.3f} | {_fmt_t(c.t_loss_days, t_max)} | "
+                     + f" | {by_t[t_max]['outer_radius_km']:.1f} | {_fmt_safe(c.t_safe_days)} | {_fmt_t(c.t_loss_days, t_max, c.converged)} | "
                      f"{_fmt_t(c.t_loss_days_inner, t_max)} | {_fmt_t(c.t_loss_days_tucker_eq14, t_max)} | "
                      + ("-" if c.t_set_days is None else f"{c.t_set_days:.3f}") + " |")
     return "\n".join(lines)
@@ -281,7 +296,10 @@ def write_figures(pid: str, cs: str, info: dict, cases, out: Path, p_required: f
 
     from ocreach.geometry import convex_hull_polygon
     from ocreach.orbits import lagrange_points
-    from ocreach.plot import save_figure
+    from ocreach.plot import save_figure as _save
+
+    def save_figure(fig, path):  # committed to docs/figures/tucker: 100 dpi, 8-bit palette PNG
+        return _save(fig, path, dpi=FIGURE_DPI, palette=True)
 
     rb: ReachableBalls = info["balls"]
     prob = rb.base

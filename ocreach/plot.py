@@ -139,9 +139,13 @@ def plot_result(result, ax=None, dims: Sequence[int] = (0, 1), k: int | Sequence
     return ax
 
 
-def save_figure(fig, path: str | Path, *, dpi: int = 120, **savefig_kw: Any) -> Path:
+def save_figure(fig, path: str | Path, *, dpi: int = 120, palette: bool = False, **savefig_kw: Any) -> Path:
     """Write ``fig`` as PNG to ``path`` atomically and close it (``savefig_kw`` go to
-    ``Figure.savefig``, e.g. ``bbox_inches="tight"``)."""
+    ``Figure.savefig``, e.g. ``bbox_inches="tight"``).
+
+    ``palette``: store an 8-bit PNG with an adaptive 256-colour palette (Pillow's fast octree,
+    optimised deflate) instead of 32-bit RGBA: about a quarter of the bytes for line and scatter
+    plots, for figures committed to the repository."""
     import io
 
     import matplotlib.pyplot as plt
@@ -151,7 +155,15 @@ def save_figure(fig, path: str | Path, *, dpi: int = 120, **savefig_kw: Any) -> 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, **savefig_kw)
     plt.close(fig)
-    return atomic_write_bytes(path, buf.getvalue())
+    data = buf.getvalue()
+    if palette:
+        from PIL import Image
+
+        small = io.BytesIO()  # method 2 = FASTOCTREE (keeps the alpha channel)
+        Image.open(io.BytesIO(data)).quantize(colors=256, method=2).save(small, format="png", optimize=True,
+                                                                         dpi=(dpi, dpi))
+        data = small.getvalue()
+    return atomic_write_bytes(path, data)
 
 
 def dims_are_position(problem, dims: Sequence[int]) -> bool:

@@ -8,7 +8,7 @@ import pytest
 
 from ocreach import custody as cu
 from ocreach.custody_reach import ReachableBalls, validate_with_mc
-from ocreach.errors import ProblemError, SetError
+from ocreach.errors import ProblemError, SolverError, SetError
 from ocreach.geometry import minimum_enclosing_ball
 from ocreach.problem import get_problem
 from ocreach.reach.base import reach
@@ -213,8 +213,68 @@ def test_horizon_search_recovers_synthetic_step():
     t_star = 2.3456789
     h = cu.custody_horizon(lambda t: 1.0 if t < t_star else 0.5, 0.95, 5.0, t_step=1.0, tol=1e-6)
     assert h.t_safe <= t_star <= h.t_loss and h.t_loss - h.t_safe <= 1e-6
+    assert h.converged and h.message == "" and not h.lost_at_start
+    assert h.evaluations[0] == (0.0, 1.0)  # t_min is evaluated first
     never = cu.custody_horizon(lambda t: 1.0, 0.95, 5.0, t_step=1.0, tol=1e-3)
-    assert never.t_loss is None and never.t_safe == 5.0
+    assert never.t_loss is None and never.t_safe == 5.0 and never.converged
+
+
+def test_horizon_search_reports_when_it_did_not_converge():
+    t_star = 2.3456789
+    step = lambda t: 1.0 if t < t_star else 0.5  # noqa: E731
+    # bisection budget: 3 halvings of the [2, 3] bracket leave 1/8, far above tol
+    h = cu.custody_horizon(step, 0.95, 5.0, t_step=1.0, tol=1e-6, max_bisections=3)
+    assert not h.converged and "max_bisections = 3" in h.message
+    assert h.t_safe <= t_star <= h.t_loss and h.t_loss - h.t_safe == pytest.approx(1 / 8)
+    assert cu.custody_horizon(step, 0.95, 5.0, t_step=1.0, tol=0.2, max_bisections=3).converged
+    # a tolerance below the float spacing of t: the search stops (it looped forever before)
+    h = cu.custody_horizon(step, 0.95, 5.0, t_step=1.0, tol=1e-300)
+    assert not h.converged and "floating-point resolution" in h.message
+    assert h.t_safe <= t_star <= h.t_loss and h.t_loss == np.nextafter(h.t_safe, np.inf)
+    # an evaluation that fails inside the bracket (e.g. a bvp continuation): the bracket so far
+    def flaky(t):
+        if t == 2.25:  # the second bisection point of [2, 3]
+            raise SolverError("bvp: continuation failed (test)")
+        return step(t)
+
+    h = cu.custody_horizon(flaky, 0.95, 5.0, t_step=1.0, tol=1e-6)
+    assert not h.converged and "failed at t = 2.25" in h.message and "continuation failed" in h.message
+    assert (h.t_safe, h.t_loss) == (2.0, 2.5)
+
+    def broken(t):
+        if t > 0:
+            raise SolverError("bvp: no solution (test)")
+        return 1.0
+
+    with pytest.raises(SolverError, match="no solution"):  # no bracket yet: the failure is raised
+        cu.custody_horizon(broken, 0.95, 5.0, t_step=1.0, tol=1e-6)
+
+
+def test_horizon_search_evaluates_t_min():
+    # custody already lost at the start (and regained later): no horizon, lost at t_min; the
+    # scan alone (t_min + k t_step) would have reported custody held to t_max
+    late = lambda t: 0.5 if t < 0.1 else 1.0  # noqa: E731
+    h = cu.custody_horizon(late, 0.95, 5.0, t_step=1.0, tol=1e-6)
+    assert h.lost_at_start and h.t_safe is None and h.t_loss == 0.0 and h.converged
+    assert h.evaluations == ((0.0, 0.5),) and "already lost at t_min = 0" in h.message
+    h = cu.custody_horizon(lambda t: 1.0 if t < 1.2 else 0.5, 0.95, 5.0, t_step=1.0, tol=1e-6, t_min=1.5)
+    assert h.lost_at_start and h.t_loss == 1.5 and h.evaluations == ((1.5, 0.5),)
+    h = cu.custody_horizon(lambda t: 1.0 if t < 2.2 else 0.5, 0.95, 5.0, t_step=1.0, tol=1e-6, t_min=1.5)
+    assert not h.lost_at_start and h.t_safe <= 2.2 <= h.t_loss and h.evaluations[0] == (1.5, 1.0)
+
+
+def test_custody_report_start_ball_and_search_at_start():
+    from ocreach.custody_reach import ReachableBalls
+    from ocreach.custody_report import _search
+
+    point = ReachableBalls("custody-l1")
+    c, r = point.start_ball()
+    assert r == 0.0 and np.allclose(c, point.base.x0[:3])
+    fuzzy = ReachableBalls("custody-l1", overrides={"uncertain": True, "sigma_pos_km": 3.0})
+    c, r = fuzzy.start_ball()
+    assert r * fuzzy.base.units.length / 1e3 == pytest.approx(3.0, rel=1e-12)
+    below = _search(lambda t: 1.0, 0.95, 5.0, 1.0, 1e-3, t_set=0.0)  # set below the mask at t = 0
+    assert below.lost_at_start and below.t_loss == 0.0
 
 
 def test_horizon_search_recovers_analytic_ball_horizon():
@@ -255,6 +315,28 @@ def test_earth_rotation_angle_and_ground_site():
     above = P[0] + 0.5 * up
     below = P[0] - 0.5 * up
     assert g.visible([0.0], [above])[0] and not g.visible([0.0], [below])[0]
+
+
+def test_ground_site_applies_tt_minus_ut1():
+    """UT1 = TDB - 69.2 s: an equatorial site sits 2 pi x 1.00273781 x 69.2 / 86400 rad = 0.2891
+    deg behind (about the Earth's pole) the site with UT1 taken equal to TDB."""
+    from ocreach.units import EARTH_MOON_PATEL as U
+
+    mu = 0.01215
+    g = cu.ground_site(0.0, 30.0, 0.0, "2026-12-01", mu=mu, units=U)
+    g0 = cu.ground_site(0.0, 30.0, 0.0, "2026-12-01", mu=mu, units=U, tt_minus_ut1_s=0.0)
+    assert g.info["tt_minus_ut1_s"] == cu.TT_MINUS_UT1_S == 69.2
+    t = np.array([0.0, 0.3])
+    a, b = g.position(t) - [-mu, 0, 0], g0.position(t) - [-mu, 0, 0]
+    expected = 2 * np.pi * 1.00273781191135448 * 69.2 / 86400.0
+    ang = np.arccos(np.clip(np.einsum("ij,ij->i", a, b) / np.einsum("ij,ij->i", a, a), -1, 1))
+    np.testing.assert_allclose(ang, expected, rtol=1e-6)
+    assert np.rad2deg(expected) == pytest.approx(0.2891, abs=1e-4)
+    F = cu.earth_moon_frame("2026-12-01")
+    pole = F[:, 2]  # the ICRF z-axis (the Earth's pole here) in the rotating frame at t = 0
+    assert np.cross(a[0], b[0]) @ pole > 0  # the site with UT1 = TDB is ahead: Earth turned further
+    with pytest.raises(ProblemError, match="tt_minus_ut1_s"):
+        cu.ground_site(0.0, 30.0, 0.0, "2026-12-01", mu=mu, units=U, tt_minus_ut1_s=1e4)
 
 
 def test_orbit_observer_follows_the_problem_orbit():

@@ -31,6 +31,39 @@ def test_custody_cli_writes_json_md_and_figures(tmp_path, capsys):
     assert (out / "custody.md").read_text().startswith("# Custody")
     assert (out / "custody-l4_box_xy.png").stat().st_size > 0
     assert (out / "custody-l4_box_focal_geocentre.png").stat().st_size > 0
+    assert all(c["converged"] and c["search_message"] == "" for c in cases)
+    from PIL import Image
+
+    with Image.open(out / "custody-l4_box_xy.png") as im:  # 8-bit palette figures, 100 dpi
+        assert im.mode == "P" and round(im.info["dpi"][0]) == 100
+
+
+def test_palette_png_is_smaller_and_keeps_the_picture(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from PIL import Image
+
+    from ocreach.plot import save_figure
+
+    def fig():
+        f, ax = plt.subplots(figsize=(4, 3))
+        t = np.linspace(0, 6, 400)
+        for k in range(5):
+            ax.plot(t, np.sin(t + k), lw=1.5)
+        ax.scatter(*np.random.default_rng(0).normal(size=(2, 300)), s=4, alpha=0.5)
+        return f
+
+    full = save_figure(fig(), tmp_path / "full.png", dpi=100)
+    small = save_figure(fig(), tmp_path / "small.png", dpi=100, palette=True)
+    assert small.stat().st_size < 0.6 * full.stat().st_size
+    with Image.open(full) as a, Image.open(small) as b:
+        assert b.mode == "P" and a.size == b.size
+        A = np.asarray(a.convert("RGB"), dtype=float)
+        B = np.asarray(b.convert("RGB"), dtype=float)
+    assert np.abs(A - B).mean() < 2.0 and np.abs(A - B).max() <= 64  # 0-255 scale
 
 
 @pytest.mark.parametrize("argv,needle", [

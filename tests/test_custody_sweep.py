@@ -59,6 +59,15 @@ def test_sweep_task_matches_closed_form(prob):
     assert out["t_loss_days"] is None and not out["lost"] and out["t_safe_days"] == pytest.approx(0.25)
 
 
+def test_sweep_task_scores_the_start(prob):
+    # a set already too large for the FOV at t = 0: custody is lost at the start, no horizon
+    res, *_ = _sphere_result(prob, [12000.0, 12000.0, 12000.0])
+    out = sweep_task(prob, res, observer="geocentre", fov_deg=1.0, p_required=0.95)
+    assert out["lost_at_start"] and out["t_safe_days"] is None and out["t_loss_days"] == 0.0
+    ok = sweep_task(prob, _sphere_result(prob, [0.0, 12000.0])[0], fov_deg=1.0, p_required=0.95)
+    assert not ok["lost_at_start"] and ok["t_safe_days"] == 0.0 and ok["t_loss_days"] == pytest.approx(0.25)
+
+
 def test_sweep_task_real_mc_result(prob):
     from ocreach.reach.base import reach
 

@@ -4,8 +4,6 @@ Tasks are tiny (Monte Carlo with 4 samples on Van der Pol) so the whole file sta
 """
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import json
 import os
 from pathlib import Path
@@ -17,7 +15,6 @@ from ocreach.sweep import SweepError, collect_table, load_spec, run_sweep, spec_
 from ocreach.sweep import executors as ex_mod
 from ocreach.sweep.collect import RUN_COLUMNS, write_table
 from ocreach.sweep.keys import task_key
-from ocreach.sweep.outputs import meb_radius_bounds
 from ocreach.sweep.store import LOG, META
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -46,14 +43,63 @@ def serial_table(tmp_path_factory):
     return table(out)
 
 
+def _brute_force_meb_radius(P: np.ndarray) -> float:
+    """Smallest circle containing the 2-D points ``P``: the best of all circles through two points
+    (as diameter) or three points (circumcircle) that contain every point."""
+    from itertools import combinations
+
+    best = np.inf
+    cands = [((P[i] + P[j]) / 2, np.linalg.norm(P[i] - P[j]) / 2) for i, j in combinations(range(len(P)), 2)]
+    for i, j, k in combinations(range(len(P)), 3):
+        A = 2 * np.array([P[j] - P[i], P[k] - P[i]])
+        if abs(np.linalg.det(A)) > 1e-14:
+            c = np.linalg.solve(A, [P[j] @ P[j] - P[i] @ P[i], P[k] @ P[k] - P[i] @ P[i]])
+            cands.append((c, np.linalg.norm(P[i] - c)))
+    for c, r in cands:
+        if np.all(np.linalg.norm(P - c, axis=1) <= r * (1 + 1e-12)):
+            best = min(best, r)
+    return float(best)
+
+
+def _hull_area(P: np.ndarray) -> float:
+    """Area of the convex hull of 2-D points: monotone chain, then the shoelace formula."""
+    pts = sorted(map(tuple, P))
+
+    def half(seq):
+        out: list = []
+        for p in seq:
+            while len(out) >= 2 and np.cross(np.subtract(out[-1], out[-2]), np.subtract(p, out[-2])) <= 0:
+                out.pop()
+            out.append(p)
+        return out[:-1]
+
+    h = np.array(half(pts) + half(pts[::-1]))
+    return 0.5 * abs(np.dot(h[:, 0], np.roll(h[:, 1], -1)) - np.dot(h[:, 1], np.roll(h[:, 0], -1)))
+
+
 def test_serial_table_content(serial_table):
+    """Each row against the same problem and method run directly through ``ocreach.reach`` at
+    that seed and horizon, post-processed here by independent code (maxima of dot products,
+    brute-force smallest circle, monotone-chain hull)."""
+    import ocreach
+
     rows = serial_table
     assert [r["status"] for r in rows] == ["ok"] * 6
-    assert [r["options.seed"] for r in rows] == [0, 0, 1, 1, 2, 2]
-    assert [r["out.t_final"] for r in rows] == pytest.approx([1.0, 2.0] * 3)
-    for r in rows:  # independent check of the recorded post-processing: the support values
-        assert r["out.support_0"] == r["out.x1_max"]  # direction e_1 equals the extent's max
-        assert r.get("out.meb_radius_lower", 0.0) <= r["out.meb_radius"]
+    assert [(r["options.seed"], r["out.t_final"]) for r in rows] == [
+        (s, pytest.approx(h)) for s in (0, 1, 2) for h in (1.0, 2.0)]
+    D = np.array(SPEC["base"]["keep"]["support"])
+    for r in rows:
+        prob = ocreach.get_problem("vdp", t_final=r["out.t_final"])
+        P = ocreach.reach(prob, "mc", samples=4, seed=r["options.seed"]).points[-1][:, :2]
+        assert P.shape == (4, 2)
+        for j, name in enumerate(("x1", "x2")):
+            assert r[f"out.{name}_min"] == pytest.approx(P[:, j].min(), rel=1e-9, abs=1e-12)
+            assert r[f"out.{name}_max"] == pytest.approx(P[:, j].max(), rel=1e-9, abs=1e-12)
+        for i, d in enumerate(D):
+            assert r[f"out.support_{i}"] == pytest.approx(np.max(P @ d), rel=1e-9, abs=1e-12)
+        assert r["out.meb_radius"] == pytest.approx(_brute_force_meb_radius(P), rel=1e-9)
+        assert r["out.hull_volume"] == pytest.approx(_hull_area(P), rel=1e-9)
+    assert len({r["out.x1_max"] for r in rows}) == 6  # seeds and horizons really differ
 
 
 def test_process_pool_and_dask_give_the_same_table(serial_table, tmp_path, monkeypatch):
@@ -102,19 +148,26 @@ def test_resume_after_limit_and_interrupt_runs_only_the_rest(serial_table, tmp_p
 
 
 def test_a_raising_task_is_recorded_and_the_rest_finish(tmp_path):
-    data = {"base": {"problem": "vdp", "options": {"samples": 4}},
-            "tasks": [{"method": "mc"}, {"method": "mc", "overrides": {"t_final": 3.05}},
+    # a failure only the computation can find: Van der Pol with negative damping started outside
+    # its unstable limit cycle escapes to infinity in finite time (the integrator stops, SolverError)
+    (tmp_path / "unstable.py").write_text(
+        "import dataclasses\n\nimport numpy as np\n\nfrom ocreach.problem import get_problem\n\n\n"
+        "def problem(mu: float = 1.0):\n    base = get_problem('vdp')\n"
+        "    return dataclasses.replace(base, params=np.array([mu, base.params[1]]))\n")
+    data = {"base": {"problem": "unstable.py", "options": {"samples": 4}},
+            "tasks": [{"method": "mc"}, {"method": "mc", "overrides": {"mu": -5.0}, "state": [3.0, 0.0]},
                       {"method": "mc", "options": {"seed": 3}}]}
     out = tmp_path / "o"
-    s = run_sweep(spec_from_dict(data), out, serial=True, progress=False)
-    assert (s.ok, s.failed) == (2, 1)  # t_final = 3.05 is no whole multiple of dt = 0.1: the worker raises
+    s = run_sweep(spec_from_dict(data, base_dir=tmp_path), out, serial=True, progress=False)
+    assert (s.ok, s.failed) == (2, 1)
     st = status(out)
-    assert st["failed"] == 1 and "t_final" in st["errors"][0]["message"]
+    assert st["failed"] == 1 and "step size underflow" in st["errors"][0]["message"]
     rows = table(out)
     assert [r["status"] for r in rows] == ["ok", "error", "ok"]
-    assert rows[1]["error"].startswith("ProblemError")
-    assert run_sweep(spec_from_dict(data), out, serial=True, progress=False).ran == 0
-    retry = run_sweep(spec_from_dict(data), out, serial=True, progress=False, retry_failed=True)
+    assert rows[1]["error"].startswith("SolverError")
+    assert run_sweep(spec_from_dict(data, base_dir=tmp_path), out, serial=True, progress=False).ran == 0
+    retry = run_sweep(spec_from_dict(data, base_dir=tmp_path), out, serial=True, progress=False,
+                      retry_failed=True)
     assert (retry.ran, retry.failed) == (1, 1)
 
 
@@ -176,6 +229,82 @@ def test_bad_specs_are_rejected_before_work(change, message):
     with pytest.raises(SweepError) as err:
         spec_from_dict({**SPEC, **change})
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize("header, expected", [
+    ("name,x[km],q[km],vx[km/s],vy[km/s]", ["catalog cat.csv data row 1", "unknown state column(s) "
+                                             "['q[km]']", "missing state(s) ['y']", "['x', 'y', 'vx', 'vy']"]),
+    ("name,x[km],vx[km/s],vy[km/s],family", ["data row 1", "missing state(s) ['y']"]),
+    ("name,x[km],y[km/s],vx[km/s],vy[km/s]", ["state y[km/s]", "'km/s' is a velocity unit and 'y' is a "
+                                              "position state", "allowed units for 'y'", "'km'"]),
+    ("name,x[km],y[km],vx[km/s],vy[kg]", ["state vy[kg]", "mass unit", "allowed units for 'vy'", "'m/s'"]),
+    ("name,x[km],x[m],vx[km/s],vy[km/s]", ["repeated state column(s) ['x[km]', 'x[m]']"]),
+])
+def test_bad_catalog_columns_are_rejected_by_the_driver(tmp_path, header, expected):
+    """Catalog columns against the problem's states (the driver builds the problem once; nothing runs)."""
+    values = ["105764.0", "0", "0", "0.8", "DRO"][: header.count(",")]
+    (tmp_path / "cat.csv").write_text(f"{header}\na,{','.join(values)}\n")
+    data = {"catalog": {"file": "cat.csv"}, "base": {"problem": "dro", "method": "mc",
+                                                     "options": {"samples": 4}}, "tasks": [{}]}
+    with pytest.raises(SweepError) as err:
+        spec_from_dict(data, base_dir=tmp_path)
+    for text in expected:
+        assert text in str(err.value)
+    assert not (tmp_path / "o").exists()
+
+
+def test_catalog_units_need_a_problem_with_units(tmp_path):
+    (tmp_path / "cat.csv").write_text("name,x1[km],x2[nd]\na,1,2\nb,1,3\n")
+    data = {"catalog": {"file": "cat.csv"}, "base": {"problem": "vdp", "method": "mc"}, "tasks": [{}]}
+    with pytest.raises(SweepError, match=r"task 0 \(a\), catalog cat.csv data row 1: state x1\[km\] "
+                                         r"of problem 'vdp': problem 'vdp' has no units; allowed units "
+                                         r"for 'x1': \['DU', 'DU/TU', 'nd'\]"):
+        spec_from_dict(data, base_dir=tmp_path)
+    (tmp_path / "cat.csv").write_text("name,x1[nd],x2[DU/TU]\na,1,2\nb,1,3\n")
+    spec = spec_from_dict(data, base_dir=tmp_path)
+    from ocreach.sweep.worker import build_problem
+
+    assert build_problem(spec.tasks[1], spec.base_dir).x0.tolist() == [1.0, 3.0]
+
+
+@pytest.mark.parametrize("problem, overrides, expected", [
+    ("dro", {"thrust": "lots"}, "task 0: problem 'dro' override 'thrust' = 'lots' does not fit its declared "
+                                "type float: thrust must be a finite number; got 'lots'"),
+    ("dro", {"thrust": True}, "override 'thrust' = True does not fit its declared type float"),
+    ("dro", {"thrust": [1e-3]}, "override 'thrust' = [0.001] does not fit its declared type float"),
+    ("dro", {"input_set": 3}, "override 'input_set' must be text (declared str); got 3"),
+    ("elliptic-earth", {"segments": 2.5}, "segments must be an integer; got 2.5"),
+    ("custody-l1", {"uncertain": "maybe"}, "uncertain must be a boolean"),
+    ("prob.py", {"thrus": 1e-3}, "problem 'prob.py' has no override(s) ['thrus']; allowed: ['thrust']"),
+    ("prob.py", {"thrust": "x"}, "problem 'prob.py' override 'thrust' = 'x' does not fit"),
+    ("prob.py", {"thrust": -1e-3}, "problem 'prob.py' with overrides {'thrust': -0.001} cannot be built: "
+                                   "ProblemError: thrust"),
+    ("vdp", {"t_final": 3.05}, "problem 'vdp' with overrides {'t_final': 3.05} cannot be built: "
+                               "ProblemError: t_final = 3.05 TU must be a whole multiple of dt"),
+])
+def test_bad_problem_overrides_are_rejected_by_the_driver(tmp_path, problem, overrides, expected):
+    (tmp_path / "prob.py").write_text("from ocreach.problem import get_problem\n\n"
+                                      "def problem(thrust: float = 1.1e-3):\n"
+                                      "    return get_problem('dro', thrust=thrust)\n")
+    data = {"base": {"problem": problem, "method": "mc", "options": {"samples": 4}},
+            "tasks": [{"overrides": overrides}]}
+    with pytest.raises(SweepError) as err:
+        spec_from_dict(data, base_dir=tmp_path)
+    assert expected in str(err.value)
+
+
+@pytest.mark.parametrize("task, expected", [
+    ({"horizon": {"value": 1, "unit": "d"}}, "horizon in 'd' needs units; problem 'vdp' has none"),
+    ({"keep": {"dims": [5]}}, "task 0: dims [5] out of range"),
+    ({"keep": {"support": [[1.0, 0.0, 0.0]]}}, "keep.support directions have 3 entries"),
+    ({"keep": {"custody": {"fov": 1.0}}}, "keep.custody has unknown argument(s) ['fov']; allowed:"),
+    ({"keep": {"custody": {"observer": "L1"}}}, "keep.custody needs fov_deg"),
+    ({"state": [1.0, 2.0, 3.0]}, "state has 3 values; problem 'vdp' has 2 states ['x1', 'x2']"),
+])
+def test_task_fields_are_checked_against_the_problem(task, expected):
+    with pytest.raises(SweepError) as err:
+        spec_from_dict({"base": {"problem": "vdp", "method": "mc"}, "tasks": [task]})
+    assert expected in str(err.value)
 
 
 def test_unreachable_scheduler_and_foreign_folder_fail_before_work(tmp_path, monkeypatch):
@@ -249,11 +378,6 @@ def test_cli_run_status_collect_and_result_files(tmp_path, capsys):
     assert main(["sweep", "collect", str(out)]) == 0
     rows = (out / "table.csv").read_text().splitlines()
     assert len(rows) == 2 and "out.x1_max" in rows[0]
-    if importlib.util.find_spec("pyarrow") is None:
-        with pytest.raises(SweepError, match="needs pyarrow"):
-            write_table(out, "csv,parquet")
-    else:
-        assert [p.name for p in write_table(out, "csv,parquet")] == ["table.csv", "table.parquet"]
     with pytest.raises(SweepError, match="--format"):
         write_table(out, "xlsx")
     rec = json.loads((out / LOG).read_text())
@@ -265,27 +389,27 @@ def test_cli_run_status_collect_and_result_files(tmp_path, capsys):
     assert "--out" in capsys.readouterr().err
 
 
-def test_meb_fallback_brackets_the_true_ball():
-    rng = np.random.default_rng(0)
-    g = rng.standard_normal((400, 3))
-    sphere = 2.0 * g / np.linalg.norm(g, axis=1, keepdims=True) + [1.0, -1.0, 0.5]
-    b = meb_radius_bounds(sphere)  # the MEB of points spread over a sphere is that sphere
-    assert b["meb_radius_lower"] <= 2.0 + 1e-12 and b["meb_radius"] >= 2.0 - 1e-12
-    assert b["meb_radius"] <= 2.0 * 1.1 and b["meb_radius_lower"] >= 2.0 * 0.95
-    tri = np.array([[0.0, 0.0], [4.0, 0.0], [2.0, 0.1]])  # obtuse: MEB on the long side, r = 2
-    assert meb_radius_bounds(tri)["meb_radius"] == pytest.approx(2.0)
+def test_parquet_table_matches_the_csv(serial_table, tmp_path):
+    pq = pytest.importorskip("pyarrow.parquet")
+    out = tmp_path / "o"
+    run_sweep(spec_from_dict(SPEC), out, serial=True, progress=False)
+    assert [p.name for p in write_table(out, "csv,parquet")] == ["table.csv", "table.parquet"]
+    back = pq.read_table(out / "table.parquet").to_pylist()  # read back by pyarrow itself
+    columns, rows = collect_table(out)
+    assert list(back[0]) == columns and len(back) == len(rows) == 6
+    for b, r in zip(back, rows):
+        assert {c: b[c] for c in columns} == {c: r.get(c) for c in columns}
 
 
-def test_meb_uses_the_exact_routine_when_geometry_has_one(monkeypatch):
-    from types import SimpleNamespace
+def test_parquet_without_pyarrow_names_the_extra(serial_table, tmp_path, monkeypatch):
+    import sys
 
-    import ocreach.geometry
-    from ocreach.sweep.outputs import meb_radius
-
-    monkeypatch.setattr(ocreach.geometry, "minimum_enclosing_ball",
-                        lambda pts: SimpleNamespace(radius=0.5 * np.ptp(pts[:, 0])), raising=False)
-    out = meb_radius(np.array([[0.0, 0.0], [3.0, 0.0]]))
-    assert out == {"meb_radius": 1.5, "meb_method": "exact (ocreach.geometry)"}
+    out = tmp_path / "o"
+    run_sweep(spec_from_dict(SPEC), out, serial=True, limit=1, progress=False)
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow now raises ImportError
+    with pytest.raises(SweepError, match=r"pip install 'ocreach\[parquet\]'"):
+        write_table(out, "csv,parquet")
+    assert not (out / "table.csv").exists()  # nothing written before the error
 
 
 def test_hull_volume_of_known_sets():
@@ -298,27 +422,22 @@ def test_hull_volume_of_known_sets():
     assert hull_volume(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])) == 0.0  # flat
 
 
-def test_example_specs_validate_and_custody_fails_clearly(tmp_path):
+def test_example_specs_validate():
     small = load_spec(ROOT / "examples" / "sweep_small.json")
     assert 15 <= len(small) <= 30
     assert len(load_spec(ROOT / "examples" / "sweep_thrust.json")) == 14
     assert len(load_spec(ROOT / "examples" / "sweep_catalog.json")) == 3000
     custody = load_spec(ROOT / "examples" / "sweep_custody.json")
     assert len(custody) == 180 and all(t["keep"]["custody"]["fov_deg"] for t in custody.tasks)
-    from ocreach.sweep.outputs import CUSTODY_HOOK
-
-    spec = importlib.util.find_spec("ocreach.custody")
-    if spec is not None and hasattr(importlib.import_module("ocreach.custody"), CUSTODY_HOOK):
-        pytest.skip("ocreach.custody provides the sweep hook: the custody sweep runs for real")
-    s = run_sweep(custody, tmp_path / "c", serial=True, limit=2, progress=False)
-    assert s.failed == 2
-    assert status(tmp_path / "c")["errors"][0]["message"].startswith("custody not available")
 
 
 def test_a_dying_worker_is_recorded_and_the_run_stops_clearly(tmp_path):
     (tmp_path / "die.py").write_text(
         "import os\nfrom ocreach.problem import get_problem\n\n"
-        "def problem(die=False):\n    if die:\n        os._exit(3)\n    return get_problem('vdp')\n")
+        "import multiprocessing\n\n"
+        "def problem(die=False):\n    if die and multiprocessing.parent_process() is not None:\n"
+        "        os._exit(3)  # only in a worker process: the driver builds every problem once to check it\n"
+        "    return get_problem('vdp')\n")
     data = {"base": {"problem": "die.py", "method": "mc", "options": {"samples": 2}},
             "tasks": [{}, {"overrides": {"die": True}}, {"options": {"seed": 5}}]}
     spec = spec_from_dict(data, base_dir=tmp_path)

@@ -7,8 +7,8 @@ Format (``#`` lines are comments)::
 
 * ``name`` (required, unique): the object id, kept as tag ``object``;
 * ``problem`` (optional): the problem id / file of that row (else the spec's base problem);
-* state columns ``NAME[UNIT]``: ``NAME`` a state name of the model (checked by the worker against
-  ``model.state_names``), ``UNIT`` one of :data:`UNITS` (``nd`` = the model's own units);
+* state columns ``NAME[UNIT]``: ``NAME`` a state name of the model (checked by the driver against
+  ``model.state_names``, :func:`ocreach.sweep.worker.state_vector`), ``UNIT`` one of :data:`UNITS` (``nd`` = the model's own units);
   every state column must carry a unit, so a km value is never read as a model unit;
 * any other column is kept as a text tag (e.g. ``family``).
 

@@ -96,8 +96,8 @@ def write_table(out: str | Path, formats: str | list[str] = "csv") -> list[Path]
         try:
             import pyarrow  # noqa: F401
         except ImportError:
-            raise SweepError("--format parquet needs pyarrow (pip install pyarrow); csv needs "
-                             "nothing extra") from None
+            raise SweepError("--format parquet needs pyarrow, which is not installed: "
+                             "pip install 'ocreach[parquet]' (csv needs nothing extra)") from None
     columns, rows = collect_table(out)
     paths = []
     if "csv" in fmts:

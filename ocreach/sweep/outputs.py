@@ -14,57 +14,19 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import SolverError
+from ocreach.meb import minimum_enclosing_ball
 from ocreach.reach.directions import resolve_dims
 from ocreach.sweep.errors import SweepError
 
 
 def meb_radius(points: np.ndarray) -> dict[str, Any]:
-    """Radius of the minimum enclosing ball of ``points`` (m, d).
+    """Radius of the exact minimum enclosing ball of ``points`` (m, d).
 
-    Uses the exact ``ocreach.geometry.minimum_enclosing_ball`` (Welzl; issue #13, returns a ball
-    with ``.radius``) when it exists; otherwise the fallback :func:`meb_radius_bounds` brackets it.
+    :func:`ocreach.meb.minimum_enclosing_ball` (Welzl's algorithm in a core-set loop, Tucker et
+    al. Sec. 2.3; exact to machine precision, with a certificate).  For sample-based results
+    this is the ball of the samples, an inner estimate of the ball of the true set.
     """
-    from ocreach import geometry
-
-    exact = getattr(geometry, "minimum_enclosing_ball", None)
-    if exact is not None:
-        ball = exact(points)
-        radius = getattr(ball, "radius", None)
-        if radius is None:
-            radius = ball[-1] if isinstance(ball, tuple) else ball
-        return {"meb_radius": float(radius), "meb_method": "exact (ocreach.geometry)"}
-    return meb_radius_bounds(points)
-
-
-def meb_radius_bounds(points: np.ndarray) -> dict[str, Any]:
-    """Fallback MEB bracket: ``diameter / 2 <= r_MEB <= r_grow``.
-
-    ``r_grow`` is the radius of an enclosing ball found by Ritter's construction (start on the
-    two far points of a double farthest-point pass, then grow the ball towards the farthest
-    outside point until none is left; J. Ritter, "An efficient bounding sphere", Graphics Gems
-    1990), an upper bound a few per cent above the minimum; the lower bound is half the largest
-    pairwise distance (every enclosing ball contains that segment).  ``meb_radius`` reports the
-    upper bound (the ball encloses every point) and ``meb_method`` says so.
-    """
-    from scipy.spatial.distance import pdist
-
-    P = np.asarray(points, dtype=float)
-    a = P[np.argmax(np.linalg.norm(P - P[0], axis=1))]
-    b = P[np.argmax(np.linalg.norm(P - a, axis=1))]
-    c, r = 0.5 * (a + b), 0.5 * float(np.linalg.norm(b - a))
-    for _ in range(10 * len(P)):
-        d = np.linalg.norm(P - c, axis=1)
-        j = int(np.argmax(d))
-        if d[j] <= r * (1 + 1e-12) + 1e-300:
-            break
-        r_new = 0.5 * (r + d[j])
-        c = c + (d[j] - r_new) / d[j] * (P[j] - c)
-        r = r_new
-    lower = 0.5 * float(pdist(P).max()) if 1 < len(P) <= 5000 else float("nan")
-    out = {"meb_radius": r, "meb_method": "ritter-upper-bound (no exact MEB in ocreach.geometry)"}
-    if math.isfinite(lower):
-        out["meb_radius_lower"] = lower
-    return out
+    return {"meb_radius": float(minimum_enclosing_ball(points).radius)}
 
 
 def hull_volume(points: np.ndarray) -> float:
@@ -82,41 +44,43 @@ def hull_volume(points: np.ndarray) -> float:
         return 0.0
 
 
-#: the function of ocreach.custody a sweep calls for keep.custody (see custody_outputs)
-CUSTODY_HOOK = "sweep_task"
-
-
-def custody_hook():
-    """``ocreach.custody.sweep_task``, or :class:`SweepError` "custody not available"."""
-    try:
-        import ocreach.custody as custody
-    except ImportError:
-        raise SweepError("custody not available: ocreach.custody (issue #13) is not installed in "
-                         "this version of ocreach; keep.custody needs it") from None
-    fn = getattr(custody, CUSTODY_HOOK, None)
-    if fn is None:
-        raise SweepError(f"custody not available: ocreach.custody has no {CUSTODY_HOOK}(problem, "
-                         "result, **params) hook for sweeps yet")
-    return fn
-
-
 def custody_outputs(problem, result, params: dict[str, Any]) -> dict[str, Any]:
-    """Custody horizon of one task: ``ocreach.custody.sweep_task(problem, result, **params)``.
+    """Custody horizon of one task: :func:`ocreach.custody.sweep_task` ``(problem, result, **params)``.
 
-    ``ocreach.custody`` (issue #13) is imported lazily; the hook returns a dict of numbers (e.g.
-    ``{"t_safe": ..., "t_loss": ...}``, recorded as ``custody_t_safe`` ...) or one number
-    (``custody_horizon``).  Raises :class:`SweepError` "custody not available" when the module or
-    the hook is missing, so the task is recorded as failed with that message and the others go on.
+    The hook returns a dict of numbers (``{"t_safe_days": ..., "t_loss_days": ...}``, recorded as
+    ``custody_t_safe_days`` ...) or one number (``custody_horizon``).
     """
-    value = custody_hook()(problem, result, **params)
+    from ocreach.custody import sweep_task
+
+    value = sweep_task(problem, result, **params)
     if isinstance(value, dict):
         return {f"custody_{k}": v for k, v in value.items()}
     return {"custody_horizon": float(value)}
 
 
+def check_keep(keep: dict[str, Any], problem) -> tuple[int, ...]:
+    """``keep`` against the task's problem (the driver checks it before any task runs): ``dims``
+    indices of its state, ``support`` directions of that length, custody argument names.  Returns
+    the dims."""
+    dims = resolve_dims(keep["dims"], problem)
+    if keep["support"] and len(keep["support"][0]) != len(dims):
+        names = [problem.model.state_names[d] for d in dims]
+        raise SweepError(f"keep.support directions have {len(keep['support'][0])} entries; keep.dims "
+                         f"{keep['dims']!r} of problem {problem.id!r} has {len(dims)} ({names})")
+    if keep["custody"] is not None:
+        from ocreach.custody import SWEEP_PARAMS
+
+        unknown = sorted(set(keep["custody"]) - set(SWEEP_PARAMS))
+        if unknown:
+            raise SweepError(f"keep.custody has unknown argument(s) {unknown}; allowed: {list(SWEEP_PARAMS)}")
+        if "fov_deg" not in keep["custody"]:
+            raise SweepError("keep.custody needs fov_deg (full field-of-view angle in degrees, in (0, 180))")
+    return dims
+
+
 def compute_outputs(result, problem, keep: dict[str, Any]) -> dict[str, Any]:
     """The scalars a task records (see the module docstring); every number is finite."""
-    dims = resolve_dims(keep["dims"], problem)
+    dims = check_keep(keep, problem)
     names = [problem.model.state_names[d] for d in dims]
     out: dict[str, Any] = {"t_final": float(result.times[-1])}
     if problem.units is not None:
@@ -129,9 +93,6 @@ def compute_outputs(result, problem, keep: dict[str, Any]) -> dict[str, Any]:
             out[f"{n}_min"], out[f"{n}_max"], out[f"extent_{n}"] = float(a), float(b), float(b - a)
     if keep["support"]:
         D = np.asarray(keep["support"], dtype=float)
-        if D.shape[1] != len(dims):
-            raise SweepError(f"keep.support directions have {D.shape[1]} entries; keep.dims "
-                             f"{keep['dims']!r} has {len(dims)} ({names})")
         vals = np.atleast_1d(result.support(D, k=-1, dims=dims))
         out.update({f"support_{i}": float(v) for i, v in enumerate(vals)})
     if keep["meb"] or keep["volume"]:

@@ -32,8 +32,11 @@ Task fields:
 * ``tags``: free labels copied to the table (a catalog row's ``name`` becomes ``tags.object``);
 * ``label``: optional text.
 
-Every name is checked (unknown keys, problems, factory arguments, methods, option names and
-values via the method's ``Options``) before any task runs; errors name the task and the value.
+Every name is checked (unknown keys, problems, factory arguments and their declared types,
+methods, option names and values via the method's ``Options``), and each task's problem is built
+once in the driver to check the factory values, the state (catalog columns), the horizon unit and
+``keep`` against it (:func:`_check_with_problems`), before any task runs; errors name the task,
+the catalog row, the value and what is allowed.
 """
 from __future__ import annotations
 
@@ -147,15 +150,17 @@ def spec_from_dict(data: dict[str, Any], base_dir: str | Path | None = None,
     combos: list[dict[str, Any]] = [{}]
     if "product" in data:
         combos = _product(data["product"])
-    tasks = []
-    for row, item, combo in itertools.product(rows, items, combos):
+    tasks, origins = [], []
+    for (r, row), item, combo in itertools.product(enumerate(rows), items, combos):
         merged = _merge(_merge(_merge(copy.deepcopy(template), row), item), combo)
         tasks.append(merged)
+        origins.append(f"catalog {data['catalog']['file']} data row {r + 1}" if "catalog" in data else "")
     files: dict[str, str] = {}
     normalized = [normalize_task(t, i, base, files) for i, t in enumerate(tasks)]
     spec = Spec(tasks=normalized, raw=data, base_dir=str(base), name=str(data.get("name", "")),
                 package_versions=package_versions)
     _check_unique(spec)
+    _check_with_problems(spec, origins)
     return spec
 
 
@@ -246,20 +251,26 @@ def split_problem_ref(ref: str) -> tuple[str, str | None]:
 
 
 def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
-    """``(factory or None, sha256 of the file or None)``; unknown ids and missing files raise."""
-    from ocreach.problem import problem_factories
+    """``(factory, sha256 of the file or None)``; unknown ids, missing or broken files raise."""
+    from ocreach.problem import problem_factories, problem_factory
 
     if not isinstance(ref, str) or not ref:
         raise SweepError(f"{where}: 'problem' must be a problem id or a .py file; got {ref!r}")
     if ref.endswith(".py") or ".py:" in ref:
         if "\0file " + ref in files:
-            return None, files["\0file " + ref]
+            return files["\0factory " + ref], files["\0file " + ref]
         path, _pid = split_problem_ref(ref)
         full = (base / path).resolve()
         if not full.is_file():
             raise SweepError(f"{where}: problem file {path!r} does not exist (looked in {full})")
         files["\0file " + ref] = hashlib.sha256(full.read_bytes()).hexdigest()
-        return None, files["\0file " + ref]
+        try:  # imports the file (as the worker will); its factory is called by _check_with_problems
+            _sub, factory = problem_factory(str(full) + (f":{_pid}" if _pid is not None else ""))
+        except Exception as exc:  # noqa: BLE001 - user code: any error is a bad problem file
+            raise SweepError(f"{where}: problem file {path!r} cannot be loaded: "
+                             f"{type(exc).__name__}: {exc}") from None
+        files["\0factory " + ref] = factory  # type: ignore[assignment]
+        return factory, files["\0file " + ref]
     if "\0registry" not in files:
         files["\0registry"] = problem_factories()  # type: ignore[assignment]
     reg = files["\0registry"]
@@ -269,15 +280,60 @@ def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
 
 
 def _check_overrides(factory, overrides: dict[str, Any], ref: str, where: str) -> None:
-    if factory is None:
-        return  # a problem file's factory arguments are checked by the worker that loads it
+    """Override names against the factory's keywords and values against their declared types
+    (``bool`` strictly, ``float``/``int`` finite numbers, ``str`` text), as the worker's
+    :func:`ocreach.problem.get_problem` will convert them."""
+    from ocreach.options import _type_text, strict_bools, typed_number
+
     sig = inspect.signature(factory)
-    if any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
-        return
-    allowed = [n for n, p in sig.parameters.items() if p.kind is not p.VAR_KEYWORD]
-    unknown = sorted(set(overrides) - set(allowed))
-    if unknown:
-        raise SweepError(f"{where}: problem {ref!r} has no override(s) {unknown}; allowed: {allowed}")
+    params = {n: p for n, p in sig.parameters.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+    if not any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values()):
+        unknown = sorted(set(overrides) - set(params))
+        if unknown:
+            raise SweepError(f"{where}: problem {ref!r} has no override(s) {unknown}; allowed: "
+                             f"{list(params)}")
+    for k, v in overrides.items():
+        if k not in params:
+            continue
+        ann = params[k].annotation
+        declared = _type_text(ann) or "any"
+        try:
+            strict_bools(factory, {k: v})
+            typed_number(k, v, ann)
+        except OcreachError as exc:
+            raise SweepError(f"{where}: problem {ref!r} override {k!r} = {v!r} does not fit its "
+                             f"declared type {declared}: {exc}") from None
+        parts = {t.strip() for t in declared.replace("|", ",").split(",")}
+        if "str" in parts and parts <= {"str", "None"} and not (isinstance(v, str) or v is None and "None" in parts):
+            raise SweepError(f"{where}: problem {ref!r} override {k!r} must be text (declared "
+                             f"{declared}); got {v!r}")
+
+
+def _check_with_problems(spec: Spec, origins: list[str]) -> None:
+    """Build each task's problem in the driver, as its worker will, and check the task against it.
+
+    The base problem (factory and overrides) is built once per distinct problem and kept in the
+    worker module's per-process cache (a serial run reuses it); then the state (catalog columns:
+    names exactly the model's states, units of the right kind), the horizon unit and ``keep``
+    (``dims``, ``support`` length, custody arguments) are checked.  Errors name the task, the
+    catalog file and data row it came from, the value and what is allowed.
+    """
+    from ocreach.sweep.outputs import check_keep
+    from ocreach.sweep.worker import base_problem, build_problem
+
+    for i, (task, origin) in enumerate(zip(spec.tasks, origins)):
+        where = _where(i, task) + (f", {origin}" if origin else "")
+        try:
+            base_problem(task, spec.base_dir)
+        except SweepError as exc:
+            raise SweepError(f"{where}: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - user factories may raise anything
+            raise SweepError(f"{where}: problem {task['problem']!r} with overrides "
+                             f"{task['overrides']} cannot be built: {type(exc).__name__}: {exc}") from None
+        try:
+            check_keep(task["keep"], build_problem(task, spec.base_dir))
+        except OcreachError as exc:
+            raise SweepError(f"{where}: {exc}") from None
 
 
 def _check_method(method: Any, options: dict[str, Any], where: str) -> None:

@@ -81,30 +81,67 @@ def base_problem(task: dict[str, Any], base_dir: str) -> Problem:
     return prob
 
 
-def _state(problem: Problem, state: dict[str, Any]) -> np.ndarray:
+#: state names that take a mass unit (kg); other states take length units when they are position
+#: dims of the problem, velocity units when velocity dims, and model units (nd) always
+MASS_STATES = ("m", "mass")
+
+
+def _unit_kind_allowed(problem: Problem, index: int, name: str) -> str | None:
+    if index in problem.position_dims:
+        return "length"
+    if index in problem.velocity_dims:
+        return "velocity"
+    return "mass" if name in MASS_STATES else None
+
+
+def state_vector(problem: Problem, state: dict[str, Any]) -> np.ndarray:
+    """The initial state in model units from a task's ``state`` (see :mod:`ocreach.sweep.catalog`).
+
+    Raises :class:`SweepError` naming the entry ``NAME[UNIT]`` (a catalog column), the problem's
+    states and the units allowed: the names must be exactly ``model.state_names``, a length unit
+    goes on a position state, a velocity unit on a velocity state, ``kg`` on a mass state, and a
+    problem without units takes model units (``nd``) only.  Called by the driver for every task
+    (:func:`ocreach.sweep.spec.spec_from_dict`) and again by the worker for the conversion.
+    """
     names = list(problem.model.state_names)
     values = np.asarray(state["values"], dtype=float)
+    units = state["units"] or ["nd"] * values.size
     if state["names"] is None:
         if values.size != len(names):
             raise SweepError(f"state has {values.size} values; problem {problem.id!r} has "
                              f"{len(names)} states {names}")
-        order = list(range(len(names)))
+        given = names
     else:
-        missing = sorted(set(names) - set(state["names"]))
-        extra = sorted(set(state["names"]) - set(names))
-        if missing or extra or len(set(state["names"])) != len(state["names"]):
-            raise SweepError(f"state names {state['names']} must be exactly the states {names} of "
-                             f"problem {problem.id!r} (missing {missing}, unknown {extra})")
-        order = [names.index(n) for n in state["names"]]
+        given = list(state["names"])
+
+    def label(j: int) -> str:
+        return f"{given[j]}[{units[j]}]" if state["names"] is not None else f"state[{j}] ({given[j]})"
+
+    unknown = [label(j) for j, n in enumerate(given) if n not in names]
+    repeated = sorted({label(j) for j, n in enumerate(given) if given.count(n) > 1})
+    missing = [n for n in names if n not in given]
+    if unknown or repeated or missing:
+        parts = ([f"unknown state column(s) {unknown}"] if unknown else []) + \
+                ([f"repeated state column(s) {repeated}"] if repeated else []) + \
+                ([f"missing state(s) {missing}"] if missing else [])
+        raise SweepError(f"state of problem {problem.id!r}: {'; '.join(parts)}; the state columns "
+                         f"must be exactly the problem's states {names}, each as NAME[UNIT]")
     u = problem.units
     scale = {"nd": 1.0} if u is None else {"nd": 1.0, "length": 1.0 / u.length,
                                             "velocity": 1.0 / u.velocity, "mass": 1.0 / u.mass}
     x0 = np.empty(len(names))
-    for j, i in enumerate(order):
-        kind, factor = UNITS[state["units"][j]] if state["units"] else ("nd", 1.0)
-        if kind not in scale:
-            raise SweepError(f"state {state['names'][j]!r} is given in {state['units'][j]!r} but "
-                             f"problem {problem.id!r} has no units; give it in 'nd'")
+    for j, n in enumerate(given):
+        i = names.index(n)
+        kind, factor = UNITS[units[j]]
+        want = _unit_kind_allowed(problem, i, n)
+        if kind != "nd" and (kind != want or kind not in scale):
+            ok = sorted(k for k, (kd, _) in UNITS.items() if kd == "nd" or (kd == want and kd in scale))
+            why = (f"problem {problem.id!r} has no units" if kind not in scale else
+                   f"{units[j]!r} is a {kind} unit and {n!r} is "
+                   + {"length": "a position state", "velocity": "a velocity state",
+                      "mass": "a mass state", None: "neither a position, velocity nor mass state"}[want])
+            raise SweepError(f"state {label(j)} of problem {problem.id!r}: {why}; allowed units "
+                             f"for {n!r}: {ok}")
         x0[i] = values[j] * factor * scale[kind]
     return x0
 
@@ -131,7 +168,7 @@ def build_problem(task: dict[str, Any], base_dir: str) -> Problem:
         if prob.initial_set is not None or prob.stochastic is not None:
             raise SweepError(f"problem {prob.id!r} has an initial set / stochastic spec centred on "
                              "its own x0; a 'state' override would leave it there")
-        changes["x0"] = _state(prob, task["state"])
+        changes["x0"] = state_vector(prob, task["state"])
     if task["horizon"] is not None:
         changes["grid"] = _grid(prob, task["horizon"])
     return dataclasses.replace(prob, **changes) if changes else prob
@@ -158,15 +195,13 @@ def run_task(payload: dict[str, Any]) -> dict[str, Any]:
 
 def _run_task(payload: dict[str, Any]) -> dict[str, Any]:
     from ocreach.reach.base import reach
-    from ocreach.sweep.outputs import compute_outputs, custody_hook
+    from ocreach.sweep.outputs import compute_outputs
 
     limit_threads()
     t0 = time.perf_counter()
     task = payload["task"]
     rec: dict[str, Any] = {"key": payload["key"], "worker": f"{socket.gethostname()}:{os.getpid()}"}
     try:
-        if task["keep"]["custody"] is not None:
-            custody_hook()  # fail before the reach computation when custody is not available
         problem = build_problem(task, payload["base_dir"])
         result = reach(problem, task["method"], **task["options"])
         rec["outputs"] = compute_outputs(result, problem, task["keep"])
