@@ -10,7 +10,8 @@ N = 15, initial deviation set ``G_pos = 1e-4 I``, ``G_vel = 5e-4 I``, disturbanc
 (non-dimensional), ``Delta V = 0.0061 m/s`` over 157 h.
 
 :func:`run_station_keeping` runs this controller, a robust tube MPC (:mod:`ocreach.control.tube_mpc`),
-the continuous MPC and the periodic LQR on the true CR3BP plant with the same seeded offset,
+the continuous MPC and the periodic LQR on the true CR3BP plant (or the DE421 ephemeris plant of
+:mod:`ocreach.control.ephemeris_plant`, the CR3BP then only the prediction model) with the same seeded offset,
 disturbance and (optional) navigation-error draws, over many revolutions, and computes the metrics of
 :func:`station_keeping_metrics`.
 """
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.control.common import control_scale
+from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, PLANTS, EphemerisPlant
 from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
@@ -340,7 +342,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
                         navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
                         max_cpu_time: float = 2.0, n_sub: int | str = "auto",
-                        prediction_substeps: int | None = 4,
+                        prediction_substeps: int | None = 4, plant: str = "cr3bp",
+                        epoch: Any = DEFAULT_EPOCH, ephemeris_bodies: Any = DEFAULT_BODIES,
                         progress: bool = False) -> StationKeepingRun:
     """Closed loop of each controller over ``revolutions`` of the problem's periodic reference.
 
@@ -353,6 +356,11 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     reference, LQR and tubes use ``n_sub`` RK4 substeps (``"auto"``: one-step error <= 1e-6); the
     MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
     (``None``: ``n_sub``, no correction).
+
+    ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
+    (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
+    ``ephemeris_bodies`` from ``epoch`` = reference time 0, the CR3BP rotating frame fixed at the
+    epoch); the controllers, tubes and reference stay CR3BP (the prediction model) either way.
     """
     from ocreach.control.report import PAPER_Q, paper_pattern
     from ocreach.control.tube_mpc import TubeMPC
@@ -366,6 +374,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                            f"{list(controllers)!r}")
     if isinstance(revolutions, bool) or not np.isfinite(revolutions) or revolutions <= 0:
         raise ProblemError(f"revolutions must be a number > 0; got {revolutions!r}")
+    if plant not in PLANTS:
+        raise ProblemError(f"plant must be one of {list(PLANTS)}; got {plant!r}")
+    if isinstance(ephemeris_bodies, str):
+        ephemeris_bodies = tuple(b.strip() for b in ephemeris_bodies.split(",") if b.strip())
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
     Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
     R = np.ones(problem.model.n_u) if R is None else R
@@ -400,6 +412,11 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         prediction_substeps = None  # the reference's model is already that cheap
     mpc_kw = {"max_cpu_time": max_cpu_time, "prediction_substeps": prediction_substeps,
               "defect_correction": prediction_substeps is not None}
+    true_plant = None
+    if plant == "ephemeris":
+        true_plant = EphemerisPlant(ref, kind, problem.velocity_dims,
+                                    span_days=K * ref.dt * problem.units.time / 86400.0,
+                                    epoch=epoch, bodies=ephemeris_bodies)
     results, metrics, gauges, active = {}, {}, {}, {}
     for name in controllers:
         ctl = build[name]()
@@ -407,7 +424,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
             ctl.setup(ref, kind)
         run_ctl = ctl if navigation is None else NavigationError(ctl, navigation, seed + 1).setup(ref, kind)
         res = simulate(ref, run_ctl, control_set_kind=kind, velocity_dims=problem.velocity_dims,
-                       options=opt, name=name)
+                       options=opt, name=name, plant=true_plant)
         met, gam = station_keeping_metrics(res, ref, schedule, problem, ctl)
         results[name], metrics[name], gauges[name] = res, met, gam
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
@@ -436,6 +453,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "defect_correction": prediction_substeps is not None,
         "a_max": float(problem.param("a_max")), "thrust_N": problem.extra.get("thrust_N"),
         "mass_kg": problem.extra.get("mass_kg"),
+        "plant": ({"plant": "cr3bp", "frame": "CR3BP rotating (the prediction model)"}
+                  if true_plant is None else true_plant.describe()),
         "paper": {"delta_v_mps": PAPER_DELTA_V_MPS, "t_f_hours": PAPER_TF_HOURS, "N": PAPER_N,
                   "G_pos": PAPER_G_POS, "G_vel": PAPER_G_VEL, "W": PAPER_W},
     }

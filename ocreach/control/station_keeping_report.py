@@ -2,7 +2,7 @@
 (Patel & Subbarao, "Station-keeping in the near rectilinear halo orbit", Fig. 7-8).
 
 ``ocreach report station-keeping --problem nrho-9-2 [--controllers event-mpc,tube-mpc,mpc,lqr]
-[--revolutions N] [--out DIR] [--set key=value]`` runs :func:`~ocreach.control.station_keeping.
+[--revolutions N] [--plant cr3bp|ephemeris] [--out DIR] [--set key=value]`` runs :func:`~ocreach.control.station_keeping.
 run_station_keeping` and writes, atomically, ``metrics.json`` (one entry per controller and the
 settings), ``report.md``, ``report.html`` and the figures ``trajectory.png`` (3-D with the thrust
 arcs), ``projections.png`` (x-y and y-z with the tube boxes), ``gauge.png`` (with the trigger and
@@ -98,6 +98,14 @@ def summary_lines(data: dict) -> list[str]:
                "NOT a guaranteed enclosure (linearisation without a remainder term): gauges near "
                "perilune carry its linearisation error."))
     lines.append(tube)
+    pl = s.get("plant") or {"plant": "cr3bp"}
+    if pl["plant"] == "ephemeris":
+        lines.append(f"Plant: DE421 ephemeris, point masses {', '.join(pl['bodies'])}, epoch "
+                     f"{pl['epoch']} TDB = reference time 0; {pl['frame']}. The controllers and "
+                     "tubes predict with the CR3BP, so the CR3BP-vs-ephemeris mismatch is part of "
+                     "what they must correct.")
+    else:
+        lines.append("Plant: the CR3BP itself (the prediction model of the controllers).")
     paper_rate = PAPER_DELTA_V_MPS / PAPER_TF_HOURS
     for n in names:
         m = data[n]
