@@ -131,3 +131,8 @@ def test_report_plant_option_on_the_command_line(tmp_path):
     md = (tmp_path / "report.md").read_text()
     assert "Plant: DE421 ephemeris, point masses moon, earth, sun" in md
     assert f"{data['lqr']['delta_v_mps']:.4g} m/s" in md
+    # which tube per revolution (here the linearised one throughout)
+    tubes = data["settings"]["tubes"]
+    assert tubes and all(t["source"].startswith("interval hull of linear") for t in tubes)
+    assert not any(t["guaranteed"] for t in tubes) and data["lqr"]["tube_guaranteed"] is False
+    assert "LINEARISED, not guaranteed" in md

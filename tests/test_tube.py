@@ -421,3 +421,39 @@ def test_navigation_error_is_seeded_bounded_and_only_seen_by_the_controller(halo
     assert np.all(np.abs(runs[0]) <= sigma) and np.abs(runs[0]).max() > 0.5e-6
     with pytest.raises(ProblemError, match="navigation"):
         NavigationError(Recorder(), -1.0)
+
+
+def test_tube_log_says_per_refresh_which_tube_was_used(halo, halo_ref, monkeypatch):
+    """``taylor-or-linear``: the real sound tube where taylor succeeds (first 30-step interval of
+    the L2 halo), the linear tube where it fails (forced for the second interval, as taylor fails
+    at the NRHO's perilune); the log and the report sentences name each, with the reason."""
+    import ocreach.control.station_keeping as sk
+    from ocreach.control.station_keeping_report import tube_lines
+    from ocreach.errors import SolverError
+
+    real = sk.reach_drift_tube
+    sched = drift_schedule(halo, halo_ref, source="taylor-or-linear", interval=30, lookahead=2,
+                           membership="zonotope")
+    first = sched.phase
+
+    def flaky(problem, reference, k0, *a, **kw):
+        if k0 != first:
+            raise SolverError("taylor: interval Hessian unbounded at step 12 (test)")
+        return real(problem, reference, k0, *a, **kw)
+
+    monkeypatch.setattr(sk, "reach_drift_tube", flaky)
+    log = sk.tube_log(sched, first + 60)
+    assert [e["refresh_step"] for e in log][-2:] == [first, first + 30]
+    a, b = log[-2], log[-1]
+    assert a["guaranteed"] and a["source"].startswith("taylor") and a["fallback_reason"] is None
+    assert not b["guaranteed"] and b["source"].startswith("linear")
+    assert "step 12" in b["fallback_reason"]
+    # the stand-in is exactly the linear tube of that interval
+    lin = linear_drift_tube(halo_ref, first + 30, 33, sk.paper_initial_set(halo), sk.PAPER_W,
+                            halo.velocity_dims)
+    tb = sched.tube(first + 30)
+    assert np.array_equal(tb.centers, lin.centers) and np.array_equal(tb.generators, lin.generators)
+    text = tube_lines(log[-2:])
+    assert "GUARANTEED" in text[0] and "LINEARISED" in text[1] and "step 12" in text[1]
+    with pytest.raises(ProblemError, match="tube source must be one of"):
+        drift_schedule(halo, halo_ref, source="taylor-or-guess")

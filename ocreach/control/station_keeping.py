@@ -31,7 +31,7 @@ from ocreach.control.reference import TrackingReference, reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, simulate
 from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube, reach_drift_tube
 from ocreach.control.tube_mpc import MPCWrapper
-from ocreach.errors import ProblemError, check_count
+from ocreach.errors import ProblemError, SolverError, check_count
 
 #: Patel & Subbarao's NRHO station-keeping settings (non-dimensional).
 PAPER_N = 15
@@ -40,6 +40,10 @@ PAPER_W = 1e-7
 PAPER_DELTA_V_MPS = 0.0061
 PAPER_TF_HOURS = 157.0
 MEMBERSHIPS = ("zonotope", "box")
+#: Tube sources: the linearised tube, a sound method, or a sound method with the linear tube
+#: wherever it fails (each tube's source and guarantee are logged per refresh).
+FALLBACK_SOURCES = ("taylor-or-linear", "sdc-or-linear")
+TUBE_SOURCES = ("linear", "taylor", "sdc") + FALLBACK_SOURCES
 
 
 # ------------------------------------------------------------------------------------------------
@@ -116,9 +120,12 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
     revolutions; each covers its interval plus ``lookahead`` steps.
 
-    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed) or
+    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed),
     ``"taylor"`` / ``"sdc"`` (:func:`~ocreach.control.tube.reach_drift_tube`, guaranteed; with
-    ``tube_options`` for the method, and ``interval`` for tubes shorter than a revolution).
+    ``tube_options`` for the method, and ``interval`` for tubes shorter than a revolution; a
+    method that cannot enclose the interval raises), or ``"taylor-or-linear"`` /
+    ``"sdc-or-linear"`` (the sound tube where the method succeeds, else the linear one, its
+    ``meta["fallback_reason"]`` the method's error).  :func:`tube_log` lists which was used.
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
     """
@@ -128,16 +135,34 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     if isinstance(G0, str):
         raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
     length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
+
+    def linear(k: int) -> Tube:
+        return linear_drift_tube(reference, k, length, G0, disturbance, problem.velocity_dims,
+                                 order=order)
+
+    def sound(k: int, method: str) -> Tube:
+        return reach_drift_tube(problem, reference, k, length, G0, disturbance, method,
+                                **(tube_options or {}))
+
     if source == "linear":
-        def build(k: int) -> Tube:
-            return linear_drift_tube(reference, k, length, G0, disturbance, problem.velocity_dims,
-                                     order=order)
+        build = linear
     elif source in ("taylor", "sdc"):
         def build(k: int) -> Tube:
-            return reach_drift_tube(problem, reference, k, length, G0, disturbance, source,
-                                    **(tube_options or {}))
+            return sound(k, source)
+    elif source in FALLBACK_SOURCES:
+        method = source.split("-")[0]
+
+        def build(k: int) -> Tube:
+            try:
+                return sound(k, method)
+            except SolverError as err:  # e.g. taylor stops before perilune on the NRHO
+                lin = linear(k)
+                reason = " ".join(str(err).split())[:300]
+                return Tube(lin.centers, lin.generators, k0=lin.k0, guaranteed=False,
+                            source=f"{lin.source}; {method} failed", meta={
+                                **lin.meta, "fallback_from": method, "fallback_reason": reason})
     else:
-        raise ProblemError(f"tube source must be 'linear', 'taylor' or 'sdc'; got {source!r}")
+        raise ProblemError(f"tube source must be one of {list(TUBE_SOURCES)}; got {source!r}")
     wrap = as_box if membership == "box" else (lambda t: t)
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
                         lookahead=lookahead, reuse=True, interval=interval)
@@ -238,6 +263,25 @@ class NavigationError:
     def control(self, k: int, x: np.ndarray) -> np.ndarray:
         e = self.sigma * self.rng.uniform(-1.0, 1.0, self.sigma.size)
         return self.controller.control(k, np.asarray(x, float) + e)
+
+
+def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
+    """Which tube was used when: one entry per refresh interval touching steps ``0..n_steps-1``
+    (``refresh_step``, the steps ``[first, end)`` it was active for, the same in revolutions,
+    ``source``, ``guaranteed``, and ``fallback_reason`` when a sound method failed and the
+    linear tube stood in)."""
+    M = schedule.reference.n_steps
+    out = []
+    r = schedule.refresh_step(0)
+    while r < n_steps:
+        t = schedule.tube(r)
+        a, b = max(r, 0), min(r + schedule.interval, n_steps)
+        out.append({"refresh_step": int(r), "steps": [int(a), int(b)],
+                    "revolutions": [a / M, b / M], "source": t.source,
+                    "guaranteed": bool(t.guaranteed),
+                    "fallback_reason": (t.meta or {}).get("fallback_reason")})
+        r += schedule.interval
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -355,7 +399,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     (periodic LQR).  Weights default to Table 3 (``R`` on the thrust acceleration).  The
     reference, LQR and tubes use ``n_sub`` RK4 substeps (``"auto"``: one-step error <= 1e-6); the
     MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
-    (``None``: ``n_sub``, no correction).
+    (``None``: ``n_sub``, no correction).  ``tube_source``: see :func:`drift_schedule`
+    (``"taylor-or-linear"``: the sound tube where taylor encloses the interval, the linear one
+    elsewhere); ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
 
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
     (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
@@ -430,6 +476,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
     tube0 = schedule.tube(schedule.phase)
+    tubes = tube_log(schedule, K)
+    for met in metrics.values():  # the tubes are shared; repeated per controller for clarity
+        met["tube_guaranteed"] = all(t["guaranteed"] for t in tubes)
+        met["tube_sources"] = sorted({t["source"] for t in tubes})
     off0 = results[controllers[0]].X[0] - ref.state(0)
     settings = {
         "problem": problem.id, "revolutions": float(K / ref.n_steps), "n_steps": K,
@@ -438,7 +488,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
         "membership": membership, "tube_source": tube0.source,
         "tube_interval_steps": schedule.interval,
-        "tube_guaranteed": bool(tube0.guaranteed), "refresh_phase_step": schedule.phase,
+        "tube_guaranteed": all(t["guaranteed"] for t in tubes), "tubes": tubes,
+        "tube_sources_used": sorted({t["source"] for t in tubes}),
+        "refresh_phase_step": schedule.phase,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
                                   else initial, float).tolist(),
         "disturbance_W": disturbance, "navigation": navigation, "seed": seed,
@@ -463,4 +515,4 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
 
 __all__ = ["CONTROLLERS", "EventTrigger", "EventTriggeredMPC", "NavigationError",
            "StationKeepingRun", "as_box", "delta_v_si", "drift_schedule", "paper_initial_set",
-           "run_station_keeping", "station_keeping_metrics", "trigger_signal"]
+           "run_station_keeping", "station_keeping_metrics", "trigger_signal", "tube_log"]

@@ -92,12 +92,12 @@ def summary_lines(data: dict) -> list[str]:
     lines = []
     every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
              else f"every {s['tube_interval_steps']} steps")
-    tube = (f"Tube: {s['tube_source']}, membership {s['membership']}, refreshed at reference step "
-            f"{s['refresh_phase_step']} (apolune) and then {every}; "
-            + ("a guaranteed enclosure." if s["tube_guaranteed"] else
-               "NOT a guaranteed enclosure (linearisation without a remainder term): gauges near "
-               "perilune carry its linearisation error."))
-    lines.append(tube)
+    lines.append(f"Tube: membership {s['membership']}, refreshed at reference step "
+                 f"{s['refresh_phase_step']} (apolune) and then {every}; "
+                 + ("every tube a guaranteed enclosure." if s["tube_guaranteed"] else
+                    "NOT a guaranteed enclosure where a tube is linearised (no remainder term: "
+                    "gauges near perilune carry its linearisation error)."))
+    lines += tube_lines(s.get("tubes") or [])
     pl = s.get("plant") or {"plant": "cr3bp"}
     if pl["plant"] == "ephemeris":
         lines.append(f"Plant: DE421 ephemeris, point masses {', '.join(pl['bodies'])}, epoch "
@@ -132,6 +132,25 @@ def summary_lines(data: dict) -> list[str]:
                  f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
                  f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")
     return lines
+
+
+def tube_lines(tubes: list[dict]) -> list[str]:
+    """One sentence per run of consecutive refresh intervals with the same tube (source and
+    guarantee), in revolutions from the start of the run."""
+    out, i = [], 0
+    while i < len(tubes):
+        j = i
+        key = (tubes[i]["source"], tubes[i]["guaranteed"])
+        while j + 1 < len(tubes) and (tubes[j + 1]["source"], tubes[j + 1]["guaranteed"]) == key:
+            j += 1
+        a, b = tubes[i]["revolutions"][0], tubes[j]["revolutions"][1]
+        why = tubes[i].get("fallback_reason")
+        out.append(f"Tube used for revolutions {a:.3g}-{b:.3g} ({j - i + 1} refresh "
+                   f"interval(s)): {key[0]}, "
+                   + ("GUARANTEED (sound method)" if key[1] else "LINEARISED, not guaranteed")
+                   + (f"; the sound method failed: {why}" if why else "") + ".")
+        i = j + 1
+    return out
 
 
 def _table(data: dict) -> tuple[list[str], list[list[str]]]:
@@ -297,5 +316,4 @@ def _figures(problem, run: StationKeepingRun, out: Path) -> list[str]:
 # ------------------------------------------------------------------------------------------------
 # command line
 # ------------------------------------------------------------------------------------------------
-__all__ = ["station_keeping_report",
-           "summary_lines"]
+__all__ = ["station_keeping_report", "summary_lines", "tube_lines"]
