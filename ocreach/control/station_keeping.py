@@ -386,7 +386,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
                         navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
                         max_cpu_time: float = 2.0, n_sub: int | str = "auto",
-                        prediction_substeps: int | None = 4, plant: str = "cr3bp",
+                        prediction_substeps: int | None = 4, terminal_set: bool = True,
+                        plant: str = "cr3bp",
                         epoch: Any = DEFAULT_EPOCH, ephemeris_bodies: Any = DEFAULT_BODIES,
                         progress: bool = False) -> StationKeepingRun:
     """Closed loop of each controller over ``revolutions`` of the problem's periodic reference.
@@ -403,6 +404,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     (``"taylor-or-linear"``: the sound tube where taylor encloses the interval, the linear one
     elsewhere); ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
 
+    ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.tube_mpc`).
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
     (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
     ``ephemeris_bodies`` from ``epoch`` = reference time 0, the CR3BP rotating frame fixed at the
@@ -449,7 +451,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                                                **mpc_kw),
         "tube-mpc": lambda: TubeMPC(Q, R, schedule, disturbance=disturbance,
                                     velocity_dims=problem.velocity_dims, n_p=n_p,
-                                    tube_slack=tube_slack, fallback=lqr, **mpc_kw),
+                                    tube_slack=tube_slack, terminal_set=terminal_set,
+                                    fallback=lqr, **mpc_kw),
         "mpc": lambda: MPC(Q, R, n_p=n_p, n_c=n_p, fallback=lqr, **mpc_kw),
         "lqr": lambda: lqr,
     }
@@ -472,6 +475,11 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         res = simulate(ref, run_ctl, control_set_kind=kind, velocity_dims=problem.velocity_dims,
                        options=opt, name=name, plant=true_plant)
         met, gam = station_keeping_metrics(res, ref, schedule, problem, ctl)
+        if getattr(ctl, "terminal_set", False):
+            met["terminal_set"] = {"alpha": ctl.terminal_alpha,
+                                   "contraction": ctl.terminal_contraction,
+                                   "disturbance_term": ctl.terminal_disturbance,
+                                   "robustly_invariant": ctl.terminal_robust}
         results[name], metrics[name], gauges[name] = res, met, gam
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)

@@ -35,7 +35,8 @@ DESCRIPTIONS = {
     "event-mpc": "event-triggered MPC: thrust off inside the drift tube, soft tube-constrained MPC "
                  "(Eq. 27) from gauge > 1 until gauge <= beta for m steps",
     "tube-mpc": "robust tube MPC (Chisci et al. 2001): every step, tube box tightened by the error "
-                "tube of the LQR-stabilised error dynamics, thrust tightened likewise",
+                "tube of the LQR-stabilised error dynamics, thrust tightened likewise, LQR "
+                "terminal set (level set of the Riccati cost in the tightened sets)",
     "mpc": "continuous nonlinear MPC (Eq. 27 without the tube), every step",
     "lqr": "periodic time-varying LQR, every step (radially saturated)",
 }
@@ -121,6 +122,14 @@ def summary_lines(data: dict) -> list[str]:
                "outside the tube with thrust off)" if m["max_gauge_off"] is not None else "")
             + f", {m['time_per_step_ms']:.3g} ms per step, {m['solver_failures']} solver "
               "failure(s).")
+    ts = (data.get("tube-mpc") or {}).get("terminal_set")
+    if ts:
+        lines.append(f"tube-mpc terminal set d^T P d <= alpha = {ts['alpha']:.3g}: sqrt(V) "
+                     f"contracts by {ts['contraction']:.6g} per step, the disturbance moves the "
+                     f"terminal state by <= {ts['disturbance_term']:.3g}; "
+                     + ("robustly invariant (recursive feasibility of the hard form, for the "
+                        "linearised error dynamics)." if ts["robustly_invariant"] else
+                        "NOT robustly invariant: no recursive-feasibility guarantee."))
     if "event-mpc" in data and len(names) > 1:
         e = data["event-mpc"]
         for n in names:
