@@ -333,6 +333,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         opts["controllers"] = args.controllers
     if getattr(args, "revolutions", None) is not None:
         opts["revolutions"] = args.revolutions
+    if getattr(args, "plant", None):
+        opts["plant"] = args.plant
     if args.kind == "station-keeping":
         opts.setdefault("progress", True)
     metrics = report_fn(problem, out, **opts)
@@ -409,6 +411,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--set", action="append", metavar="KEY=VALUE")
     rp.add_argument("--controllers", help="station-keeping: e.g. event-mpc,tube-mpc,mpc,lqr")
     rp.add_argument("--revolutions", type=float, help="station-keeping: revolutions (default 10)")
+    rp.add_argument("--plant", choices=["cr3bp", "ephemeris"],
+                    help="station-keeping: true plant (default cr3bp; ephemeris: DE421 point "
+                         "masses, the CR3BP as prediction model)")
     rp.set_defaults(func=cmd_report)
 
     b = sub.add_parser("bench", help="run the benchmarks in benchmarks/")

@@ -373,6 +373,9 @@ def test_station_keeping_report_writes_files_with_metrics_per_controller(tmp_pat
         assert (tmp_path / f).stat().st_size > 0
     # lqr is on every step: duty cycle 1, one activation
     assert data["lqr"]["duty_cycle"] == 1.0 and data["lqr"]["activations"] == 1
+    # the tube MPC's terminal set is reported
+    assert data["tube-mpc"]["terminal_set"]["robustly_invariant"] is True
+    assert "robustly invariant" in md
 
 
 def test_defect_correction_makes_the_prediction_exact_on_the_reference(halo_ref):
@@ -421,3 +424,126 @@ def test_navigation_error_is_seeded_bounded_and_only_seen_by_the_controller(halo
     assert np.all(np.abs(runs[0]) <= sigma) and np.abs(runs[0]).max() > 0.5e-6
     with pytest.raises(ProblemError, match="navigation"):
         NavigationError(Recorder(), -1.0)
+
+
+def test_tube_log_says_per_refresh_which_tube_was_used(halo, halo_ref, monkeypatch):
+    """``taylor-or-linear``: the real sound tube where taylor succeeds (first 30-step interval of
+    the L2 halo), the linear tube where it fails (forced for the second interval, as taylor fails
+    at the NRHO's perilune); the log and the report sentences name each, with the reason."""
+    import ocreach.control.station_keeping as sk
+    from ocreach.control.station_keeping_report import tube_lines
+    from ocreach.errors import SolverError
+
+    real = sk.reach_drift_tube
+    sched = drift_schedule(halo, halo_ref, source="taylor-or-linear", interval=30, lookahead=2,
+                           membership="zonotope")
+    first = sched.phase
+
+    def flaky(problem, reference, k0, *a, **kw):
+        if k0 != first:
+            raise SolverError("taylor: interval Hessian unbounded at step 12 (test)")
+        return real(problem, reference, k0, *a, **kw)
+
+    monkeypatch.setattr(sk, "reach_drift_tube", flaky)
+    log = sk.tube_log(sched, first + 60)
+    assert [e["refresh_step"] for e in log][-2:] == [first, first + 30]
+    a, b = log[-2], log[-1]
+    assert a["guaranteed"] and a["source"].startswith("taylor") and a["fallback_reason"] is None
+    assert not b["guaranteed"] and b["source"].startswith("linear")
+    assert "step 12" in b["fallback_reason"]
+    # the stand-in is exactly the linear tube of that interval
+    lin = linear_drift_tube(halo_ref, first + 30, 33, sk.paper_initial_set(halo), sk.PAPER_W,
+                            halo.velocity_dims)
+    tb = sched.tube(first + 30)
+    assert np.array_equal(tb.centers, lin.centers) and np.array_equal(tb.generators, lin.generators)
+    text = tube_lines(log[-2:])
+    assert "GUARANTEED" in text[0] and "LINEARISED" in text[1] and "step 12" in text[1]
+    with pytest.raises(ProblemError, match="tube source must be one of"):
+        drift_schedule(halo, halo_ref, source="taylor-or-guess")
+
+
+def test_tube_mpc_terminal_set_gives_recursive_feasibility_in_closed_loop(halo, halo_ref):
+    """Robust tube MPC with hard tightened constraints and the LQR terminal set on the L2 halo
+    (offset in 0.8x the paper's box, N = 6, W = 1e-7 per step): the terminal set is robustly invariant
+    (setup check), every solve succeeds and meets its constraints, and -- the recursive-feasibility
+    argument checked independently of IPOPT -- at every next step the shifted plan with the LQR
+    law appended, rolled out by the prediction model from the new measured state, satisfies the
+    tightened box, thrust and terminal constraints of the new problem."""
+    from ocreach.control.lqr import LQR
+    from ocreach.control.simulate import SimOptions, simulate
+    from ocreach.control.station_keeping import PAPER_W, paper_initial_set
+    from ocreach.control.tube_mpc import TubeMPC
+
+    N = 6  # short enough that the terminal set binds from this offset (asserted below)
+    sched = drift_schedule(halo, halo_ref, lookahead=N)
+    lqr = LQR(Q_PAPER, R_PAPER).setup(halo_ref, "ball")
+    tm = TubeMPC(Q_PAPER, R_PAPER, sched, disturbance=PAPER_W, velocity_dims=halo.velocity_dims,
+                 n_p=N, tube_slack=None, fallback=lqr).setup(halo_ref, "ball")
+    assert tm.terminal_robust and tm.terminal_contraction < 1
+    assert tm.terminal_disturbance < (1 - tm.terminal_contraction) * np.sqrt(tm.terminal_alpha)
+
+    class Check:
+        """Wraps the tube MPC: after each solve, checks the plan and the candidate of the
+        previous solve at the current state."""
+
+        name = "tube-mpc"
+
+        def __init__(self):
+            self.cand_worst = -np.inf
+            self.plan_worst = -np.inf
+            self.prev = None
+
+        def setup(self, ref, kind):
+            return self
+
+        def reset(self):
+            tm.reset()
+            self.prev = None
+
+        def violation(self, k, x0, U):
+            F = halo_ref.discretization.F
+            c, hw, r = tm._tightened_sets(k)
+            X, xi = [], x0
+            for i in range(N):
+                xi = np.asarray(F(xi, U[i], halo_ref.time(k + i), halo_ref.params)).ravel()
+                X.append(xi)
+            X = np.array(X)
+            box = np.max((np.abs(X - c) - hw) / hw)  # <= 0 inside
+            thr = np.max(np.linalg.norm(U, axis=1) / r) - 1.0
+            d = X[-1] - halo_ref.state(k + N)
+            term = float(d @ tm.terminal_matrix(k) @ d) - 1.0
+            self.term_max = max(getattr(self, "term_max", -1.0), term)
+            return max(box, thr, term)
+
+        def control(self, k, x):
+            if self.prev is not None:  # the candidate built from the previous solve
+                plan, d_end = self.prev
+                u_app = -lqr.K[halo_ref.gains_index(k - 1 + N)] @ d_end
+                cand = np.vstack([plan[1:], u_app])
+                self.cand_worst = max(self.cand_worst, self.violation(k, x, cand))
+            u = tm.control(k, x)
+            assert tm.fallbacks == 0, tm.events
+            plan = tm.mpc.plan.copy()
+            self.plan_worst = max(self.plan_worst, self.violation(k, x, plan))
+            self.prev = (plan, tm.mpc._X_abs[-1] - halo_ref.state(k + N))
+            return u
+
+    chk = Check()
+    opt = SimOptions(n_steps=40, offset_box=0.8 * paper_initial_set(halo), disturbance=PAPER_W,
+                     seed=4, n_sub=halo_ref.n_sub, progress=False)
+    simulate(halo_ref, chk, control_set_kind="ball", velocity_dims=halo.velocity_dims,
+             options=opt)
+    assert chk.term_max > -1e-4  # the terminal constraint is active in some solve
+    assert chk.plan_worst <= 1e-6  # IPOPT's plans meet their constraints
+    assert chk.cand_worst <= 1e-6, chk.cand_worst  # the candidates are feasible (measured -0.055)
+
+
+def test_mpc_terminal_set_bad_input(halo_ref):
+    plain = MPC(Q_PAPER, R_PAPER, n_p=3, n_c=3).setup(halo_ref, "ball")
+    with pytest.raises(ProblemError, match="terminal_set=True"):
+        plain.set_terminal_set(np.eye(6))
+    term = MPC(Q_PAPER, R_PAPER, n_p=3, n_c=3, terminal_set=True).setup(halo_ref, "ball")
+    with pytest.raises(ProblemError, match="needs set_terminal_set"):
+        term.control(0, halo_ref.state(0))
+    with pytest.raises(ProblemError, match="finite 6x6"):
+        term.set_terminal_set(np.eye(5))

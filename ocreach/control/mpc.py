@@ -86,6 +86,9 @@ class MPC:
     prediction_substeps : RK4 substeps of the prediction model (default: the reference's
         ``n_sub``); fewer substeps with ``defect_correction`` make the NLP cheaper.
     extra_constraints : callable ``(X, U, params) -> [(g, lbg, ubg), ...]`` or ``None``.
+    terminal_set : constrain the last predicted deviation to ``d_N^T Pf d_N <= 1`` with ``Pf``
+        passed per solve (:meth:`set_terminal_set`; soft with the last tube slack if the tube is
+        soft), the terminal ingredient of robust tube MPC (:mod:`ocreach.control.tube_mpc`).
     fallback : an :class:`LQR` (default: one with the same weights).
     """
 
@@ -97,7 +100,7 @@ class MPC:
                  tube: int | None = None, tube_slack: float | None = None,
                  defect_correction: bool = False, prediction_substeps: int | None = None,
                  extra_constraints: Callable[..., list] | None = None,
-                 fallback: LQR | None = None) -> None:
+                 terminal_set: bool = False, fallback: LQR | None = None) -> None:
         self.n_p = check_count("n_p (prediction horizon)", n_p, 1)
         self.n_c = check_count("n_c (control horizon)", n_c, 1)
         if self.n_c > self.n_p:
@@ -115,6 +118,7 @@ class MPC:
                 raise ProblemError(f"tube_slack (penalty weight) must be a finite number > 0; got "
                                    f"{tube_slack!r}")
         self.tube_slack = None if tube_slack is None else float(tube_slack)
+        self.terminal_set = bool(terminal_set)
         self.defect_correction = bool(defect_correction)
         self.prediction_substeps = (None if prediction_substeps is None else
                                     check_count("prediction_substeps", prediction_substeps, 1))
@@ -129,6 +133,7 @@ class MPC:
         self.reference: TrackingReference | None = None
         self.solver: ca.Function | None = None
         self._tube_values: tuple[np.ndarray, np.ndarray] | None = None
+        self._terminal_value: np.ndarray | None = None
         self.reset()
 
     # ------------------------------------------------------------------ setup
@@ -226,6 +231,16 @@ class MPC:
                 w.append(S)
             params += [ca.vec(C), ca.vec(G)]
             sym.update({"tube_c": C, "tube_G": G})
+        if self.terminal_set:
+            # terminal set {d : d^T Pf d <= 1} on the last deviation; softened with the last
+            # tube slack when the tube is soft (the ellipsoid scaled like the tube, by 1 + s_N)
+            Pf = ca.SX.sym("Pf", nx, nx)
+            lvl = (1 + S[N - 1]) ** 2 if (q is not None and self.tube_slack is not None) else 1.0
+            g.append(ca.bilin(Pf, D[:, -1], D[:, -1]) - lvl)
+            lbg.append(-ca.inf)
+            ubg.append(0.0)
+            params.append(ca.vec(Pf))
+            sym["Pf"] = Pf
         if self.extra_constraints is not None:
             for item in self.extra_constraints(X, Uall, sym):
                 ge, lo, hi = item
@@ -292,6 +307,19 @@ class MPC:
                                f"({self.n_p}, {nx}, {self.tube_q}); got {c.shape}, {G.shape}")
         self._tube_values = (c, G)
 
+    def set_terminal_set(self, Pf) -> None:
+        """Terminal set ``{d_N : d_N^T Pf d_N <= 1}`` (``d_N`` the last predicted deviation from
+        the reference) for the next solve; needs ``terminal_set=True``.  ``Pf`` symmetric
+        positive semidefinite ``n_x x n_x``."""
+        if not self.terminal_set:
+            raise ProblemError("set_terminal_set needs an MPC built with terminal_set=True")
+        nx = self.reference.model.n_x
+        P = np.asarray(Pf, float)
+        if P.shape != (nx, nx) or not np.all(np.isfinite(P)):
+            raise ProblemError(f"terminal set matrix Pf must be a finite {nx}x{nx} matrix; got "
+                               f"shape {P.shape}")
+        self._terminal_value = 0.5 * (P + P.T)
+
     def set_thrust_bound(self, radii) -> None:
         """Thrust set for the next solves scaled per control-horizon step: ``||u_j|| <= r_j u_bound``
         (ball: ``u^T u <= r_j^2``; box: ``|u_ji| <= r_j u_bound``), ``0 < r_j <= 1`` (robust tube
@@ -339,6 +367,11 @@ class MPC:
                 raise ProblemError("MPC built with tube=q needs set_tube(...) before each solve")
             c, G = self._tube_values
             parts += [c.ravel(), G.reshape(self.n_p, -1, order="F").ravel()]
+        if self.terminal_set:
+            if self._terminal_value is None:
+                raise ProblemError("MPC built with terminal_set=True needs set_terminal_set(Pf) "
+                                   "before each solve")
+            parts.append(self._terminal_value.ravel(order="F"))
         return np.concatenate([np.ravel(v) for v in parts]), Xr
 
     def _initial_guess(self, k: int, x: np.ndarray, Xr: np.ndarray, cold: bool = False) -> np.ndarray:

@@ -117,8 +117,13 @@ class Plant:
 
 def simulate(reference: TrackingReference, controller, *, control_set_kind: str,
              velocity_dims: tuple[int, ...], options: SimOptions | None = None,
-             name: str | None = None) -> SimResult:
-    """Run ``controller`` (``setup`` already called) in closed loop on the true dynamics."""
+             name: str | None = None, plant=None) -> SimResult:
+    """Run ``controller`` (``setup`` already called) in closed loop on the true dynamics.
+
+    ``plant``: an object with ``step(x, u, w, t0, dt)`` (e.g.
+    :class:`ocreach.control.ephemeris_plant.EphemerisPlant`); default the reference's own model
+    (:class:`Plant`).
+    """
     opt = options or SimOptions()
     model = reference.model
     nx = model.n_x
@@ -136,7 +141,11 @@ def simulate(reference: TrackingReference, controller, *, control_set_kind: str,
     Wg = _generator("disturbance", opt.disturbance, len(velocity_dims))
     xi = rng.uniform(-1.0, 1.0, (K, Wg.shape[1]))
     Wdraw = xi @ Wg.T
-    plant = Plant(reference, control_set_kind, velocity_dims, opt.rtol, opt.atol)
+    if plant is None:
+        plant = Plant(reference, control_set_kind, velocity_dims, opt.rtol, opt.atol)
+    elif not callable(getattr(plant, "step", None)):
+        raise ProblemError(f"plant must have a step(x, u, w, t0, dt) method; got "
+                           f"{type(plant).__name__}")
     if hasattr(controller, "reset"):
         controller.reset()
     X = np.empty((K + 1, nx))

@@ -10,7 +10,8 @@ N = 15, initial deviation set ``G_pos = 1e-4 I``, ``G_vel = 5e-4 I``, disturbanc
 (non-dimensional), ``Delta V = 0.0061 m/s`` over 157 h.
 
 :func:`run_station_keeping` runs this controller, a robust tube MPC (:mod:`ocreach.control.tube_mpc`),
-the continuous MPC and the periodic LQR on the true CR3BP plant with the same seeded offset,
+the continuous MPC and the periodic LQR on the true CR3BP plant (or the DE421 ephemeris plant of
+:mod:`ocreach.control.ephemeris_plant`, the CR3BP then only the prediction model) with the same seeded offset,
 disturbance and (optional) navigation-error draws, over many revolutions, and computes the metrics of
 :func:`station_keeping_metrics`.
 """
@@ -23,13 +24,14 @@ from typing import Any
 import numpy as np
 
 from ocreach.control.common import control_scale
+from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, PLANTS, EphemerisPlant
 from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, simulate
 from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube, reach_drift_tube
 from ocreach.control.tube_mpc import MPCWrapper
-from ocreach.errors import ProblemError, check_count
+from ocreach.errors import ProblemError, SolverError, check_count
 
 #: Patel & Subbarao's NRHO station-keeping settings (non-dimensional).
 PAPER_N = 15
@@ -38,6 +40,10 @@ PAPER_W = 1e-7
 PAPER_DELTA_V_MPS = 0.0061
 PAPER_TF_HOURS = 157.0
 MEMBERSHIPS = ("zonotope", "box")
+#: Tube sources: the linearised tube, a sound method, or a sound method with the linear tube
+#: wherever it fails (each tube's source and guarantee are logged per refresh).
+FALLBACK_SOURCES = ("taylor-or-linear", "sdc-or-linear")
+TUBE_SOURCES = ("linear", "taylor", "sdc") + FALLBACK_SOURCES
 
 
 # ------------------------------------------------------------------------------------------------
@@ -114,9 +120,12 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
     revolutions; each covers its interval plus ``lookahead`` steps.
 
-    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed) or
+    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed),
     ``"taylor"`` / ``"sdc"`` (:func:`~ocreach.control.tube.reach_drift_tube`, guaranteed; with
-    ``tube_options`` for the method, and ``interval`` for tubes shorter than a revolution).
+    ``tube_options`` for the method, and ``interval`` for tubes shorter than a revolution; a
+    method that cannot enclose the interval raises), or ``"taylor-or-linear"`` /
+    ``"sdc-or-linear"`` (the sound tube where the method succeeds, else the linear one, its
+    ``meta["fallback_reason"]`` the method's error).  :func:`tube_log` lists which was used.
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
     """
@@ -126,16 +135,34 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     if isinstance(G0, str):
         raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
     length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
+
+    def linear(k: int) -> Tube:
+        return linear_drift_tube(reference, k, length, G0, disturbance, problem.velocity_dims,
+                                 order=order)
+
+    def sound(k: int, method: str) -> Tube:
+        return reach_drift_tube(problem, reference, k, length, G0, disturbance, method,
+                                **(tube_options or {}))
+
     if source == "linear":
-        def build(k: int) -> Tube:
-            return linear_drift_tube(reference, k, length, G0, disturbance, problem.velocity_dims,
-                                     order=order)
+        build = linear
     elif source in ("taylor", "sdc"):
         def build(k: int) -> Tube:
-            return reach_drift_tube(problem, reference, k, length, G0, disturbance, source,
-                                    **(tube_options or {}))
+            return sound(k, source)
+    elif source in FALLBACK_SOURCES:
+        method = source.split("-")[0]
+
+        def build(k: int) -> Tube:
+            try:
+                return sound(k, method)
+            except SolverError as err:  # e.g. taylor stops before perilune on the NRHO
+                lin = linear(k)
+                reason = " ".join(str(err).split())[:300]
+                return Tube(lin.centers, lin.generators, k0=lin.k0, guaranteed=False,
+                            source=f"{lin.source}; {method} failed", meta={
+                                **lin.meta, "fallback_from": method, "fallback_reason": reason})
     else:
-        raise ProblemError(f"tube source must be 'linear', 'taylor' or 'sdc'; got {source!r}")
+        raise ProblemError(f"tube source must be one of {list(TUBE_SOURCES)}; got {source!r}")
     wrap = as_box if membership == "box" else (lambda t: t)
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
                         lookahead=lookahead, reuse=True, interval=interval)
@@ -236,6 +263,25 @@ class NavigationError:
     def control(self, k: int, x: np.ndarray) -> np.ndarray:
         e = self.sigma * self.rng.uniform(-1.0, 1.0, self.sigma.size)
         return self.controller.control(k, np.asarray(x, float) + e)
+
+
+def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
+    """Which tube was used when: one entry per refresh interval touching steps ``0..n_steps-1``
+    (``refresh_step``, the steps ``[first, end)`` it was active for, the same in revolutions,
+    ``source``, ``guaranteed``, and ``fallback_reason`` when a sound method failed and the
+    linear tube stood in)."""
+    M = schedule.reference.n_steps
+    out = []
+    r = schedule.refresh_step(0)
+    while r < n_steps:
+        t = schedule.tube(r)
+        a, b = max(r, 0), min(r + schedule.interval, n_steps)
+        out.append({"refresh_step": int(r), "steps": [int(a), int(b)],
+                    "revolutions": [a / M, b / M], "source": t.source,
+                    "guaranteed": bool(t.guaranteed),
+                    "fallback_reason": (t.meta or {}).get("fallback_reason")})
+        r += schedule.interval
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -340,7 +386,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
                         navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
                         max_cpu_time: float = 2.0, n_sub: int | str = "auto",
-                        prediction_substeps: int | None = 4,
+                        prediction_substeps: int | None = 4, terminal_set: bool = True,
+                        plant: str = "cr3bp",
+                        epoch: Any = DEFAULT_EPOCH, ephemeris_bodies: Any = DEFAULT_BODIES,
                         progress: bool = False) -> StationKeepingRun:
     """Closed loop of each controller over ``revolutions`` of the problem's periodic reference.
 
@@ -352,7 +400,15 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     (periodic LQR).  Weights default to Table 3 (``R`` on the thrust acceleration).  The
     reference, LQR and tubes use ``n_sub`` RK4 substeps (``"auto"``: one-step error <= 1e-6); the
     MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
-    (``None``: ``n_sub``, no correction).
+    (``None``: ``n_sub``, no correction).  ``tube_source``: see :func:`drift_schedule`
+    (``"taylor-or-linear"``: the sound tube where taylor encloses the interval, the linear one
+    elsewhere); ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
+
+    ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.tube_mpc`).
+    ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
+    (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
+    ``ephemeris_bodies`` from ``epoch`` = reference time 0, the CR3BP rotating frame fixed at the
+    epoch); the controllers, tubes and reference stay CR3BP (the prediction model) either way.
     """
     from ocreach.control.report import PAPER_Q, paper_pattern
     from ocreach.control.tube_mpc import TubeMPC
@@ -366,6 +422,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                            f"{list(controllers)!r}")
     if isinstance(revolutions, bool) or not np.isfinite(revolutions) or revolutions <= 0:
         raise ProblemError(f"revolutions must be a number > 0; got {revolutions!r}")
+    if plant not in PLANTS:
+        raise ProblemError(f"plant must be one of {list(PLANTS)}; got {plant!r}")
+    if isinstance(ephemeris_bodies, str):
+        ephemeris_bodies = tuple(b.strip() for b in ephemeris_bodies.split(",") if b.strip())
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
     Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
     R = np.ones(problem.model.n_u) if R is None else R
@@ -391,7 +451,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                                                **mpc_kw),
         "tube-mpc": lambda: TubeMPC(Q, R, schedule, disturbance=disturbance,
                                     velocity_dims=problem.velocity_dims, n_p=n_p,
-                                    tube_slack=tube_slack, fallback=lqr, **mpc_kw),
+                                    tube_slack=tube_slack, terminal_set=terminal_set,
+                                    fallback=lqr, **mpc_kw),
         "mpc": lambda: MPC(Q, R, n_p=n_p, n_c=n_p, fallback=lqr, **mpc_kw),
         "lqr": lambda: lqr,
     }
@@ -400,6 +461,11 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         prediction_substeps = None  # the reference's model is already that cheap
     mpc_kw = {"max_cpu_time": max_cpu_time, "prediction_substeps": prediction_substeps,
               "defect_correction": prediction_substeps is not None}
+    true_plant = None
+    if plant == "ephemeris":
+        true_plant = EphemerisPlant(ref, kind, problem.velocity_dims,
+                                    span_days=K * ref.dt * problem.units.time / 86400.0,
+                                    epoch=epoch, bodies=ephemeris_bodies)
     results, metrics, gauges, active = {}, {}, {}, {}
     for name in controllers:
         ctl = build[name]()
@@ -407,12 +473,21 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
             ctl.setup(ref, kind)
         run_ctl = ctl if navigation is None else NavigationError(ctl, navigation, seed + 1).setup(ref, kind)
         res = simulate(ref, run_ctl, control_set_kind=kind, velocity_dims=problem.velocity_dims,
-                       options=opt, name=name)
+                       options=opt, name=name, plant=true_plant)
         met, gam = station_keeping_metrics(res, ref, schedule, problem, ctl)
+        if getattr(ctl, "terminal_set", False):
+            met["terminal_set"] = {"alpha": ctl.terminal_alpha,
+                                   "contraction": ctl.terminal_contraction,
+                                   "disturbance_term": ctl.terminal_disturbance,
+                                   "robustly_invariant": ctl.terminal_robust}
         results[name], metrics[name], gauges[name] = res, met, gam
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
     tube0 = schedule.tube(schedule.phase)
+    tubes = tube_log(schedule, K)
+    for met in metrics.values():  # the tubes are shared; repeated per controller for clarity
+        met["tube_guaranteed"] = all(t["guaranteed"] for t in tubes)
+        met["tube_sources"] = sorted({t["source"] for t in tubes})
     off0 = results[controllers[0]].X[0] - ref.state(0)
     settings = {
         "problem": problem.id, "revolutions": float(K / ref.n_steps), "n_steps": K,
@@ -421,7 +496,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
         "membership": membership, "tube_source": tube0.source,
         "tube_interval_steps": schedule.interval,
-        "tube_guaranteed": bool(tube0.guaranteed), "refresh_phase_step": schedule.phase,
+        "tube_guaranteed": all(t["guaranteed"] for t in tubes), "tubes": tubes,
+        "tube_sources_used": sorted({t["source"] for t in tubes}),
+        "refresh_phase_step": schedule.phase,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
                                   else initial, float).tolist(),
         "disturbance_W": disturbance, "navigation": navigation, "seed": seed,
@@ -436,6 +513,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "defect_correction": prediction_substeps is not None,
         "a_max": float(problem.param("a_max")), "thrust_N": problem.extra.get("thrust_N"),
         "mass_kg": problem.extra.get("mass_kg"),
+        "plant": ({"plant": "cr3bp", "frame": "CR3BP rotating (the prediction model)"}
+                  if true_plant is None else true_plant.describe()),
         "paper": {"delta_v_mps": PAPER_DELTA_V_MPS, "t_f_hours": PAPER_TF_HOURS, "N": PAPER_N,
                   "G_pos": PAPER_G_POS, "G_vel": PAPER_G_VEL, "W": PAPER_W},
     }
@@ -444,4 +523,4 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
 
 __all__ = ["CONTROLLERS", "EventTrigger", "EventTriggeredMPC", "NavigationError",
            "StationKeepingRun", "as_box", "delta_v_si", "drift_schedule", "paper_initial_set",
-           "run_station_keeping", "station_keeping_metrics", "trigger_signal"]
+           "run_station_keeping", "station_keeping_metrics", "trigger_signal", "tube_log"]

@@ -2,7 +2,7 @@
 (Patel & Subbarao, "Station-keeping in the near rectilinear halo orbit", Fig. 7-8).
 
 ``ocreach report station-keeping --problem nrho-9-2 [--controllers event-mpc,tube-mpc,mpc,lqr]
-[--revolutions N] [--out DIR] [--set key=value]`` runs :func:`~ocreach.control.station_keeping.
+[--revolutions N] [--plant cr3bp|ephemeris] [--out DIR] [--set key=value]`` runs :func:`~ocreach.control.station_keeping.
 run_station_keeping` and writes, atomically, ``metrics.json`` (one entry per controller and the
 settings), ``report.md``, ``report.html`` and the figures ``trajectory.png`` (3-D with the thrust
 arcs), ``projections.png`` (x-y and y-z with the tube boxes), ``gauge.png`` (with the trigger and
@@ -35,7 +35,8 @@ DESCRIPTIONS = {
     "event-mpc": "event-triggered MPC: thrust off inside the drift tube, soft tube-constrained MPC "
                  "(Eq. 27) from gauge > 1 until gauge <= beta for m steps",
     "tube-mpc": "robust tube MPC (Chisci et al. 2001): every step, tube box tightened by the error "
-                "tube of the LQR-stabilised error dynamics, thrust tightened likewise",
+                "tube of the LQR-stabilised error dynamics, thrust tightened likewise, LQR "
+                "terminal set (level set of the Riccati cost in the tightened sets)",
     "mpc": "continuous nonlinear MPC (Eq. 27 without the tube), every step",
     "lqr": "periodic time-varying LQR, every step (radially saturated)",
 }
@@ -92,12 +93,20 @@ def summary_lines(data: dict) -> list[str]:
     lines = []
     every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
              else f"every {s['tube_interval_steps']} steps")
-    tube = (f"Tube: {s['tube_source']}, membership {s['membership']}, refreshed at reference step "
-            f"{s['refresh_phase_step']} (apolune) and then {every}; "
-            + ("a guaranteed enclosure." if s["tube_guaranteed"] else
-               "NOT a guaranteed enclosure (linearisation without a remainder term): gauges near "
-               "perilune carry its linearisation error."))
-    lines.append(tube)
+    lines.append(f"Tube: membership {s['membership']}, refreshed at reference step "
+                 f"{s['refresh_phase_step']} (apolune) and then {every}; "
+                 + ("every tube a guaranteed enclosure." if s["tube_guaranteed"] else
+                    "NOT a guaranteed enclosure where a tube is linearised (no remainder term: "
+                    "gauges near perilune carry its linearisation error)."))
+    lines += tube_lines(s.get("tubes") or [])
+    pl = s.get("plant") or {"plant": "cr3bp"}
+    if pl["plant"] == "ephemeris":
+        lines.append(f"Plant: DE421 ephemeris, point masses {', '.join(pl['bodies'])}, epoch "
+                     f"{pl['epoch']} TDB = reference time 0; {pl['frame']}. The controllers and "
+                     "tubes predict with the CR3BP, so the CR3BP-vs-ephemeris mismatch is part of "
+                     "what they must correct.")
+    else:
+        lines.append("Plant: the CR3BP itself (the prediction model of the controllers).")
     paper_rate = PAPER_DELTA_V_MPS / PAPER_TF_HOURS
     for n in names:
         m = data[n]
@@ -113,6 +122,14 @@ def summary_lines(data: dict) -> list[str]:
                "outside the tube with thrust off)" if m["max_gauge_off"] is not None else "")
             + f", {m['time_per_step_ms']:.3g} ms per step, {m['solver_failures']} solver "
               "failure(s).")
+    ts = (data.get("tube-mpc") or {}).get("terminal_set")
+    if ts:
+        lines.append(f"tube-mpc terminal set d^T P d <= alpha = {ts['alpha']:.3g}: sqrt(V) "
+                     f"contracts by {ts['contraction']:.6g} per step, the disturbance moves the "
+                     f"terminal state by <= {ts['disturbance_term']:.3g}; "
+                     + ("robustly invariant (recursive feasibility of the hard form, for the "
+                        "linearised error dynamics)." if ts["robustly_invariant"] else
+                        "NOT robustly invariant: no recursive-feasibility guarantee."))
     if "event-mpc" in data and len(names) > 1:
         e = data["event-mpc"]
         for n in names:
@@ -124,6 +141,25 @@ def summary_lines(data: dict) -> list[str]:
                  f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
                  f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")
     return lines
+
+
+def tube_lines(tubes: list[dict]) -> list[str]:
+    """One sentence per run of consecutive refresh intervals with the same tube (source and
+    guarantee), in revolutions from the start of the run."""
+    out, i = [], 0
+    while i < len(tubes):
+        j = i
+        key = (tubes[i]["source"], tubes[i]["guaranteed"])
+        while j + 1 < len(tubes) and (tubes[j + 1]["source"], tubes[j + 1]["guaranteed"]) == key:
+            j += 1
+        a, b = tubes[i]["revolutions"][0], tubes[j]["revolutions"][1]
+        why = tubes[i].get("fallback_reason")
+        out.append(f"Tube used for revolutions {a:.3g}-{b:.3g} ({j - i + 1} refresh "
+                   f"interval(s)): {key[0]}, "
+                   + ("GUARANTEED (sound method)" if key[1] else "LINEARISED, not guaranteed")
+                   + (f"; the sound method failed: {why}" if why else "") + ".")
+        i = j + 1
+    return out
 
 
 def _table(data: dict) -> tuple[list[str], list[list[str]]]:
@@ -289,5 +325,4 @@ def _figures(problem, run: StationKeepingRun, out: Path) -> list[str]:
 # ------------------------------------------------------------------------------------------------
 # command line
 # ------------------------------------------------------------------------------------------------
-__all__ = ["station_keeping_report",
-           "summary_lines"]
+__all__ = ["station_keeping_report", "summary_lines", "tube_lines"]

@@ -17,10 +17,28 @@ the Pontryagin difference is exact: half widths minus the support function of ``
 axes, ``sum_j |E_i|_{dj}``.  The thrust margin uses the support of ``K E_i`` along the axes (box
 set) or ``sum_j ||K g_j||_2 >= max ||K e||_2`` (ball set), both sound for the zonotope ``E_i``.
 The margins depend only on the phase of the periodic reference and are computed once for all
-``M`` phases (vectorised).  The state constraint is softened by the MPC's penalised slack (the
-measured state may start outside ``X``); without a terminal set the recursive-feasibility proof of
-the papers does not apply, and the tube is a linearisation (not a guaranteed enclosure of the
-nonlinear error).
+``M`` phases (vectorised).
+
+**Terminal set** (``terminal_set=True``, default; Chisci et al. 2001 Sec. 3, Mayne et al. 2005
+Sec. 4): the last nominal deviation must lie in the LQR level set
+
+    X_f(j) = {d : d^T P_j d <= alpha},    j = k + N,
+
+``P_j`` the periodic Riccati solution (the terminal cost), ``alpha`` one constant for all phases,
+the largest level with ``X_f(j)`` inside the tightened box at ``j`` (``sqrt(alpha (P_j^-1)_dd) <=``
+tightened half width ``d``) and the LQR law within the tightened thrust set there
+(``sqrt(alpha lambda_max(K_j P_j^-1 K_j^T))`` ``<=`` radius), over every start phase of the
+schedule.  Then the shifted plan with ``-K d_N`` appended is a feasible candidate at the next
+step (recursive feasibility) if ``X_f`` is robustly invariant: ``V = d^T P d`` decreases by the
+Riccati identity ``P_j = Q + K^T R K + A_cl^T P_{j+1} A_cl``, so ``sqrt V`` contracts by
+``c = max_j ||P_{j+1}^{1/2} A_cl,j P_j^{-1/2}||_2 < 1``, and the new measurement moves the
+candidate's terminal state by at most ``e = max sum_g ||P^{1/2} Phi_cl g||`` (the disturbance
+``Bw W`` propagated over the horizon); the condition ``c sqrt(alpha) + e <= sqrt(alpha)`` is
+evaluated at setup (``terminal_robust``, with ``terminal_contraction`` ``c`` and
+``terminal_disturbance`` ``e``).  This argument is about the linearised error dynamics; the
+plant is nonlinear, the tube a linearisation (not a guaranteed enclosure).  The state and
+terminal constraints are softened by the MPC's penalised slack (the measured state may start
+outside ``X``) unless ``tube_slack=None``; only the hard form carries the guarantee.
 """
 from __future__ import annotations
 
@@ -96,7 +114,8 @@ class TubeMPC(MPCWrapper):
 
     def __init__(self, Q, R, schedule: TubeSchedule, *, disturbance: Any,
                  velocity_dims: tuple[int, ...], n_p: int = 15, n_c: int | None = None,
-                 tube_slack: float = 100.0, fallback: LQR | None = None, **mpc_options: Any) -> None:
+                 tube_slack: float | None = 100.0, terminal_set: bool = True,
+                 fallback: LQR | None = None, **mpc_options: Any) -> None:
         self.schedule = schedule
         self.Q_in, self.R_in = Q, R
         self.disturbance = disturbance
@@ -105,7 +124,8 @@ class TubeMPC(MPCWrapper):
         self.lqr = fallback
         self.mpc = MPC(Q, R, n_p=n_p, n_c=n_p if n_c is None else n_c,
                        tube=schedule.reference.model.n_x, tube_slack=tube_slack, fallback=fallback,
-                       **mpc_options)
+                       terminal_set=terminal_set, **mpc_options)
+        self.terminal_set = bool(terminal_set)
         self.tightening_exhausted = 0
 
     def setup(self, reference: TrackingReference, control_set_kind: str) -> TubeMPC:
@@ -123,8 +143,50 @@ class TubeMPC(MPCWrapper):
         self.state_margin, self.thrust_margin = error_tube_margins(
             reference, K, Bw, W, self.n_p, self.mpc.kind)
         self.M = M
+        if self.terminal_set:
+            self._terminal_ingredients(K, Bw, W)
         self.reset()
         return self
+
+    def _terminal_ingredients(self, K: np.ndarray, Bw: np.ndarray, W: np.ndarray) -> None:
+        """``alpha``, the contraction ``c`` and the disturbance term ``e`` of the terminal set
+        (module docstring), over every start phase ``k = 0..M-1`` of the schedule."""
+        ref, N, M = self.schedule.reference, self.n_p, self.M
+        tl = self.mpc.terminal_lqr
+        P = np.stack([tl.cost_to_go(j) for j in range(M)])
+        Pinv = np.linalg.inv(P)
+        Acl = ref.A - np.einsum("kxu,kuy->kxy", ref.B, K)
+        alphas = np.empty(M)
+        for k in range(M):
+            _, hw, r = self._tightened_sets(k)
+            j = (k + N) % M
+            a_box = np.min(hw[N - 1] ** 2 / np.diag(Pinv[j]))
+            # the appended LQR step -K d_N is the last control of the next problem (margin N - 1)
+            r_next = 1.0 - self.thrust_margin[(k + 1) % M, N - 1]
+            KPK = K[j] @ Pinv[j] @ K[j].T
+            a_u = max(r_next, 0.0) ** 2 / max(float(np.linalg.eigvalsh(KPK).max()), 1e-300)
+            alphas[k] = min(a_box, a_u)
+        self.terminal_alpha = float(alphas.min())
+        if not self.terminal_alpha > 0:
+            raise ProblemError("tube MPC terminal set: the tightened sets leave no room "
+                               f"(alpha = {self.terminal_alpha:g}); use a larger tube or smaller W")
+        # contraction of sqrt(V) over one closed-loop step
+        c = 0.0
+        for j in range(M):
+            L = np.linalg.cholesky(P[(j + 1) % M])  # P = L L^T
+            Ls = np.linalg.cholesky(Pinv[j])
+            c = max(c, float(np.linalg.norm(L.T @ Acl[j] @ Ls, 2)))
+        # disturbance at step k moves the candidate's terminal state by Phi_cl(k+1 -> k+N+1) Bw W
+        e = 0.0
+        for k in range(M):
+            G = Bw[k] @ W
+            for i in range(1, N + 1):
+                G = Acl[(k + i) % M] @ G
+            L = np.linalg.cholesky(P[(k + N + 1) % M])
+            e = max(e, float(np.linalg.norm(L.T @ G, axis=0).sum()))
+        self.terminal_contraction, self.terminal_disturbance = c, e
+        self.terminal_robust = bool(c < 1 and c * np.sqrt(self.terminal_alpha) + e
+                                    <= np.sqrt(self.terminal_alpha))
 
     def reset(self) -> None:
         if getattr(self.mpc, "reference", None) is not None:
@@ -132,21 +194,32 @@ class TubeMPC(MPCWrapper):
         self.tightening_exhausted = 0
         self.solve_times = self.mpc.solve_times
 
-    def tightened(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(centres (n_p, n_x), half widths (n_p, n_x), thrust radii (n_c,))`` at step ``k``."""
+    def _tightened_sets(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         c, G = self.schedule.window(k, self.n_p)
         hw = np.abs(G).sum(axis=2)
         ph = k % self.M
         hw_t = hw - self.state_margin[ph, 1:]
         r = 1.0 - self.thrust_margin[ph, : self.mpc.n_c]
+        return c, hw_t, r
+
+    def tightened(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(centres (n_p, n_x), half widths (n_p, n_x), thrust radii (n_c,))`` at step ``k``."""
+        c, hw_t, r = self._tightened_sets(k)
+        hw = hw_t + self.state_margin[k % self.M, 1:]
         floor_x, floor_u = MIN_FRACTION * hw, MIN_FRACTION
         self.tightening_exhausted += int(np.sum(hw_t < floor_x) + np.sum(r < floor_u))
         return c, np.maximum(hw_t, floor_x), np.clip(r, floor_u, 1.0)
+
+    def terminal_matrix(self, k: int) -> np.ndarray:
+        """``P_{k+N} / alpha``: the terminal set of the solve at step ``k``."""
+        return self.mpc.terminal_lqr.cost_to_go(k + self.n_p) / self.terminal_alpha
 
     def control(self, k: int, x: np.ndarray) -> np.ndarray:
         c, hw, r = self.tightened(k)
         self.mpc.set_tube(c, np.einsum("kn,nm->knm", hw, np.eye(hw.shape[1])))
         self.mpc.set_thrust_bound(r)
+        if self.terminal_set:
+            self.mpc.set_terminal_set(self.terminal_matrix(k))
         u = self.mpc.control(k, x)
         self.solve_times = self.mpc.solve_times
         return u
