@@ -105,10 +105,14 @@ def test_cli_run_and_compare_write_files(tmp_path, capsys):
     assert metrics["mc"]["planes"]["pos"]["mc_covered"] == pytest.approx(1.0)
 
 
-def test_console_script_entry_point():
-    proc = subprocess.run([sys.executable, "-m", "ocreach.cli", "list"], capture_output=True,
+@pytest.mark.parametrize("module", ["ocreach.cli", "ocreach"])
+def test_console_script_entry_point(module):
+    proc = subprocess.run([sys.executable, "-m", module, "list"], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0 and "vdp" in proc.stdout
+    bad = subprocess.run([sys.executable, "-m", module, "run", "nope", "-m", "mc"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "unknown problem 'nope'" in bad.stderr
 
 
 def test_planes_fallback_and_dedup():
