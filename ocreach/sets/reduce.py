@@ -10,7 +10,7 @@
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,17 +30,26 @@ def _check_method(method: str) -> str:
     return method
 
 
-def box_generators(G: np.ndarray, method: str) -> np.ndarray:
-    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``."""
+def box_generators(G: np.ndarray, method: str, extra: Any = None) -> np.ndarray:
+    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``.
+
+    ``extra``: more generators ``X`` that are not stored but known through ``extra.gram``
+    (``X X^T``), ``extra.absum`` (row sums of ``|X|``, used by ``girard``) and
+    ``extra.proj_abs(U)`` (``sum_x |U^T x|``, used by ``pca`` once the frame is known); the box
+    is then the one of ``[G, X]`` up to round-off (the order-3 products the fused STT step
+    prunes, :mod:`ocreach.reach.stt_products`).
+    """
     n = G.shape[0]
-    if G.shape[1] == 0:
+    if G.shape[1] == 0 and extra is None:
         return np.zeros((n, 0))
     if method == "girard":
-        B = np.diag(np.abs(G).sum(axis=1))
+        r = np.abs(G).sum(axis=1)
+        B = np.diag(r if extra is None else r + extra.absum)
     else:
-        U, _, _ = np.linalg.svd(G @ G.T)
+        gram = G @ G.T if extra is None else G @ G.T + extra.gram
+        U, _, _ = np.linalg.svd(gram)
         r = np.abs(U.T @ G).sum(axis=1)
-        B = U * r[None, :]
+        B = U * (r if extra is None else r + extra.proj_abs(U))[None, :]
     return B[:, np.any(B != 0, axis=0)]
 
 
