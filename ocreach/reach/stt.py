@@ -397,7 +397,7 @@ def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned):
     t = tri[:, kd]
     E = Ea[:p, t[0]] + Ea[:p, t[1]] + Ea[:p, t[2]]
     used = np.any(E > 0, axis=1)
-    return PolyZonotope(c, Gm[:, kd], GI, E[used], dZ.id[used]), removed.size > 0
+    return PolyZonotope._own(c, Gm[:, kd], GI, E if used.all() else E[used], dZ.id[used]), removed.size > 0
 
 
 @dataclass

@@ -92,8 +92,7 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope
     h, q = pz.n_dependent, pz.n_independent
     if h + q <= h_max:
         return pz
-    Gall = np.hstack([pz.G, pz.GI])
-    norms = np.linalg.norm(Gall, axis=0)
+    norms = np.concatenate([np.linalg.norm(pz.G, axis=0), np.linalg.norm(pz.GI, axis=0)])
     n_keep = h_max - n
     if n_keep > 0:
         keep_idx = np.argpartition(-norms, n_keep - 1)[:n_keep]
@@ -109,7 +108,7 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope
     GI = np.hstack([pz.GI[:, ki], box_generators(Grem, method)])
     E = pz.E[:, kd]
     used = np.any(E > 0, axis=1) if E.shape[1] else np.zeros(E.shape[0], dtype=bool)
-    return PolyZonotope(c, pz.G[:, kd], GI, E[used], pz.id[used])
+    return PolyZonotope._own(c, pz.G[:, kd], GI, E if used.all() else E[used], pz.id[used])
 
 
 def reduce(S: SetBase, size: float, method: str | None = None) -> SetBase:
