@@ -437,7 +437,9 @@ class STTReach(Method):
         tied) instead of becoming new independent generators; False = the paper's plain
         Cartesian product.
         ``chunk`` [0]: order-3 products the fused engine forms at once (peak memory about
-        ``(3 n + 2) * 8`` bytes per product plus the kept ones); 0 = from a 128 MB budget
+        ``chunk (11 n + 2) * 8`` bytes -- a block, and the pruned products of the first eight
+        blocks kept for the second pass -- plus the kept products); 0 = from a 128 MB budget
+        per block
         (:func:`ocreach.reach.stt_products.default_chunk`).  Changes only round-off.
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """

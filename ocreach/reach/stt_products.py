@@ -18,7 +18,8 @@ being merged (:func:`ocreach.reach.stt.fused_step`).  Materialising all of them 
   the box is the one of the stored columns (:func:`ocreach.sets.reduce.box_generators`), up to
   round-off.
 
-Peak memory is then ``O(chunk)`` for the blocks plus the kept products (a few percent).
+Peak memory is then ``O(chunk)`` for the blocks, ``CACHE_BYTES`` for the pruned products of the
+first blocks (``CACHE_BLOCKS * chunk`` products; the second pass reuses them) and the kept products (a few percent).
 """
 from __future__ import annotations
 
@@ -28,6 +29,9 @@ import numpy as np
 
 #: memory budget of one block of order-3 products (the default ``chunk`` follows from it)
 CHUNK_BYTES = 128 * 2**20
+#: the pruned products of the first blocks are kept, up to this many blocks' worth of memory, so
+#: the second pass need not form them again (all of them up to h_max ~ 400 on a 2-row image)
+CACHE_BLOCKS = 8
 #: more products than this switch pruning on (below it every product is merged, as before)
 PRUNE_MIN_PRODUCTS = 50_000
 
@@ -59,7 +63,8 @@ class Order3Products:
         self.G = np.ascontiguousarray(Ga[:, self.perm])
         self.gn = gn[self.perm]
         self.neg = -self.gn                                  # ascending, for searchsorted
-        self.T3 = T3
+        # multiplicities: 6 inside, 3 on the first column (k = j) and the row i = j, 1 at i = j = k
+        self.M = np.einsum("mabc,bj->jmac", 6.0 * T3, self.G, optimize=True)  # 6 T3[., ., g_j, .]
         self.scale = float(np.linalg.norm(T3))
         self.thr = float(thr)
         self.chunk = max(1, int(chunk))
@@ -67,6 +72,8 @@ class Order3Products:
         self.gram = np.zeros((self.n, self.n))
         self.absum = np.zeros(self.n)
         self.count = 0
+        self._cache: list[np.ndarray] = []
+        self._cached = 0                                # products, not bytes
 
     # -- blocks ---------------------------------------------------------------------------------
     def _blocks(self) -> Iterator[tuple[int, int, int]]:
@@ -81,9 +88,7 @@ class Order3Products:
         """Products of rows ``i0..i1-1`` (flat (n, rows * w), w = H - j) and the kept positions."""
         G, H, n = self.G, self.H, self.n
         w, rows = H - j, i1 - i0
-        # multiplicities: 6 inside, 3 on the first column (k = j) and the row i = j, 1 at i = j = k
-        Mj = np.tensordot(self.T3, 6.0 * G[:, j], axes=([2], [0]))  # (n, nz, nz): 6 T3[., ., g_j, .]
-        B = np.matmul(G[:, i0:i1].T[None], Mj @ G[:, j:])         # (n, rows, w)
+        B = np.matmul(G[:, i0:i1].T[None], self.M[j] @ G[:, j:])  # (n, rows, w)
         B[:, :, 0] *= 0.5
         if i1 == j + 1:
             B[:, -1, 1:] *= 0.5
@@ -91,28 +96,27 @@ class Order3Products:
         return B.reshape(n, rows * w), self._kept_positions(j, i0, i1)
 
     def _kept_positions(self, j: int, i0: int, i1: int) -> np.ndarray:
-        """Flat positions (row-major in the block) of the products whose bound reaches ``thr``."""
+        """Flat positions (row-major in the block) of the products whose bound reaches ``thr``.
+
+        The generators are sorted by decreasing norm, so in row ``i`` the kept products
+        ``k > j`` are the first ``cnt_i`` columns after the first, and if the first column
+        (``k = j``, the largest |g_k|) is pruned they still follow it: a row keeps one range."""
         w, rows = self.H - j, i1 - i0
         if self.thr <= 0.0:
             return np.arange(rows * w)
-        gn, s = self.gn, self.scale
-        a = gn[i0:i1] * (gn[j] * s)                             # per row, without the multiplicity
-        last = i1 == j + 1                                      # the block holds the row i = j
-        inner = a[:-1] if last else a
-        # interior (mult 6, k > j): gn sorted decreasingly, so the kept columns are a prefix
+        gn = self.gn
+        a = gn[i0:i1] * (gn[j] * self.scale)                    # bound per row without mult and g_k
+        m_in = np.full(rows, 6.0)                               # mult of k > j; 3 in the row i = j
+        m_0 = np.full(rows, 3.0)                                # mult of k = j; 1 at i = j = k
+        if i1 == j + 1:
+            m_in[-1], m_0[-1] = 3.0, 1.0
         with np.errstate(divide="ignore"):
-            cnt = np.searchsorted(self.neg[j + 1:], -(self.thr / (6.0 * inner)), side="right")
-        r = np.repeat(np.arange(inner.size), cnt)
-        start = np.repeat(np.cumsum(cnt) - cnt, cnt)
-        pos = [r * w + 1 + (np.arange(r.size) - start)]
-        # first column (k = j, mult 3; 1 at i = j) and the row i = j (mult 3)
-        m0 = np.full(rows, 3.0)
-        if last:
-            m0[-1] = 1.0
-        pos.append(np.flatnonzero(a * m0 * gn[j] >= self.thr) * w)
-        if last:
-            pos.append((rows - 1) * w + 1 + np.flatnonzero(a[-1] * 3.0 * gn[j + 1:] >= self.thr))
-        return np.sort(np.concatenate(pos))
+            cnt = np.searchsorted(self.neg[j + 1:], -(self.thr / (m_in * a)), side="right")
+        lo = np.where(a * m_0 * gn[j] >= self.thr, 0, 1)
+        length = cnt + 1 - lo
+        start = np.cumsum(length) - length
+        r = np.repeat(np.arange(rows), length)
+        return r * w + np.repeat(lo - start, length) + np.arange(r.size)
 
     def _pruned(self, j: int, i0: int, i1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         B, keep = self._block(j, i0, i1)
@@ -124,6 +128,7 @@ class Order3Products:
     def kept(self, absum: bool = False) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Yield ``(values (n, r), indices (3, r))`` of the kept products per block (indices into
         the caller's generator order); accumulates ``gram`` (and ``absum`` if asked) of the rest."""
+        caching = True
         for j, i0, i1 in self._blocks():
             Bp, vals, keep = self._pruned(j, i0, i1)
             w = self.H - j
@@ -132,6 +137,10 @@ class Order3Products:
                 self.gram += Bp @ Bp.T
                 if absum:
                     self.absum += np.abs(Bp).sum(axis=1)
+            caching = caching and self._cached + Bp.shape[1] <= CACHE_BLOCKS * self.chunk
+            if caching:
+                self._cache.append(Bp)
+                self._cached += Bp.shape[1]
             ii, kk = i0 + keep // w, j + keep % w
             tri = np.vstack([self.perm[ii], np.full(keep.size, self.perm[j]), self.perm[kk]])
             yield vals, tri
@@ -141,7 +150,7 @@ class Order3Products:
         out = np.zeros(U.shape[1])
         if self.count == 0:
             return out
-        for j, i0, i1 in self._blocks():
-            X = U.T @ self._pruned(j, i0, i1)[0]
+        for b, (j, i0, i1) in enumerate(self._blocks()):
+            X = U.T @ (self._cache[b] if b < len(self._cache) else self._pruned(j, i0, i1)[0])
             out += np.abs(X, out=X).sum(axis=1)
         return out
