@@ -260,8 +260,8 @@ def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: 
     generator list ``[c, G, GI]`` (Eq. 22 with the centre as a zero-exponent generator) -- order 3
     in blocks of at most ``chunk`` products (:mod:`ocreach.reach.stt_products`; 0 = the default
     from its memory budget), so memory stays bounded; (2) equal monomials are merged by the
-    library's linear monomial hash (the kept products of earlier blocks are merged whenever more
-    than ``chunk`` wait); (3) the reduction is applied *before* any exponent matrix is formed:
+    library's linear monomial hash (kept products are merged whenever more than ``chunk`` and
+    more than have been merged wait, so merging stays O(N log N)); (3) the reduction is applied *before* any exponent matrix is formed:
     the classification a removed generator needs (constant, all-even, contains an independent
     factor) comes from XOR/OR of packed parity/support bit masks of the product's (at most
     three) generators, and the exponent matrix is built only for the kept generators.
