@@ -11,8 +11,8 @@ contention, stochastic Monte Carlo peak memory.
    ``OPENBLAS_NUM_THREADS=1``, and with the limit lifted (``OCREACH_BLAS_THREADS=2``, the state
    before issue #16).  Each in its own subprocess, interleaved rounds, medians.
 3. Peak resident memory of ``reach("shuttle-reentry", "mc", samples=100000)`` in a subprocess.
-4. vdp order-3 ``stt`` at h_max 800 peak memory: ``--vdp800`` (the chunked order-3 STT belongs
-   to reach/stt.py; the row reports "not run" without the flag).
+4. vdp order-3 ``stt`` at h_max 800 peak memory: ``--vdp800`` (also measured by
+   benchmarks/bench_stt.py; the row reports "not run" without the flag).
 
 Usage: ``python benchmarks/bench_speed.py [--write] [--quick] [--vdp800]``; ``--write`` updates
 the ``## Speed and memory`` section of docs/benchmarks.md.
@@ -189,17 +189,25 @@ def stt_contention(rounds: int = 3, per_round: int = 3) -> dict:
 
 
 # ----------------------------------------------------------------------------- 3./4. memory
+# Peak RSS of this process: VmHWM of /proc/self/status where it exists.  Linux's ru_maxrss is
+# NOT fresh in a child: it keeps the parent's peak from the fork across exec, so a worker
+# started by a large benchmark process reported the parent's size.
 _MEM_WORKER = r"""
 import json, resource, sys, time
+def peak_kb():
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(l.split()[1]) for l in f if l.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 import ocreach
 from ocreach.problem import get_problem
 p = get_problem(sys.argv[1])
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+base = peak_kb()
 t0 = time.perf_counter()
 r = ocreach.reach(p, sys.argv[2], **json.loads(sys.argv[3]))
 dt = time.perf_counter() - t0
-print(json.dumps({"peak_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "base_kb": base,
-                  "time": dt, "times": len(r.times)}))
+print(json.dumps({"peak_kb": peak_kb(), "base_kb": base, "time": dt, "times": len(r.times)}))
 """
 
 
@@ -218,8 +226,8 @@ def markdown(env: dict, d: dict, s: dict, m: dict, v: dict | None) -> str:
     blas = "; ".join(f"{b['internal_api']} {b['version']} ({b['threading_layer']}, "
                      f"{b['architecture']}, {b['num_threads']} threads by default)" for b in env["blas"])
     vrow = (f"| vdp order-3 `stt`, h_max 800 | {v['peak_mb']:.0f} MB peak, {v['time']:.0f} s | target < 2 GB |"
-            if v else "| vdp order-3 `stt`, h_max 800 | not run here (`--vdp800`; needs the chunked "
-                      "order-3 STT of reach/stt.py, issue #16 item 3) | target < 2 GB |")
+            if v else "| vdp order-3 `stt`, h_max 800 | not run here (`--vdp800`; measured in the "
+                      "STT section, benchmarks/bench_stt.py) | target < 2 GB |")
     return f"""## Speed and memory
 
 `python benchmarks/bench_speed.py` (issue #16).  Environment of this run: {env['cpu']},
@@ -258,7 +266,7 @@ spins on a core; median of {3 * 3} runs per setting, each setting in its own pro
 | default environment (`reach()` limits BLAS to 1 thread via threadpoolctl) | {s['t_default']:.3f} s | **{s['ratio']:.2f}** (target <= 1.3) |
 | default environment, limit lifted (`OCREACH_BLAS_THREADS=2`: before issue #16) | {s['t_unlimited']:.3f} s | {s['ratio_unlimited']:.2f} |
 
-**Memory** (peak resident set size of a fresh process, `resource.getrusage`):
+**Memory** (peak resident set size of a fresh process, `VmHWM` of `/proc/self/status`):
 
 | run | peak memory | | |
 |---|---|---|---|
@@ -303,7 +311,7 @@ def main(argv=None) -> int:
     print(f"shuttle MC: peak {m['peak_mb']:.0f} MB (base {m['base_mb']:.0f} MB), {m['time']:.1f} s")
     v = None
     if args.vdp800:
-        v = peak_memory("vdp", "stt", {"h_max": 800})
+        v = peak_memory("vdp", "stt", {"order": 3, "h_max": 800})
         print(f"vdp order 3 h_max 800: peak {v['peak_mb']:.0f} MB, {v['time']:.0f} s")
     text = markdown(env, d, s, m, v)
     if args.write:

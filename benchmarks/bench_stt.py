@@ -7,13 +7,16 @@ Times, in one process: Algorithm 1 on ``vdp`` (n = 3, h_max = 200), ``dro`` (n =
 box input) and ``nrho-flyby`` (n = 2, h_max = 60, ball input), split like Foss Table 1 (STT
 generation, tensor maps, reductions); the peer on ``dro`` is the extremal-ODE method with 100
 trajectories (Foss Table 2 reports stt/ode = 5.7925 / 4.0389 = 1.43); and the two set-propagation
-engines (the fused step against the set library's tensor maps + sum + reduction) on ``dro``.
+engines (the fused step against the set library's tensor maps + sum + reduction) on ``dro``;
+and the peak resident memory of vdp at order 3 with ``h_max`` 400 and 800 (issue #16: the
+order-3 products formed in bounded blocks; ``--no-memory`` skips it), each in a fresh process.
 Each timing is the median of ``--repeat`` warm runs (compilation and caches excluded; the first
 run's time is reported apart).
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -91,11 +94,45 @@ def bench_engines(repeat: int) -> dict:
     return out
 
 
-def markdown(rows: list[dict], ratio: dict, eng: dict) -> str:
+#: issue #16's measurement before the order-3 products were formed in blocks (same machine type)
+MEMORY_BEFORE = {400: (16.0, 1.5), 800: (143.0, 10.1)}  # h_max: (seconds, GB)
+
+
+def bench_memory(h_values=(400, 800)) -> list[dict]:
+    """Peak RSS and time of ``reach(vdp, "stt", order=3, h_max=h)``, each in a fresh process."""
+    from bench_speed import peak_memory  # benchmarks/ is on sys.path when run as a script
+
+    return [{"h": h, **peak_memory("vdp", "stt", {"order": 3, "h_max": h})} for h in h_values]
+
+
+def memory_markdown(mem: list[dict]) -> list[str]:
+    if not mem:
+        return []
+    lines = ["**Order-3 memory** (issue #16): vdp, order 3, one `reach` in a fresh process, peak",
+             "resident set size (`VmHWM`, includes the ~95 MB of imports), wall time, OPENBLAS_NUM_THREADS="
+             f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}",
+             "(the machine is shared: times move by tens of percent).", "",
+             "| h_max | peak memory | time | before (issue #16: all products materialised) | target |",
+             "|---:|---:|---:|---:|---|"]
+    for m in mem:
+        t0, gb0 = MEMORY_BEFORE.get(m["h"], (float("nan"), float("nan")))
+        lines.append(f"| {m['h']} | **{m['peak_mb']:.0f} MB** | {m['time']:.1f} s | {gb0:.1f} GB, {t0:.0f} s | "
+                     + ("< 2 GB |" if m["h"] == 800 else "- |"))
+    return lines + ["", "The products are formed in blocks of the middle index (option `chunk`, default",
+                    "from a 128 MB budget) and the pruned ones are not stored beyond the first eight",
+                    "blocks' worth: the reduction's box takes their Gram matrix and a second pass for",
+                    "`sum |U^T x|` (docs/stt.md), so the time still grows with the number of products",
+                    "formed (~H^3 / 6) but the memory does not.", ""]
+
+
+def markdown(rows: list[dict], ratio: dict, eng: dict, mem: list[dict] | None = None,
+             failed: dict[str, str] | None = None) -> str:
     lines = ["## STT", "",
              "`python benchmarks/bench_stt.py` -- Foss et al. Algorithm 1 (`ocreach.reach(p, \"stt\")`),",
              "median of warm runs; \"first run\" includes building the CasADi functions and compiling",
-             "the STT integrator (cached on disk afterwards).  Paper: Julia on the authors' machine.", "",
+             "the STT integrator (cached on disk afterwards).  Paper: Julia on the authors' machine.",
+             f"`OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}` (and `reach()` limits "
+             f"BLAS to 1 thread), load average {os.getloadavg()[0]:.1f} on the 2 cores when it started.", "",
              "| problem | options | STT generation | tensor maps (evals) | reductions (evals) | other | total | first run | paper total | paper breakdown |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in rows:
@@ -109,14 +146,17 @@ def markdown(rows: list[dict], ratio: dict, eng: dict) -> str:
             f"{rt.get('stt_generation', 0):.3f} s | {rt.get('tensor_maps', 0):.3f} s ({ev['tensor_maps']}) | "
             f"{rt.get('reductions', 0):.3f} s ({ev['reductions']}) | {other:.3f} s | **{r['t']:.3f} s** | "
             f"{r['first']:.2f} s | {pp['total']:.3f} s | {brk} |")
+    for pid, why in (failed or {}).items():
+        lines.append(f"| {pid} | not timed: {why.replace('|', '/')[:160]} | | | | | | | {PAPER[pid]['total']:.3f} s | -- |")
     lines += ["",
               f"stt / ode (100 extremals) on dro, interleaved in one run: {ratio['stt']:.3f} s / "
               f"{ratio['ode']:.3f} s = **{ratio['ratio']:.2f}** (paper Table 2: 5.7925 / 4.0389 = 1.43).",
               "The ratio is far from the paper's because ocreach's `ode` integrates the 100 extremals as",
               "one compiled batch (DOP853 step generated by CasADi), ~200x faster than the paper's ODE,",
-              "while the STT's cost is the numpy set propagation; stt itself is ~2x (vdp) to",
-              "~10x (dro, nrho-flyby) faster than the paper's Julia timings.  The nrho-flyby time is",
-              "for the paper's settings, whose sets diverge near the Moon (docs/validation.md).", "",
+              "while the STT's cost is the numpy set propagation; stt itself is "
+              + ", ".join(f"{PAPER[r['pid']]['total'] / r['t']:.1f}x ({r['pid']})" for r in rows)
+              + " faster than the paper's Julia timings.  nrho-flyby has the paper's settings, whose",
+              "sets diverge near the Moon (docs/validation.md).", "",
               "Set-propagation engine on dro (same options): fused step "
               f"{eng['fused']['t']:.3f} s (tensor maps {eng['fused']['runtime'].get('tensor_maps', 0):.3f} s, "
               f"reductions {eng['fused']['runtime'].get('reductions', 0):.3f} s) vs the set library's "
@@ -125,14 +165,16 @@ def markdown(rows: list[dict], ratio: dict, eng: dict) -> str:
               f"{eng['library']['runtime'].get('reductions', 0):.3f} s) = "
               f"{eng['library']['t'] / eng['fused']['t']:.1f}x; final sets agree to "
               f"{eng['support_diff']:.1e} (relative support, 8 axis directions).", "",
+              *memory_markdown(mem or []),
               "Where the time goes: the set propagation, not the STTs.  One order-3 step of vdp forms",
               "C(H+2, 3) ~ 1.4 M products of the H ~ 200 generators of dZ (Foss Eq. 22); the fused",
-              "step evaluates them with one BLAS product (all pairs x all generators) and a gather,",
+              "step evaluates them in blocks of the middle index (one BLAS product per block),",
               "skips merging for products whose norm bound is < 1e-3 of the h_max-th largest",
               "generator (they go straight to the reduction's box; ~95 % of them on vdp), sorts",
               "the rest by a 64-bit monomial hash, and forms exponent rows only for the kept",
-              "generators.  Remaining cost: the 1.4 M-column gather and bound, the sort of the kept",
-              "products, and the PCA box of the removed ones.  STT generation is < 5 % of the total",
+              "generators.  Remaining cost: forming the products (twice for the pruned ones, whose",
+              "PCA box needs a second pass), the sort of the kept ones, and the PCA box of the",
+              "removed ones.  STT generation is < 5 % of the total",
               "on every problem, so directional STTs (Boone & McMahon) would not pay off and are",
               "not implemented.  The machine is shared with other jobs (2 cores); timings move by",
               "tens of percent between runs.", ""]
@@ -143,13 +185,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="update the STT section of docs/benchmarks.md")
     ap.add_argument("--repeat", type=int, default=3, help="warm runs per timing (median)")
+    ap.add_argument("--no-memory", action="store_true", help="skip the vdp order-3 memory rows")
     args = ap.parse_args(argv)
-    rows = []
+    rows, failed = [], {}
     for pid in ("vdp", "dro", "nrho-flyby"):
         try:
             r = bench_problem(pid, args.repeat)
         except Exception as exc:  # a missing problem (e.g. no ephemeris model) is reported, not hidden
             print(f"{pid}: failed: {type(exc).__name__}: {exc}")
+            failed[pid] = f"{type(exc).__name__}: {str(exc).split(';')[0]}"
             continue
         rows.append(r)
         print(f"{pid}: {r['t']:.3f} s (first {r['first']:.2f} s) {r['runtime']} {r['evals']}")
@@ -158,7 +202,11 @@ def main(argv=None) -> int:
     eng = bench_engines(args.repeat)
     print(f"dro engines: fused {eng['fused']['t']:.3f} s, library {eng['library']['t']:.3f} s, "
           f"support diff {eng['support_diff']:.1e}")
-    text = markdown(rows, ratio, eng)
+    mem = [] if args.no_memory else bench_memory()
+    for m in mem:
+        print(f"vdp order 3 h_max {m['h']}: peak {m['peak_mb']:.0f} MB, {m['time']:.1f} s"
+              + (" (target < 2 GB)" if m["h"] == 800 else ""))
+    text = markdown(rows, ratio, eng, mem, failed)
     if args.write:
         replace_markdown_section(DOCS, text)
         print(f"wrote the STT section of {DOCS}")

@@ -264,6 +264,7 @@ def test_merge_is_exact_under_hash_collisions(monkeypatch):
     import ocreach.sets.polyzonotope as pzmod
 
     monkeypatch.setattr(pzmod, "_hash_weights", lambda p: np.ones((2, p), dtype=np.int64))
+    monkeypatch.setattr(pzmod, "exact_keys", lambda E, bound: None)  # the hash path, not the int64 keys
     rng = np.random.default_rng(11)
     ids = new_ids(3)
     a = PolyZonotope(rng.normal(size=2), rng.normal(size=(2, 6)), None, rng.integers(0, 3, size=(3, 6)), ids)
@@ -305,3 +306,50 @@ def test_outline_union_is_one_nonconvex_ring_covering_samples():
     seg.plot(ax)
     pz.plot(ax, pieces=16)
     plt.close(fig)
+
+
+@SET
+@given(st.integers(0, 10**6), st.booleans())
+def test_merge_by_exact_int64_keys_equals_unique_grouping(seed, exact):
+    """merge_monomials with one exact int64 key per column (argsort + reduceat, no re-check) or
+    with the 128-bit hash (re-checked) sums exactly the columns ``np.unique`` groups together."""
+    from ocreach.sets.polyzonotope import exact_keys, merge_monomials, monomial_keys
+
+    rng = np.random.default_rng(seed)
+    p, h = int(rng.integers(1, 5)), int(rng.integers(0, 40))
+    pool = rng.integers(0, 4, size=(p, max(1, h // 3)))
+    E = pool[:, rng.integers(0, pool.shape[1], size=h)]          # many repeated monomials
+    G = rng.normal(size=(3, h))
+    keys = exact_keys(E, E.max(axis=1, initial=0)) if exact else monomial_keys(E)
+    Gm, rep = merge_monomials(G, keys, None if exact else E)
+    U, inv = np.unique(E, axis=1, return_inverse=True)
+    want = np.zeros((3, U.shape[1]))
+    np.add.at(want.T, inv.ravel(), G.T)
+    col = {tuple(u): k for k, u in enumerate(U.T)}
+    got_cols = [col[tuple(e)] for e in E[:, rep].T]
+    assert sorted(got_cols) == list(range(U.shape[1]))          # every monomial once
+    np.testing.assert_allclose(Gm, want[:, got_cols], rtol=1e-12, atol=1e-12)
+
+
+def test_exact_keys_add_and_refuse_what_does_not_fit(monkeypatch):
+    """Keys of sums are sums of keys within the bound; exponents that do not fit one int64 word
+    give None, and the tensor map then takes the hash path with the same points."""
+    import ocreach.sets.polyzonotope as pzmod
+    from ocreach.sets.polyzonotope import exact_keys
+
+    rng = np.random.default_rng(4)
+    E1, E2 = rng.integers(0, 3, size=(5, 30)), rng.integers(0, 3, size=(5, 30))
+    np.testing.assert_array_equal(exact_keys(E1 + E2, np.full(5, 4)),
+                                  exact_keys(E1, np.full(5, 4)) + exact_keys(E2, np.full(5, 4)))
+    assert exact_keys(rng.integers(0, 10, size=(30, 4)), np.full(30, 10)) is None
+    pz = rand_pz(rng, n=3, h=12, p=4, q=2, emax=2)
+    vals = factor_dict(rng, pz.id, 20)
+    for order in (2, 3):
+        T = rng.normal(size=(2,) + (3,) * order)
+        fast = tensor_map(T, pz)
+        with monkeypatch.context() as m:
+            m.setattr(pzmod, "exact_keys", lambda E, bound: None)
+            hashed = tensor_map(T, pz)
+        assert fast.n_dependent == hashed.n_dependent and fast.n_independent == hashed.n_independent
+        np.testing.assert_allclose(pointwise(fast, vals), pointwise(hashed, vals), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(fast.c, hashed.c, rtol=1e-12, atol=1e-12)

@@ -190,14 +190,15 @@ def nonlinearity_index(phi: Sequence[np.ndarray], dZ: PolyZonotope, samples: int
 
 
 def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str, engine: str,
-             timer: Timer, counts: dict[str, int]) -> PolyZonotope:
+             timer: Timer, counts: dict[str, int], chunk: int = 0) -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` (Foss Eq. 18-19, Alg. 1 lines 6-9).
 
     ``engine="library"``: the set library's ``tensor_map`` per order, exact sums and
-    ``reduce_pz``; ``engine="fused"``: :func:`fused_step` (same set, faster).
+    ``reduce_pz``; ``engine="fused"``: :func:`fused_step` (same set, faster; ``chunk`` bounds
+    its memory).
     """
     if engine == "fused":
-        return fused_step(phi, dZ, h_max, method, timer, counts)
+        return fused_step(phi, dZ, h_max, method, timer, counts, chunk=chunk)
     from ocreach.sets import tensor_map
 
     with timer("tensor_maps"):
@@ -216,32 +217,20 @@ def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: st
 
 
 # ---------------------------------------------------------------------------- fused step
-_COMBO_CACHE: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+_COMBO_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
 
 
-def _combos(H: int, order: int) -> tuple[np.ndarray, ...]:
-    """Index multisets over ``H`` generators with their multiplicities (cached; numpy only).
-
-    order 2: ``(i, j, mult)`` with ``i <= j``; order 3: ``(i, j, k, q, mult)`` with ``i <= j <= k``
-    and ``q`` the index of the pair ``(i, j)`` in ``np.triu_indices(H)``.
-    """
-    key = (H, order)
-    if key not in _COMBO_CACHE:
-        if order == 2:
-            i, j = np.triu_indices(H)
-            _COMBO_CACHE[key] = (i, j, np.where(i == j, 1.0, 2.0))
-        else:
-            pi, pj = np.triu_indices(H)                       # pairs i <= j, index q
-            cnt = H - pj                                      # number of k >= j for each pair
-            q = np.repeat(np.arange(pi.size), cnt)
-            start = np.repeat(np.cumsum(cnt) - cnt, cnt)
-            k = np.arange(q.size) - start + np.repeat(pj, cnt)
-            i, j = pi[q], pj[q]
-            mult = np.where((i != j) & (j != k), 6.0, np.where((i == j) & (j == k), 1.0, 3.0))
-            _COMBO_CACHE[key] = (i, j, k, q, mult)
+def _combos(H: int, order: int = 2) -> tuple[np.ndarray, ...]:
+    """Pairs ``(i, j, mult)`` with ``i <= j`` over ``H`` generators (cached; order 3 is formed in
+    blocks by :mod:`ocreach.reach.stt_products`)."""
+    if order != 2:
+        raise ValueError(f"_combos: order must be 2; got {order!r}")
+    if H not in _COMBO_CACHE:
+        i, j = np.triu_indices(H)
+        _COMBO_CACHE[H] = (i, j, np.where(i == j, 1.0, 2.0))
         if len(_COMBO_CACHE) > 8:
             _COMBO_CACHE.pop(next(iter(_COMBO_CACHE)))
-    return _COMBO_CACHE[key]
+    return _COMBO_CACHE[H]
 
 
 def _bitmask(B: np.ndarray) -> np.ndarray:
@@ -263,17 +252,19 @@ def _sym(T: np.ndarray) -> np.ndarray:
 
 def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str = "pca",
                timer: Timer | None = None, counts: dict[str, int] | None = None,
-               prune: float = 1e-3) -> PolyZonotope:
+               prune: float = 1e-3, chunk: int = 0) -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` in one vectorised pass (Foss Eq. 18, 21-22).
 
     Same result as the set library's ``tensor_map`` per order, exact sum and ``reduce_pz`` (checked
     in tests/test_stt.py), but faster: (1) all orders are generated together over the augmented
     generator list ``[c, G, GI]`` (Eq. 22 with the centre as a zero-exponent generator) -- order 3
-    as a dense product of all pairs ``(i <= j)`` with all ``k`` followed by a gather of ``k >= j``;
-    (2) equal monomials are merged once by the library's linear monomial hash; (3) the reduction
-    is applied *before* any exponent matrix is formed: the classification a removed generator
-    needs (constant, all-even, contains an independent factor) comes from XOR/OR of packed
-    parity/support bit masks, and the exponent matrix is built only for the kept generators.
+    in blocks of at most ``chunk`` products (:mod:`ocreach.reach.stt_products`; 0 = the default
+    from its memory budget), so memory stays bounded; (2) equal monomials are merged by the
+    library's linear monomial hash (kept products are merged whenever more than ``chunk`` and
+    more than have been merged wait, so merging stays O(N log N)); (3) the reduction is applied *before* any exponent matrix is formed:
+    the classification a removed generator needs (constant, all-even, contains an independent
+    factor) comes from XOR/OR of packed parity/support bit masks of the product's (at most
+    three) generators, and the exponent matrix is built only for the kept generators.
     Independent generators are treated as in ``tensor_map`` (temporary factors, every product
     containing one becomes independent; all-even ones shift the centre by half).
     ``prune``: see :func:`_fused_generate` (0 = merge every product).
@@ -282,9 +273,11 @@ def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: 
     timer = timer or Timer()
     with np.errstate(over="ignore", invalid="ignore"):
         with timer("tensor_maps"):
-            out = _fused_generate(phi, dZ, h_max, prune)
+            out = _fused_generate(phi, dZ, h_max, prune, chunk, absum=method == "girard")
+        Gm, pruned = out[0], out[-1]
         # |G| > 1e150: G G^T of the PCA reduction overflows (SVD fails) -- the same divergence
-        if not np.all(np.isfinite(out[0])) or (out[0].size and np.abs(out[0]).max() > 1e150):
+        big = Gm.size and np.abs(Gm).max() > 1e150
+        if not np.all(np.isfinite(Gm)) or big or (pruned is not None and not np.all(np.isfinite(pruned.gram))):
             raise SolverError(DIVERGED)
         with timer("reductions"):
             try:
@@ -294,24 +287,28 @@ def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: 
     if counts is not None:
         counts["tensor_maps"] += 1
         counts["reductions"] += int(res[1])
-        counts["pruned"] = counts.get("pruned", 0) + int(out[-1].shape[1])
+        counts["pruned"] = counts.get("pruned", 0) + (pruned.count if pruned is not None else 0)
     return res[0]
 
 
-def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0):
+def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0, absum: bool = False):
     """Generators, merged, of ``sum_j 1/j! Phi^(j)[x]dZ`` with their classification bits.
 
-    With ``prune > 0`` and many order-3 products, every product whose norm bound
-    ``mult ||T3||_F |g_i| |g_j| |g_k|`` is below ``prune`` times the ``h_max``-th largest order-1/2
-    generator is not merged but returned apart (``Gp``) for the reduction's box: sound (a sum of
-    boxed generators is enclosed by the box of the parts), it only skips sorting the tiny ones.
+    Every product is named by three indices into the augmented generators (index 0, the centre,
+    has exponent 0 and pads the lower orders).  With ``prune > 0`` and many order-3 products,
+    every product whose norm bound ``mult ||T3||_F |g_i| |g_j| |g_k|`` is below ``prune`` times
+    the ``h_max``-th largest order-1/2 generator is not merged but goes into the reduction's box
+    (through :class:`ocreach.reach.stt_products.Order3Products`, returned as ``pruned``): sound
+    (a sum of boxed generators is enclosed by the box of the parts), it only skips sorting the
+    tiny ones.
     """
-    from ocreach.sets.polyzonotope import monomial_keys
+    from ocreach.reach.stt_products import PRUNE_MIN_PRODUCTS, Order3Products, default_chunk, n_products
+    from ocreach.sets.polyzonotope import merge_monomials, monomial_keys
 
     n_ord = len(phi)
     p, h, q = dZ.n_factors, dZ.n_dependent, dZ.n_independent
     n = phi[0].shape[0]
-    Gp = np.zeros((n, 0))
+    chunk = int(chunk) if chunk and chunk > 0 else default_chunk(n)
     Ga = np.hstack([dZ.c[:, None], dZ.G, dZ.GI])
     H = Ga.shape[1]
     Ea = np.zeros((p + q, H), dtype=np.int64)
@@ -321,66 +318,50 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0):
     par = _bitmask((Ea % 2 == 1).T)
     sup = _bitmask((Ea > 0).T)
     bmask = _bitmask(np.arange(p + q)[None, :] >= p)[0]
-    cols, k0s, k1s, idx = [phi[0] @ Ga], [ka[:, 0]], [ka[:, 1]], [(np.arange(H),)]
+    zero = np.zeros(H, dtype=np.int64)
+    cols, tris = [phi[0] @ Ga], [np.vstack([np.arange(H), zero, zero])]
     if n_ord >= 2:
         T2 = _sym(phi[1]) / 2.0
         i, j, mult = _combos(H, 2)
         B = np.matmul(Ga.T[None], T2 @ Ga)                     # (n, H, H)
         cols.append(B.reshape(n, -1)[:, i * H + j] * mult)
-        k0s.append(ka[i, 0] + ka[j, 0])
-        k1s.append(ka[i, 1] + ka[j, 1])
-        idx.append((i, j))
+        tris.append(np.vstack([i, j, np.zeros(i.size, dtype=np.int64)]))
+    pruned = None
     if n_ord >= 3:
-        T3 = _sym(phi[2]) / 6.0
-        i, j, k, qq, mult = _combos(H, 3)
-        pi, pj = np.triu_indices(H)
-        nz = Ga.shape[0]
-        A = (T3 @ Ga).reshape(n, nz * nz, H).transpose(1, 0, 2).reshape(nz * nz, n * H)
-        P2 = np.ascontiguousarray((Ga[:, None, pi] * Ga[None, :, pj]).reshape(nz * nz, -1).T)
-        Q = (P2 @ A).reshape(pi.size, n, H)                    # Q[pair, m, k] (one BLAS product)
-        C3 = (Q[qq, :, k] * mult[:, None]).T
-        del Q
-        if prune > 0 and C3.shape[1] > 50_000 and h_max > 0:
+        thr = 0.0
+        if prune > 0 and n_products(H) > PRUNE_MIN_PRODUCTS and h_max > 0:
             small = np.concatenate([np.linalg.norm(c, axis=0) for c in cols])
-            theta = np.partition(small, -min(h_max, small.size))[-min(h_max, small.size)]
-            gn = np.linalg.norm(Ga, axis=0)
-            bound = (gn[pi] * gn[pj])[qq] * gn[k] * mult * np.linalg.norm(T3)
-            big = bound >= prune * theta
-            Gp = C3[:, ~big]
-            sel = np.flatnonzero(big)
-            C3, i, j, k, qq = C3[:, sel], i[sel], j[sel], k[sel], qq[sel]
-        cols.append(C3)
-        k0s.append((ka[pi, 0] + ka[pj, 0])[qq] + ka[k, 0])
-        k1s.append((ka[pi, 1] + ka[pj, 1])[qq] + ka[k, 1])
-        idx.append((i, j, k))
-    G = np.hstack(cols)
-    k0, k1 = np.concatenate(k0s), np.concatenate(k1s)
-    # merge equal monomials (sort by the first hash word; a group needs both words equal)
-    order = np.argsort(k0)
-    a0, a1 = k0[order], k1[order]
-    new = np.ones(order.size, dtype=bool)
-    new[1:] = (a0[1:] != a0[:-1]) | (a1[1:] != a1[:-1])
-    starts = np.flatnonzero(new)
-    Gm = np.add.reduceat(np.take(G, order, axis=1), starts, axis=1)
-    rep = order[starts]
-    # classification of the merged monomials from one representative each (bit masks)
-    offs = np.cumsum([0] + [len(ix[0]) for ix in idx])
-    src = np.searchsorted(offs, rep, side="right") - 1
-    PAR = np.zeros((rep.size, par.shape[1]), dtype=np.uint64)
-    SUP = np.zeros_like(PAR)
-    for o, ix in enumerate(idx):             # at most 3 iterations (one per STT order)
-        sel = np.flatnonzero(src == o)
-        local = rep[sel] - offs[o]
-        for comp in ix:
-            PAR[sel] ^= par[comp[local]]
-            SUP[sel] |= sup[comp[local]]
+            thr = prune * np.partition(small, -min(h_max, small.size))[-min(h_max, small.size)]
+        prod = Order3Products(_sym(phi[2]) / 6.0, Ga, thr, chunk)
+        merged, waiting = 0, sum(t.shape[1] for t in tris)
+        for vals, tri in prod.kept(absum):
+            cols.append(vals)
+            tris.append(tri)
+            waiting += tri.shape[1]
+            if waiting > max(chunk, merged):    # merge what waits (memory ~ 2x the merged set)
+                G, tri = _merge_products(cols, tris, ka, merge_monomials)
+                cols, tris, merged, waiting = [G], [tri], tri.shape[1], 0
+        pruned = prod if prod.count else None
+    Gm, tri = _merge_products(cols, tris, ka, merge_monomials)
+    # classification of the merged monomials from their generators (bit masks)
+    PAR = par[tri[0]] ^ par[tri[1]] ^ par[tri[2]]
+    SUP = sup[tri[0]] | sup[tri[1]] | sup[tri[2]]
     const = ~np.any(SUP, axis=1)
     has_b = np.any(SUP & bmask, axis=1)
     even = ~np.any(PAR, axis=1)
-    return Gm, rep, const, has_b, even, Ea, idx, Gp
+    return Gm, tri, const, has_b, even, Ea, pruned
 
 
-def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx, Gp):
+def _merge_products(cols, tris, ka, merge_monomials):
+    """Merge products with equal monomials (hash of ``E_i + E_j + E_k`` = sum of the keys)."""
+    G, tri = np.hstack(cols), np.hstack(tris)
+    k0, k1 = np.ascontiguousarray(ka[:, 0]), np.ascontiguousarray(ka[:, 1])
+    keys = np.stack([k0[tri[0]] + k0[tri[1]] + k0[tri[2]], k1[tri[0]] + k1[tri[1]] + k1[tri[2]]], axis=1)
+    Gm, rep = merge_monomials(G, keys)
+    return Gm, np.take(tri, rep, axis=1)
+
+
+def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned):
     """Reduction (as ``reduce_pz``) before the exponent matrix is formed; see :func:`fused_step`."""
     from ocreach.sets import PolyZonotope
     from ocreach.sets.reduce import box_generators
@@ -397,7 +378,7 @@ def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx, Gp):
     cand = np.flatnonzero(dep | ind)
     norms = np.linalg.norm(Gb[:, cand], axis=0)
     keep_mask = np.ones(cand.size, dtype=bool)
-    if cand.size > h_max or Gp.shape[1]:
+    if cand.size > h_max or pruned is not None:
         n_keep = max(h_max - n, 0)
         keep_mask[:] = False
         if n_keep:
@@ -410,21 +391,13 @@ def _fused_reduce(dZ, h_max, method, Gm, rep, const, has_b, even, Ea, idx, Gp):
     # removed dependent monomials: zonotope enclosure (all-even -> centre shift + half generator)
     rde = rd[even[rd]]
     c = c + 0.5 * Gm[:, rde].sum(axis=1)
-    Grem = np.hstack([0.5 * Gm[:, rde], Gm[:, rd[~even[rd]]], Gb[:, ri], Gp])
-    GI = np.hstack([Gb[:, ki], box_generators(Grem, method)])
+    Grem = np.hstack([0.5 * Gm[:, rde], Gm[:, rd[~even[rd]]], Gb[:, ri]])
+    GI = np.hstack([Gb[:, ki], box_generators(Grem, method, pruned)])
     # exponent matrix of the kept dependent monomials only
-    src = np.concatenate([np.zeros(0, dtype=np.int64)] + [np.full(len(ix[0]), o, dtype=np.int64)
-                                                          for o, ix in enumerate(idx)])
-    offs = np.cumsum([0] + [len(ix[0]) for ix in idx])
-    r = rep[kd]
-    o = src[r]
-    E = np.zeros((p, r.size), dtype=np.int64)
-    for ordr, ix in enumerate(idx):          # at most 3 iterations (one per STT order)
-        sel = o == ordr
-        local = r[sel] - offs[ordr]
-        E[:, sel] = sum(Ea[:p, a[local]] for a in ix)
+    t = tri[:, kd]
+    E = Ea[:p, t[0]] + Ea[:p, t[1]] + Ea[:p, t[2]]
     used = np.any(E > 0, axis=1)
-    return PolyZonotope(c, Gm[:, kd], GI, E[used], dZ.id[used]), removed.size > 0
+    return PolyZonotope._own(c, Gm[:, kd], GI, E if used.all() else E[used], dZ.id[used]), removed.size > 0
 
 
 @dataclass
@@ -463,6 +436,11 @@ class STTReach(Method):
         products in the tensor maps keep their dependence (``b^2`` in [0, 1], ``b`` and ``b c``
         tied) instead of becoming new independent generators; False = the paper's plain
         Cartesian product.
+        ``chunk`` [0]: order-3 products the fused engine forms at once (peak memory about
+        ``chunk (11 n + 2) * 8`` bytes -- a block, and the pruned products of the first eight
+        blocks kept for the second pass -- plus the kept products); 0 = from a 128 MB budget
+        per block
+        (:func:`ocreach.reach.stt_products.default_chunk`).  Changes only round-off.
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """
 
@@ -474,6 +452,7 @@ class STTReach(Method):
         tube_substeps: int = 0
         engine: str = "fused"
         lift_independent: bool = False
+        chunk: int = 0
         rtol: float = 1e-10
         atol: float = 1e-12
 
@@ -501,6 +480,7 @@ class STTReach(Method):
                 raise ProblemError(f"tube_substeps must be 0 (off) or >= 2; got {self.tube_substeps!r}")
             if self.engine not in ("fused", "library"):
                 raise ProblemError(f"engine must be 'fused' or 'library'; got {self.engine!r}")
+            self.chunk = check_count("chunk", self.chunk, 0)
             self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
             self.lift_independent = bool(self.lift_independent)
 
@@ -568,7 +548,7 @@ class STTReach(Method):
                                 stack.append((child, Uk))
                             continue
                 try:
-                    dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts)
+                    dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk)
                 except (SolverError, SetError) as exc:
                     raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
                 new_parts.append(_Part(x1, dR1, part.nominal, part.depth))

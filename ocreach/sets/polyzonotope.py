@@ -56,6 +56,21 @@ def monomial_keys(E: np.ndarray) -> np.ndarray:
     return E.T @ _hash_weights(E.shape[0]).T
 
 
+def exact_keys(E: np.ndarray, bound: np.ndarray) -> np.ndarray | None:
+    """One exact int64 key per exponent column, or None if the exponents do not fit one word.
+
+    Mixed radix with base ``bound[r] + 1`` for row ``r``: columns with entries ``<= bound`` have
+    equal keys exactly when they are equal, and the key of ``E_i + E_j`` is the sum of the keys
+    as long as the sum stays ``<= bound`` (pass ``N * max`` for products of ``N`` columns).
+    """
+    E = np.asarray(E, dtype=np.int64)
+    base = np.asarray(bound, dtype=np.int64) + 1
+    if E.shape[0] and float(np.prod(base.astype(float))) >= 2.0 ** 62:
+        return None
+    w = np.cumprod(np.concatenate([[1], base[:-1]])).astype(np.int64)
+    return w @ E if E.shape[0] else np.zeros(E.shape[1], dtype=np.int64)
+
+
 Exponents = Union[np.ndarray, Callable[[np.ndarray], np.ndarray], None]
 
 #: sorted positions compared per block by the exact re-check of :func:`merge_monomials`
@@ -73,7 +88,9 @@ def merge_monomials(G: np.ndarray, keys: np.ndarray, exponents: Exponents = None
     exponent columns, used by the exact sum and the tensor map, Foss et al. Eq. 22).
 
     Returns ``(G_merged, rep)`` where ``rep`` indexes one original column per merged group.
-    Sorting based: O(h log h), no Python loop over generators.  ``exponents`` (the (p, h) exponent
+    Sorting based: O(h log h), no Python loop over generators.  ``keys`` of shape (h,) are exact
+    (:func:`exact_keys`): one argsort and ``reduceat``, no check needed.  Keys of shape (h, 2)
+    are the 128-bit hash of :func:`monomial_keys`; then ``exponents`` (the (p, h) exponent
     matrix, or a callable giving the exponent columns of given column indices) makes the grouping
     exact: every column is compared with its group's representative (in blocks), and if the hash
     ever put two different monomials together the grouping is redone by ``np.unique`` on the
@@ -82,14 +99,21 @@ def merge_monomials(G: np.ndarray, keys: np.ndarray, exponents: Exponents = None
     h = keys.shape[0]
     if h == 0:
         return G, np.zeros(0, dtype=np.int64)
+    if keys.ndim == 1:                       # exact keys: equal keys <=> equal monomials
+        order = np.argsort(keys)
+        ks = keys[order]
+        new = np.ones(h, dtype=bool)
+        np.not_equal(ks[1:], ks[:-1], out=new[1:])
+        starts = np.flatnonzero(new)
+        return _reduce_groups(G, order, starts), order[starts]
     # one argsort on the first hash word (a lexsort on both is ~2x slower); a group needs both
     # words equal.  Equal monomials always share word 0, so they are adjacent unless another key
     # with the same word 0 (probability ~h^2 / 2^64) sorts between them -- then they stay two
     # columns, which is still exact (only not merged).
     order = np.argsort(keys[:, 0], kind="stable")
-    ks = keys[order]
+    k0, k1 = keys[:, 0][order], keys[:, 1][order]
     new = np.ones(h, dtype=bool)
-    new[1:] = (ks[1:, 0] != ks[:-1, 0]) | (ks[1:, 1] != ks[:-1, 1])
+    new[1:] = (k0[1:] != k0[:-1]) | (k1[1:] != k1[:-1])
     starts = np.flatnonzero(new)
     rep = order[starts]
     if exponents is not None and starts.size < h and not _groups_exact(exponents, order, new, rep):
@@ -99,8 +123,14 @@ def merge_monomials(G: np.ndarray, keys: np.ndarray, exponents: Exponents = None
         new[1:] = np.diff(inv.ravel()[order]) != 0
         starts = np.flatnonzero(new)
         rep = order[starts]
-    Gm = np.add.reduceat(G[:, order], starts, axis=1) if G.shape[0] else np.zeros((0, starts.size))
-    return Gm, rep
+    return _reduce_groups(G, order, starts), rep
+
+
+def _reduce_groups(G: np.ndarray, order: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Column sums of ``G[:, order]`` over the groups beginning at ``starts``."""
+    if not G.shape[0]:
+        return np.zeros((0, starts.size))
+    return np.add.reduceat(np.take(G, order, axis=1), starts, axis=1)
 
 
 def _groups_exact(exponents: Exponents, order: np.ndarray, new: np.ndarray, rep: np.ndarray) -> bool:
@@ -124,7 +154,7 @@ def enclose_monomials(G: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndar
     """
     E = np.asarray(E)
     const = ~np.any(E, axis=0)
-    even = np.all(E % 2 == 0, axis=0) & ~const
+    even = ~np.any(E & 1, axis=0) & ~const
     shift = G[:, const].sum(axis=1) + 0.5 * G[:, even].sum(axis=1)
     return shift, np.hstack([0.5 * G[:, even], G[:, ~(even | const)]])
 
@@ -177,6 +207,24 @@ class PolyZonotope(SetBase):
         self._freeze()
 
     # -- constructors -----------------------------------------------------------------------
+    @classmethod
+    def _own(cls, c: np.ndarray, G: np.ndarray, GI: np.ndarray, E: np.ndarray, id: np.ndarray) -> PolyZonotope:
+        """Internal constructor for arrays an operation has just computed and hands over (no
+        copies, no shape checks): used by the exact operations on large sets, where copying and
+        re-validating the result cost as much as computing it.  Only finiteness is checked (an
+        operation can overflow); everything else holds by construction."""
+        for name, M in (("centre c", c), ("dependent generators G", G), ("independent generators GI", GI)):
+            if not np.isfinite(M.sum()) and not np.all(np.isfinite(M)):
+                raise SetError(f"PolyZonotope {name} must be finite")
+        self = object.__new__(cls)
+        for key, arr, dt in (("c", c, float), ("G", G, float), ("GI", GI, float), ("E", E, np.int64),
+                             ("id", id, np.int64)):
+            arr = np.asarray(arr, dtype=dt)
+            arr.setflags(write=False)
+            object.__setattr__(self, key, arr)
+        self._freeze()
+        return self
+
     @classmethod
     def from_zonotope(cls, Z, ids: Any = None) -> PolyZonotope:
         """Exact conversion: each generator becomes a dependent generator with its own factor."""
@@ -252,7 +300,8 @@ class PolyZonotope(SetBase):
         G, E = np.asarray(self.G), np.asarray(self.E)
         c = self.c.copy()
         if G.shape[1]:
-            Gm, rep = merge_monomials(G, monomial_keys(E), E)
+            keys = exact_keys(E, E.max(axis=1, initial=0))
+            Gm, rep = merge_monomials(G, monomial_keys(E) if keys is None else keys, E)
             Em = E[:, rep]
             const = ~np.any(Em, axis=0)
             c = c + Gm[:, const].sum(axis=1)
@@ -535,14 +584,19 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
     Eaug = np.zeros((p + q, 1 + h + q), dtype=np.int64)
     Eaug[:p, 1: 1 + h] = pz.E
     Eaug[p:, 1 + h:] = np.eye(q, dtype=np.int64)
-    keys_aug = monomial_keys(Eaug)
+    # one exact int64 key per monomial if the product exponents fit a word, else the 128-bit hash
+    keys_aug = exact_keys(Eaug, N * Eaug.max(axis=1, initial=0))
+    exact = keys_aug is not None
+    if not exact:
+        keys_aug = monomial_keys(Eaug)
     H = Gaug.shape[1]
     Ts = _sym_tensor(T)
     if N == 2:
         A = Ts @ Gaug  # (m, n, H): A[i, a, k] = Ts[i, a, b] Gaug[b, k]
         B = np.matmul(Gaug.T[None], A)  # (m, H, H)
         iu, ju = np.triu_indices(H)
-        Gt = B[:, iu, ju] * np.where(iu == ju, 1.0, 2.0)
+        Gt = np.take(B.reshape(m, H * H), iu * H + ju, axis=1)
+        Gt *= np.where(iu == ju, 1.0, 2.0)
         idx = (iu, ju)
     else:
         combos = np.array(list(itertools.combinations_with_replacement(range(H), 3)), dtype=np.int64).reshape(-1, 3)
@@ -556,18 +610,21 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
         distinct = (iu != ju).astype(int) + (ju != ku).astype(int)
         Gt *= np.where(distinct == 2, 6.0, np.where(distinct == 1, 3.0, 1.0))
         idx = (iu, ju, ku)
-    keys = sum(keys_aug[i] for i in idx)
-    Gm, rep = merge_monomials(Gt, keys, lambda cols: sum(Eaug[:, i[cols]] for i in idx))
-    Em = sum(Eaug[:, i[rep]] for i in idx)
-    const = ~np.any(Em, axis=0)
+    keys = sum(np.take(keys_aug, i, axis=0) for i in idx)
+    Gm, rep = merge_monomials(Gt, keys, None if exact else lambda cols: sum(Eaug[:, i[cols]] for i in idx))
+    reps = [i[rep] for i in idx]
+    # classification from the factors' columns (exponents are >= 0: a sum is zero iff all are)
+    const = np.logical_and.reduce([~np.any(Eaug, axis=0)[r] for r in reps])
+    has_b = np.logical_or.reduce([np.any(Eaug[p:] > 0, axis=0)[r] for r in reps]) & ~const
     c = Gm[:, const].sum(axis=1)
-    has_b = np.any(Em[p:] > 0, axis=0) & ~const
     dep = ~(const | has_b)
-    shift, GI = enclose_monomials(Gm[:, has_b], Em[:, has_b])
+    shift, GI = enclose_monomials(Gm[:, has_b], sum(np.take(Eaug, r[has_b], axis=1) for r in reps))
     c = c + shift
     dep &= np.any(Gm != 0, axis=0)
     GI = GI[:, np.any(GI != 0, axis=0)]
-    Ed = Em[:p][:, dep]
+    Ed = sum(np.take(Eaug[:p], r[dep], axis=1) for r in reps)
     used = np.any(Ed > 0, axis=1)
+    if not used.all():
+        Ed = Ed[used]
     # columns are already merged (distinct keys); only zero generators/unused factors are dropped
-    return PolyZonotope(c, Gm[:, dep], GI, Ed[used], pz.id[used])
+    return PolyZonotope._own(c, Gm[:, dep], GI, Ed, pz.id[used])

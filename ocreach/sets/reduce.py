@@ -10,7 +10,7 @@
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,17 +30,26 @@ def _check_method(method: str) -> str:
     return method
 
 
-def box_generators(G: np.ndarray, method: str) -> np.ndarray:
-    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``."""
+def box_generators(G: np.ndarray, method: str, extra: Any = None) -> np.ndarray:
+    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``.
+
+    ``extra``: more generators ``X`` that are not stored but known through ``extra.gram``
+    (``X X^T``), ``extra.absum`` (row sums of ``|X|``, used by ``girard``) and
+    ``extra.proj_abs(U)`` (``sum_x |U^T x|``, used by ``pca`` once the frame is known); the box
+    is then the one of ``[G, X]`` up to round-off (the order-3 products the fused STT step
+    prunes, :mod:`ocreach.reach.stt_products`).
+    """
     n = G.shape[0]
-    if G.shape[1] == 0:
+    if G.shape[1] == 0 and extra is None:
         return np.zeros((n, 0))
     if method == "girard":
-        B = np.diag(np.abs(G).sum(axis=1))
+        r = np.abs(G).sum(axis=1)
+        B = np.diag(r if extra is None else r + extra.absum)
     else:
-        U, _, _ = np.linalg.svd(G @ G.T)
+        gram = G @ G.T if extra is None else G @ G.T + extra.gram
+        U, _, _ = np.linalg.svd(gram)
         r = np.abs(U.T @ G).sum(axis=1)
-        B = U * r[None, :]
+        B = U * (r if extra is None else r + extra.proj_abs(U))[None, :]
     return B[:, np.any(B != 0, axis=0)]
 
 
@@ -83,8 +92,7 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope
     h, q = pz.n_dependent, pz.n_independent
     if h + q <= h_max:
         return pz
-    Gall = np.hstack([pz.G, pz.GI])
-    norms = np.linalg.norm(Gall, axis=0)
+    norms = np.concatenate([np.linalg.norm(pz.G, axis=0), np.linalg.norm(pz.GI, axis=0)])
     n_keep = h_max - n
     if n_keep > 0:
         keep_idx = np.argpartition(-norms, n_keep - 1)[:n_keep]
@@ -100,7 +108,7 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope
     GI = np.hstack([pz.GI[:, ki], box_generators(Grem, method)])
     E = pz.E[:, kd]
     used = np.any(E > 0, axis=1) if E.shape[1] else np.zeros(E.shape[0], dtype=bool)
-    return PolyZonotope(c, pz.G[:, kd], GI, E[used], pz.id[used])
+    return PolyZonotope._own(c, pz.G[:, kd], GI, E if used.all() else E[used], pz.id[used])
 
 
 def reduce(S: SetBase, size: float, method: str | None = None) -> SetBase:
