@@ -128,19 +128,26 @@ class PZUnion:
 
 
 # ============================================================================ helpers
-def input_pz(kind: str, n_u: int) -> PolyZonotope:
+def input_pz(kind: str, n_u: int, n_throttle: int = 0) -> PolyZonotope:
     """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
 
     ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"``: the unit ball by
     Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer approximation).
+    ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
+    :meth:`ocreach.model.Model.throttle_relaxed` (own fresh factor).
     """
     from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz
 
+    def box(m: int) -> PolyZonotope:
+        return PolyZonotope(np.zeros(m), np.eye(m), None, np.eye(m, dtype=np.int64), new_ids(m))
+
     if kind == "box":
-        return PolyZonotope(np.zeros(n_u), np.eye(n_u), None, np.eye(n_u, dtype=np.int64), new_ids(n_u))
-    if kind == "ball":
-        return unit_ball_pz(n_u, ids=new_ids(n_u))
-    raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
+        U = box(n_u)
+    elif kind == "ball":
+        U = unit_ball_pz(n_u, ids=new_ids(n_u))
+    else:
+        raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
+    return U.cartesian(box(n_throttle)) if n_throttle else U
 
 
 def make_dependent(pz: PolyZonotope) -> PolyZonotope:
@@ -519,6 +526,10 @@ class STTReach(Method):
 
         opt = self.options
         model = problem.model
+        # ||u|| (mass flow) has no expansion at the reference control u = 0: expand the relaxed
+        # dynamics with the throttle as an extra input instead (Model.throttle_relaxed)
+        self._model = smodel = model.throttle_relaxed()
+        n_thr = smodel.n_u - model.n_u
         kind = opt.input_set or problem.control_set.kind
         if kind not in INPUT_SETS:
             raise ProblemError(f"method 'stt' needs a 'box' or 'ball' input set; the problem's control "
@@ -530,7 +541,7 @@ class STTReach(Method):
         timer = Timer()
         counts = {"tensor_maps": 0, "reductions": 0, "splits": 0, "part_stts": 0}
         with timer("stt_generation"):
-            ref = stt_flow(model, problem.x0, np.zeros((K, model.n_u)), grid, opt.order,
+            ref = stt_flow(smodel, problem.x0, np.zeros((K, smodel.n_u)), grid, opt.order,
                            p=problem.params, rtol=opt.rtol, atol=opt.atol)
         self._ref = ref
         with timer("other"):
@@ -548,7 +559,7 @@ class STTReach(Method):
         gens[0] = sets[0].n_generators
         for k in range(K):
             with timer("other"):
-                U = [input_pz(kind, model.n_u) for _ in parts]
+                U = [input_pz(kind, model.n_u, n_thr) for _ in parts]
             new_parts, done = [], []
             stack = [(p, u) for p, u in zip(parts, U)]
             while stack:
@@ -585,6 +596,7 @@ class STTReach(Method):
         meta = self.base_meta(problem, timer.times)
         meta["evaluations"] = counts
         meta["input_set"] = kind
+        meta["throttle_relaxed"] = bool(n_thr)
         meta["generators"] = gens
         meta["parts"] = [len(s.parts) if isinstance(s, PZUnion) else 1 for s in sets]
         if opt.split is not None:
@@ -603,7 +615,7 @@ class STTReach(Method):
 
         opt = self.options
         with timer("stt_generation"):
-            r = stt_flow(problem.model, part.x_ref, np.zeros((1, problem.model.n_u)),
+            r = stt_flow(self._model, part.x_ref, np.zeros((1, self._model.n_u)),
                          problem.grid[k:k + 2], opt.order, p=problem.params, rtol=opt.rtol, atol=opt.atol)
         counts["part_stts"] += 1
         return [ph[0] for ph in r.phi], r.states[-1]
@@ -639,7 +651,8 @@ class STTReach(Method):
         for part in parts_with_dz:
             dZ = part.dZ
             for i in range(1, s):
-                r = stt_flow(model, part.x_ref, np.zeros((1, model.n_u)), [t0, sub[i]], min(opt.order, 2),
+                r = stt_flow(self._model, part.x_ref, np.zeros((1, self._model.n_u)), [t0, sub[i]],
+                             min(opt.order, 2),
                              p=problem.params, rtol=opt.rtol, atol=opt.atol)
                 S = stt_step([ph[0] for ph in r.phi], dZ, opt.h_max, opt.reduction, opt.engine, Timer(),
                              {"tensor_maps": 0, "reductions": 0})
