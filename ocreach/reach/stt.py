@@ -49,6 +49,12 @@ if TYPE_CHECKING:
     from ocreach.sets import Interval, PolyZonotope
 
 INPUT_SETS = ("box", "ball")
+BALL_INPUTS = ("zonotope", "pz")
+#: generators of the zonotope ball input per input dimension (2-D: regular 12-gon, support
+#: <= 1.035; 3-D: dodecahedral axes, <= 1.096; else 2 n), see ocreach.sets.unit_ball_zonotope;
+#: measured on dro (docs/validation.md): 6 generators as tight as 8 to 0.3 % of the width, and
+#: as fast as Foss Eq. 16
+BALL_ZONOTOPE_GENERATORS = {2: 6, 3: 10}
 REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
@@ -128,22 +134,31 @@ class PZUnion:
 
 
 # ============================================================================ helpers
-def input_pz(kind: str, n_u: int, n_throttle: int = 0) -> PolyZonotope:
+def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> PolyZonotope:
     """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
 
-    ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"``: the unit ball by
-    Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer approximation).
+    ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"`` with ``ball="pz"``:
+    the unit ball by Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer
+    approximation); with ``ball="zonotope"``: the outer zonotope
+    :func:`ocreach.sets.unit_ball_zonotope` with :data:`BALL_ZONOTOPE_GENERATORS` generators, one
+    linear factor each (looser as a set, but its zonotope enclosure is itself, so a reduction that
+    boxes it loses nothing more; docs/stt.md, "Ball input").
     ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
     :meth:`ocreach.model.Model.throttle_relaxed` (own fresh factor).
     """
-    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz
+    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz, unit_ball_zonotope
 
     def box(m: int) -> PolyZonotope:
         return PolyZonotope(np.zeros(m), np.eye(m), None, np.eye(m, dtype=np.int64), new_ids(m))
 
     if kind == "box":
         U = box(n_u)
+    elif kind == "ball" and ball == "zonotope" and n_u > 1:
+        Z = unit_ball_zonotope(n_u, BALL_ZONOTOPE_GENERATORS.get(n_u, 2 * n_u))
+        U = PolyZonotope.from_zonotope(Z, new_ids(Z.G.shape[1]))
     elif kind == "ball":
+        if ball not in BALL_INPUTS:
+            raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {ball!r}")
         U = unit_ball_pz(n_u, ids=new_ids(n_u))
     else:
         raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
@@ -458,7 +473,10 @@ class STTReach(Method):
 
         ``order`` [2]: STT order n in {1, 2, 3}.
         ``h_max`` [200]: maximum number of generators (dependent + independent) per part.
-        ``input_set`` [None]: ``"box"`` or ``"ball"`` (Eq. 16); None = the problem's control set.
+        ``input_set`` [None]: ``"box"`` or ``"ball"``; None = the problem's control set.
+        ``ball_input`` ["zonotope"]: representation of a ball input: ``"zonotope"`` (outer
+        zonotope, 6 generators in 2-D, 10 in 3-D; tighter reachable sets after reductions, see
+        docs/stt.md) or ``"pz"`` (Foss Eq. 16 in 2-D, the cube-to-ball polynomial in 3-D).
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
         ``split`` [None]: ``(max_parts, threshold)``; split a part while its nonlinearity index
         exceeds ``threshold`` and fewer than ``max_parts`` parts exist (None = Algorithm 1 as is).
@@ -476,6 +494,7 @@ class STTReach(Method):
         order: int = 2
         h_max: int = 200
         input_set: str | None = None
+        ball_input: str = "zonotope"
         reduction: str = "pca"
         split: tuple | None = None
         tube_substeps: int = 0
@@ -490,6 +509,8 @@ class STTReach(Method):
             self.h_max = check_count("h_max", self.h_max, 1)
             if self.input_set is not None and self.input_set not in INPUT_SETS:
                 raise ProblemError(f"input_set must be one of {INPUT_SETS} or None; got {self.input_set!r}")
+            if self.ball_input not in BALL_INPUTS:
+                raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {self.ball_input!r}")
             if self.reduction not in REDUCTIONS:
                 raise ProblemError(f"reduction must be one of {REDUCTIONS}; got {self.reduction!r}")
             if isinstance(self.split, str):  # CLI: --set split=4,0.01
@@ -559,7 +580,7 @@ class STTReach(Method):
         gens[0] = sets[0].n_generators
         for k in range(K):
             with timer("other"):
-                U = [input_pz(kind, model.n_u, n_thr) for _ in parts]
+                U = [input_pz(kind, model.n_u, n_thr, opt.ball_input) for _ in parts]
             new_parts, done = [], []
             stack = [(p, u) for p, u in zip(parts, U)]
             while stack:
