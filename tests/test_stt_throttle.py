@@ -76,3 +76,18 @@ def test_stt_on_mass_flow_models_covers_mc_and_stays_near_it(pid):
         sb = support_bounds(res.sets[k].project([0, 1, 2]), D, tol=1e-3)
         assert np.all(h <= sb.upper + 1e-9 * width), f"MC endpoint outside at t = {res.times[k]}"
         assert np.all(sb.upper - h <= 0.5 * width), (k, np.max((sb.upper - h) / width))
+
+
+def test_bad_throttle_declaration_is_refused():
+    import casadi as ca
+
+    from ocreach.errors import ProblemError
+    from ocreach.model import Model
+
+    x, u, s = ca.SX.sym("x"), ca.SX.sym("u"), ca.SX.sym("s")
+    with pytest.raises(ProblemError, match=r"throttle\[0\] must be one scalar SX symbol"):
+        Model.build("m", x, u, x + u, throttle=(2 * s, x + s))
+    with pytest.raises(ProblemError, match=r"throttle\[1\] must have the shape of f"):
+        Model.build("m", x, u, x + u, throttle=(s, ca.vertcat(x, s)))
+    m = Model.build("m", x, u, x + ca.fabs(u), throttle=(s, x + s))
+    assert m.throttle_relaxed().n_u == 2 and Model.build("m", x, u, x + u).throttle_relaxed().n_u == 1
