@@ -1,7 +1,9 @@
 """Tightness of the STT sets measured with the exact polynomial-zonotope queries (issue 12).
 
     python examples/stt_tightness.py [--problem dro|vdp] [--input ball|box] [--order 2] [--h-max 400]
-                                     [--dirs 64] [--mc 20000] [--out docs/figures]
+                                     [--reduction pca|girard]
+                                     [--ball-input zonotope|pz] [--dirs 64] [--mc 20000]
+                                     [--out docs/figures]
 
 Truth: the support function of the true reachable set by direct multiple shooting
 (:func:`ocreach.reach.direct.transcription_support`, piecewise-constant controls on the grid, the
@@ -65,6 +67,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--input", default="ball")
     ap.add_argument("--order", type=int, default=2)
     ap.add_argument("--h-max", type=int, default=400)
+    ap.add_argument("--reduction", default="pca")
+    ap.add_argument("--ball-input", default="zonotope")
     ap.add_argument("--dirs", type=int, default=64)
     ap.add_argument("--mc", type=int, default=20000)
     ap.add_argument("--out", default="docs/figures")
@@ -76,7 +80,8 @@ def main(argv=None) -> dict:
     planes = {k: list(v) for k, v in p.planes().items()}
     dirs = circle_directions(a.dirs)
     truth = truth_support(p, planes, dirs, out / f"stt_truth_{a.problem}_{a.input}.json")
-    opts = dict(order=a.order, h_max=a.h_max, input_set=a.input)
+    opts = dict(order=a.order, h_max=a.h_max, input_set=a.input, reduction=a.reduction,
+                ball_input=a.ball_input)
     ocreach.reach(p, "stt", **opts)  # warm-up
     t0 = time.perf_counter()
     res = ocreach.reach(p, "stt", **opts)
@@ -113,7 +118,9 @@ def main(argv=None) -> dict:
         }
         print(tag, json.dumps(report[tag], indent=1))
     print(f"stt runtime (warm): {runtime:.3f} s")
-    atomic_write_text(out / f"stt_tightness_{a.problem}_{a.input}_o{a.order}.json", json.dumps(report, indent=2))
+    atomic_write_text(out / f"stt_tightness_{a.problem}_{a.input}"
+                      f"{'-' + a.ball_input if a.input == 'ball' else ''}_o{a.order}"
+                      f"{'' if a.reduction == 'pca' else '_' + a.reduction}.json", json.dumps(report, indent=2))
     return report
 
 

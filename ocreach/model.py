@@ -54,6 +54,10 @@ class Model:
     thrust_param : name of the parameter that scales the control's effect (``"a_max"``,
         ``"T_max"``, ``"gain"``), declared by the model builder; "" if none.  Methods that need
         the thrust level (ffoe, ole, bvp) and the problem's plausibility check read it from here.
+    throttle : ``(sigma, f_sigma)`` or None.  For a model whose ``f`` depends on the control norm
+        ``||u||`` (the mass flow ``dn/dt ~ ||u||`` of Patel & Scheeres Eq. 11), ``f_sigma`` is ``f``
+        with ``||u||`` replaced by the scalar symbol ``sigma``.  ``||u||`` has no Taylor expansion
+        at ``u = 0``, so expansion-based methods (stt) use :meth:`throttle_relaxed` instead.
     """
 
     name: str
@@ -71,6 +75,7 @@ class Model:
     description: str = ""
     state_units: tuple[str, ...] = ()
     thrust_param: str = ""
+    throttle: tuple[ca.SX, ca.SX] | None = field(default=None, repr=False)
     cache: dict = field(default_factory=dict, repr=False)
 
     # ------------------------------------------------------------------ construction
@@ -93,10 +98,13 @@ class Model:
         description: str = "",
         state_units: Sequence[str] | None = None,
         thrust_param: str = "",
+        throttle: tuple[ca.SX, ca.SX] | None = None,
     ) -> Model:
         """Validate shapes and build a model (the usual constructor).
 
         ``state_units``: optional unit label per state (e.g. ``"DU"``, ``"DU/TU"``) for plots.
+        ``throttle``: ``(sigma, f_sigma)``, see the class docstring (``f`` must equal ``f_sigma``
+        with ``sigma = ||u||``; the builder substitutes it, the check here is on shapes).
         """
         t = ca.SX.sym("t") if t is None else t
         p = ca.SX.sym("p", 0) if p is None else p
@@ -109,6 +117,14 @@ class Model:
         if pd.size != p.numel():
             raise ProblemError(f"p_default must have {p.numel()} entries; got {pd.size}")
         pnames = _names("p", p.numel(), param_names, "param_names")
+        if throttle is not None:
+            sigma, f_sigma = throttle
+            if not (isinstance(sigma, ca.SX) and sigma.is_symbolic() and sigma.numel() == 1):
+                raise ProblemError(f"throttle[0] must be one scalar SX symbol; got {sigma!r}")
+            if ca.SX(f_sigma).shape != f.shape:
+                raise ProblemError(f"throttle[1] must have the shape of f {f.shape}; "
+                                   f"got {ca.SX(f_sigma).shape}")
+            throttle = (sigma, ca.SX(f_sigma))
         if thrust_param and thrust_param not in pnames:
             raise ProblemError(f"thrust_param must be one of the parameters {list(pnames)}; "
                                f"got {thrust_param!r}")
@@ -117,7 +133,7 @@ class Model:
             state_names=_names("x", x.numel(), state_names, "state_names"),
             control_names=_names("u", u.numel(), control_names, "control_names"),
             param_names=pnames,
-            control_set=control_set, units=units, description=description,
+            control_set=control_set, units=units, description=description, throttle=throttle,
             state_units=_names("", x.numel(), state_units, "state_units") if state_units is not None
             else ("",) * x.numel(),
         )
@@ -284,6 +300,31 @@ class Model:
             raise ProblemError(f"control set kind must be one of {CONTROL_SETS}; got {kind!r}")
         return self.cached(("with_control_set", kind), lambda: dataclasses.replace(
             self, name=f"{self.name}-{kind}", control_set=kind, cache={}))
+
+    def throttle_relaxed(self) -> Model:
+        """The dynamics with ``||u||`` replaced by an extra control ``s in [-1, 1]``,
+        ``sigma = (1 + s) / 2 in [0, 1]`` (cached; the model itself if it declares no throttle).
+
+        For ``||u|| <= 1`` every control ``u`` of this model is the control ``(u, 2||u|| - 1)`` of
+        the relaxed one, so the relaxed reachable set contains the true one; the relaxed ``f`` is
+        smooth in the controls at ``u = 0``, where ``||u||`` (regularised or not) has no Taylor
+        expansion: its second derivative there is ``1/eps`` (``1e15`` for the ``sqrt(|u|^2 + 1e-30)``
+        of the builders), which made the order-2 STT of the mass flow explode (issue 12).
+        """
+        import dataclasses
+
+        if self.throttle is None:
+            return self
+        sigma, f_sigma = self.throttle
+
+        def build() -> Model:
+            s = ca.SX.sym("s_throttle")
+            u = ca.vertcat(self.u, s)
+            f = ca.substitute(f_sigma, sigma, 0.5 * (1 + s))
+            return dataclasses.replace(self, name=f"{self.name}-throttle", u=u, f=f, throttle=None,
+                                       control_names=(*self.control_names, "throttle"), cache={})
+
+        return self.cached("throttle_relaxed", build)
 
     @cached_property
     def control_affine(self) -> bool:

@@ -132,3 +132,28 @@ def test_unit_ball_pz_tight_and_contains_ball():
         F = rng.uniform(-1, 1, size=(4000, n))                # boundary of the factor cube ...
         F[np.arange(4000), np.arange(4000) % n] = np.sign(F[np.arange(4000), np.arange(4000) % n])
         assert np.all(np.linalg.norm(B.evaluate(F), axis=1) >= 1 - 1e-9)   # ... maps outside the ball
+
+
+def test_support_bounds_block_with_more_than_255_monomials():
+    """A factor block with 260 monomials (the block cache key once packed the shape with
+    ``bytes(shape)``, which refuses sizes > 255): bounds bracket the dense-grid maximum."""
+    rng = np.random.default_rng(7)
+    blocks, cols = [], []
+    for b in range(2):                                         # 2 blocks of 4 factors (8 > 6)
+        all_e = np.array(list(itertools.product(range(5), repeat=4))).T[:, 1:]
+        E = all_e[:, rng.choice(all_e.shape[1], 260, replace=False)]
+        G = rng.normal(size=(2, 260)) / (1 + E.sum(axis=0)) ** 2
+        blocks.append((G, E))
+    G = np.hstack([g for g, _ in blocks])
+    E = np.zeros((8, G.shape[1]), dtype=np.int64)
+    E[:4, :260], E[4:, 260:] = blocks[0][1], blocks[1][1]
+    pz = PolyZonotope(np.zeros(2), G, None, E, new_ids(8))
+    D = dirs(rng, 2, 2)
+    sb = support_bounds(pz, D, tol=1e-2)
+    a = np.linspace(-1, 1, 15)
+    A = np.array(list(itertools.product(a, repeat=4)))         # dense grid of each block's factors
+    grid_max = sum((np.prod(A[:, :, None] ** Eb[None, :, :], axis=1) @ Gb.T @ D.T).max(axis=0)
+                   for Gb, Eb in blocks)
+    assert np.all(grid_max <= sb.upper + 1e-9)
+    assert np.all(sb.lower <= sb.upper + 1e-12)
+    assert np.all(sb.gap <= 1e-2 * np.abs(D @ G).sum(axis=1) + 1e-12)

@@ -66,12 +66,15 @@ def cr3bp(
     T_s = ca.SX.sym("T_max")
     c_s = ca.SX.sym("c_ex")
     unorm = ca.sqrt(ca.sumsqr(u) + 1e-30)
-    f = ca.vertcat(vel, ca.vertcat(*grav) + T_s * n * u, T_s * n**2 * unorm / c_s)
+    sigma = ca.SX.sym("sigma")  # ||u|| (throttle), see Model.throttle
+    f_sigma = ca.vertcat(vel, ca.vertcat(*grav) + T_s * n * u, T_s * n**2 * sigma / c_s)
+    f = ca.substitute(f_sigma, sigma, unorm)
     T_nd = thrust / (units.length / units.time**2)  # kg * DU / TU^2 (mass kept in kg)
     c_nd = G0 * isp / units.velocity
     return Model.build(
         f"cr3bp-{kind}-mass", ca.vertcat(pos, vel, n), u, f, p=ca.vertcat(mu_s, T_s, c_s),
         p_default=[mu, T_nd, c_nd], state_names=names + ["n"], control_names=cnames,
         param_names=["mu", "T_max", "c_ex"], thrust_param="T_max", control_set=control_set, units=units,
+        throttle=(sigma, f_sigma),
         description=f"{kind} CR3BP with inverse mass n = 1/m (1/kg), mu = {mu}",
         state_units=units.state_labels(d, ("1/kg",)))

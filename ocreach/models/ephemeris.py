@@ -152,8 +152,10 @@ def ephemeris_inertial(
     if frame_acceleration == "ephemeris" and central != "ssb":
         origin_acc = _second_derivative(eph.position_expr(central, ts, "ssb", frame=frame) / du_km, t)
     unorm = ca.sqrt(ca.sumsqr(u) + 1e-30)
+    sigma = ca.SX.sym("sigma")  # ||u|| (throttle), see Model.throttle
     # cse: every position_expr builds its own Chebyshev basis; merge the common subexpressions
-    f = ca.cse(ca.vertcat(v, acc - origin_acc + T_s * n * u, T_s * n**2 * unorm / c_s))
+    f_sigma = ca.cse(ca.vertcat(v, acc - origin_acc + T_s * n * u, T_s * n**2 * sigma / c_s))
+    f = ca.substitute(f_sigma, sigma, unorm)
 
     T_nd = thrust / mass0 / units.acceleration
     c_nd = G0 * isp / units.velocity
@@ -162,6 +164,7 @@ def ephemeris_inertial(
         p_default=[T_nd, c_nd], state_names=["x", "y", "z", "vx", "vy", "vz", "n"],
         control_names=["ux", "uy", "uz"], param_names=["T_max", "c_ex"], thrust_param="T_max",
         control_set=control_set, units=units, state_units=units.state_labels(3, ("1",)),
+        throttle=(sigma, f_sigma),
         description=(f"DE421 point masses {list(bodies)}, origin {central}, {frame} axes, "
                      f"frame acceleration {frame_acceleration}, inverse mass n = mass0/m "
                      f"(Patel & Scheeres Eq. 11); mass0 = {mass0} kg, T_max = {thrust} N, "

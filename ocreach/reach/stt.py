@@ -49,6 +49,12 @@ if TYPE_CHECKING:
     from ocreach.sets import Interval, PolyZonotope
 
 INPUT_SETS = ("box", "ball")
+BALL_INPUTS = ("zonotope", "pz")
+#: generators of the zonotope ball input per input dimension (2-D: regular 12-gon, support
+#: <= 1.035; 3-D: dodecahedral axes, <= 1.096; else 2 n), see ocreach.sets.unit_ball_zonotope;
+#: measured on dro (docs/validation.md): 6 generators as tight as 8 to 0.3 % of the width, and
+#: as fast as Foss Eq. 16
+BALL_ZONOTOPE_GENERATORS = {2: 6, 3: 10}
 REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
@@ -128,19 +134,35 @@ class PZUnion:
 
 
 # ============================================================================ helpers
-def input_pz(kind: str, n_u: int) -> PolyZonotope:
+def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> PolyZonotope:
     """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
 
-    ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"``: the unit ball by
-    Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer approximation).
+    ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"`` with ``ball="pz"``:
+    the unit ball by Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer
+    approximation); with ``ball="zonotope"``: the outer zonotope
+    :func:`ocreach.sets.unit_ball_zonotope` with :data:`BALL_ZONOTOPE_GENERATORS` generators, one
+    linear factor each (looser as a set, but its zonotope enclosure is itself, so a reduction that
+    boxes it loses nothing more; docs/stt.md, "Ball input").
+    ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
+    :meth:`ocreach.model.Model.throttle_relaxed` (own fresh factor).
     """
-    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz
+    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz, unit_ball_zonotope
+
+    def box(m: int) -> PolyZonotope:
+        return PolyZonotope(np.zeros(m), np.eye(m), None, np.eye(m, dtype=np.int64), new_ids(m))
 
     if kind == "box":
-        return PolyZonotope(np.zeros(n_u), np.eye(n_u), None, np.eye(n_u, dtype=np.int64), new_ids(n_u))
-    if kind == "ball":
-        return unit_ball_pz(n_u, ids=new_ids(n_u))
-    raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
+        U = box(n_u)
+    elif kind == "ball" and ball == "zonotope" and n_u > 1:
+        Z = unit_ball_zonotope(n_u, BALL_ZONOTOPE_GENERATORS.get(n_u, 2 * n_u))
+        U = PolyZonotope.from_zonotope(Z, new_ids(Z.G.shape[1]))
+    elif kind == "ball":
+        if ball not in BALL_INPUTS:
+            raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {ball!r}")
+        U = unit_ball_pz(n_u, ids=new_ids(n_u))
+    else:
+        raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
+    return U.cartesian(box(n_throttle)) if n_throttle else U
 
 
 def make_dependent(pz: PolyZonotope) -> PolyZonotope:
@@ -424,7 +446,10 @@ class STTReach(Method):
 
         ``order`` [2]: STT order n in {1, 2, 3}.
         ``h_max`` [200]: maximum number of generators (dependent + independent) per part.
-        ``input_set`` [None]: ``"box"`` or ``"ball"`` (Eq. 16); None = the problem's control set.
+        ``input_set`` [None]: ``"box"`` or ``"ball"``; None = the problem's control set.
+        ``ball_input`` ["zonotope"]: representation of a ball input: ``"zonotope"`` (outer
+        zonotope, 6 generators in 2-D, 10 in 3-D; tighter reachable sets after reductions, see
+        docs/stt.md) or ``"pz"`` (Foss Eq. 16 in 2-D, the cube-to-ball polynomial in 3-D).
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
         ``split`` [None]: ``(max_parts, threshold)``; split a part while its nonlinearity index
         exceeds ``threshold`` and fewer than ``max_parts`` parts exist (None = Algorithm 1 as is).
@@ -447,6 +472,7 @@ class STTReach(Method):
         order: int = 2
         h_max: int = 200
         input_set: str | None = None
+        ball_input: str = "zonotope"
         reduction: str = "pca"
         split: tuple | None = None
         tube_substeps: int = 0
@@ -462,6 +488,8 @@ class STTReach(Method):
             self.h_max = check_count("h_max", self.h_max, 1)
             if self.input_set is not None and self.input_set not in INPUT_SETS:
                 raise ProblemError(f"input_set must be one of {INPUT_SETS} or None; got {self.input_set!r}")
+            if self.ball_input not in BALL_INPUTS:
+                raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {self.ball_input!r}")
             if self.reduction not in REDUCTIONS:
                 raise ProblemError(f"reduction must be one of {REDUCTIONS}; got {self.reduction!r}")
             if isinstance(self.split, str):  # CLI: --set split=4,0.01
@@ -499,6 +527,10 @@ class STTReach(Method):
 
         opt = self.options
         model = problem.model
+        # ||u|| (mass flow) has no expansion at the reference control u = 0: expand the relaxed
+        # dynamics with the throttle as an extra input instead (Model.throttle_relaxed)
+        self._model = smodel = model.throttle_relaxed()
+        n_thr = smodel.n_u - model.n_u
         kind = opt.input_set or problem.control_set.kind
         if kind not in INPUT_SETS:
             raise ProblemError(f"method 'stt' needs a 'box' or 'ball' input set; the problem's control "
@@ -510,7 +542,7 @@ class STTReach(Method):
         timer = Timer()
         counts = {"tensor_maps": 0, "reductions": 0, "splits": 0, "part_stts": 0}
         with timer("stt_generation"):
-            ref = stt_flow(model, problem.x0, np.zeros((K, model.n_u)), grid, opt.order,
+            ref = stt_flow(smodel, problem.x0, np.zeros((K, smodel.n_u)), grid, opt.order,
                            p=problem.params, rtol=opt.rtol, atol=opt.atol)
         self._ref = ref
         with timer("other"):
@@ -528,7 +560,7 @@ class STTReach(Method):
         gens[0] = sets[0].n_generators
         for k in range(K):
             with timer("other"):
-                U = [input_pz(kind, model.n_u) for _ in parts]
+                U = [input_pz(kind, model.n_u, n_thr, opt.ball_input) for _ in parts]
             new_parts, done = [], []
             stack = [(p, u) for p, u in zip(parts, U)]
             while stack:
@@ -565,6 +597,7 @@ class STTReach(Method):
         meta = self.base_meta(problem, timer.times)
         meta["evaluations"] = counts
         meta["input_set"] = kind
+        meta["throttle_relaxed"] = bool(n_thr)
         meta["generators"] = gens
         meta["parts"] = [len(s.parts) if isinstance(s, PZUnion) else 1 for s in sets]
         if opt.split is not None:
@@ -583,7 +616,7 @@ class STTReach(Method):
 
         opt = self.options
         with timer("stt_generation"):
-            r = stt_flow(problem.model, part.x_ref, np.zeros((1, problem.model.n_u)),
+            r = stt_flow(self._model, part.x_ref, np.zeros((1, self._model.n_u)),
                          problem.grid[k:k + 2], opt.order, p=problem.params, rtol=opt.rtol, atol=opt.atol)
         counts["part_stts"] += 1
         return [ph[0] for ph in r.phi], r.states[-1]
@@ -619,7 +652,8 @@ class STTReach(Method):
         for part in parts_with_dz:
             dZ = part.dZ
             for i in range(1, s):
-                r = stt_flow(model, part.x_ref, np.zeros((1, model.n_u)), [t0, sub[i]], min(opt.order, 2),
+                r = stt_flow(self._model, part.x_ref, np.zeros((1, self._model.n_u)), [t0, sub[i]],
+                             min(opt.order, 2),
                              p=problem.params, rtol=opt.rtol, atol=opt.atol)
                 S = stt_step([ph[0] for ph in r.phi], dZ, opt.h_max, opt.reduction, opt.engine, Timer(),
                              {"tensor_maps": 0, "reductions": 0})

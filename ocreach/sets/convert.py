@@ -41,8 +41,9 @@ def to_polyzonotope(S: SetBase, ids: Any = None) -> PolyZonotope:
 def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     """Outer zonotope of the unit Euclidean ball with ``k >= n`` generators (default 2n, 8 in 2-D).
 
-    Directions: the n axes plus quasi-uniform directions (2-D: angles pi j / k, a regular 2k-gon);
-    all generators get the common length ``1 / r_in``, where ``r_in`` is the inradius of the
+    Directions: the n axes plus quasi-uniform directions (2-D: angles pi j / k, a regular 2k-gon;
+    3-D with k = 10: the 10 axes through opposite vertices of the regular dodecahedron, support
+    between 1 and 1.096); all generators get the common length ``1 / r_in``, where ``r_in`` is the inradius of the
     zonotope of unit directions (minimum facet offset), so the ball touches the facets from inside.
     """
     from ocreach.sets.contains import zonotope_halfspaces
@@ -61,6 +62,8 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     if n == 2:
         t = np.pi * np.arange(k) / k
         D = np.vstack([np.cos(t), np.sin(t)])
+    elif n == 3 and k == 10:
+        D = _dodecahedron_axes()
     else:
         extra = k - n
         rng = np.random.default_rng(11)
@@ -72,6 +75,21 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
         raise SetError(f"unit_ball_zonotope: too many generators k={k} for facet enumeration in n={n}")
     r_in = float(np.min(hs[1]))
     return Zonotope(np.zeros(n), D / r_in)
+
+
+def _dodecahedron_axes() -> np.ndarray:
+    """(3, 10) unit directions through the 20 vertices of the regular dodecahedron, one per
+    opposite pair: ``(+-1, +-1, +-1)`` and the cyclic shifts of ``(0, +-1/g, +-g)``, g the golden
+    ratio, with the first non-zero coordinate of each kept direction positive."""
+    g = (1 + 5 ** 0.5) / 2
+    V = [np.array(s, dtype=float) for s in itertools.product((1, -1), repeat=3)]
+    V += [np.roll([0.0, s1 / g, s2 * g], c) for s1 in (1, -1) for s2 in (1, -1) for c in range(3)]
+    out = []
+    for v in V:
+        v = v / np.linalg.norm(v)
+        if v[np.flatnonzero(v)[0]] > 0:
+            out.append(v)
+    return np.array(out).T
 
 
 def _poly_mul(p: dict, q: dict) -> dict:

@@ -433,7 +433,7 @@ def support_bounds(pz: PolyZonotope, D: Any, tol: float = 1e-3, max_boxes: int =
             if cols.size == 0:
                 continue
             Eb = pz.E[np.ix_(fb, cols)]
-            key = Eb.tobytes() + bytes(Eb.shape)
+            key = Eb.tobytes() + np.asarray(Eb.shape, dtype=np.int64).tobytes()
             clb = cache.get(key) or cache.setdefault(key, _Closure(Eb))
             Wb = np.zeros((N, clb.m))
             np.add.at(Wb.T, clb.col_of_E, WG[:, cols].T)
