@@ -31,10 +31,19 @@ thesis 2010, Sec. 3.2).  Every approximation is an enclosure:
   ``R([0, h]) = CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c + R_W``.
 
 Interval matrices act on zonotopes through ``M Z in mid(M) Z + box(rad(M) (|c| + sum |g|))``.
-Floating-point rounding of the zonotope arithmetic (matrix products, sums) is not tracked
-operation by operation; instead every result gets an extra box of ``FP_REL`` times
-``|c| + sum_j |g_j|`` per component, about 500 times the unit round-off times the dimension-
-dependent growth of a dot product of these sizes (documented in ``docs/validation.md``).
+
+**Floating point.**  The zonotope arithmetic of a step (the products with ``Phi``, ``Gamma``,
+``T_i``, ``F``, the Minkowski sums, the boxes) is a sum-of-products expression of the float inputs
+``R0``, ``u_c``, ``W`` and the computed matrices, so its rounding error is at most ``gamma_k`` times
+the same expression on absolute values (:mod:`ocreach.sets.rounding`, Higham Lemma 3.1).  With
+``M = sum_i |T_i| + E`` (which bounds ``|Phi|``, every ``|T_i|``, ``|F|`` and ``|Gamma| / h``) and
+``a_R = |c_0| + sum |g_0|`` (``|R0|`` evaluated absolutely), ``a_u = |u_c|``, ``a_W = sum |w_j|``,
+both the time-point and the time-interval set are within
+``gamma_k (2 a_R + 3 M (a_R + h a_u + h a_W) + |x*|)`` of the exact ones, ``k`` the longest chain of
+roundings (``n + eta`` for the matrices and their products plus the number of generators summed in
+a radius, :func:`step_rounding`); that box is added to every set (:func:`pad`).  The matrices
+themselves are enclosures: ``E`` contains the rounding of the computed ``T_i`` and ``Phi``, and
+``F_rad``/``Ft_rad`` are rounded up past the rounding of their sums.
 """
 from __future__ import annotations
 
@@ -44,10 +53,9 @@ from math import factorial
 import numpy as np
 
 from ocreach.errors import SolverError
+from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.zonotope import Zonotope
 
-#: relative box added to every computed set for the rounding of the zonotope arithmetic
-FP_REL = 1e-13
 #: largest number of Taylor terms of the exponential matrix
 MAX_TERMS = 40
 #: the tail bound must be below this (relative to ||A h||) before the series is truncated
@@ -62,7 +70,8 @@ class ExpmTerms:
     remainder bound ``(n, n)`` valid for every ``t`` in ``[0, h]``, ``Phi = sum T``,
     ``Gamma = h sum T_i / (i+1)`` (the series part of ``int_0^h e^{A s} ds``),
     ``F_mid``/``F_rad`` midpoint and radius of the interval matrix ``F``, ``Ft_mid``/``Ft_rad``
-    of ``F~``.
+    of ``F~``; ``M = sum_i |T_i| + E`` bounds the magnitude of every matrix of the step (the
+    floating-point analysis of :func:`step_rounding`).
     """
 
     h: float
@@ -75,6 +84,7 @@ class ExpmTerms:
     F_rad: np.ndarray
     Ft_mid: np.ndarray
     Ft_rad: np.ndarray
+    M: np.ndarray
 
 
 def _q(i: int) -> float:
@@ -132,8 +142,14 @@ def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
         M = h / (i + 1) * T[i]
         Ft_mid += 0.5 * q * M
         Ft_rad += 0.5 * abs(q) * np.abs(M)
+    # the computed F_mid, Ft_mid carry the rounding of their sums (<= eta + 3 operations, abs value
+    # <= F_rad): the radii are widened by that bound and rounded up
+    k = eta + 4
+    F_rad = up(F_rad + rounding_radius(F_rad, k), 2)
+    Ft_rad = up(Ft_rad + rounding_radius(Ft_rad, k), 2)
+    M = up(np.abs(Tarr).sum(axis=0), eta + 1) + E
     return ExpmTerms(h=float(h), eta=eta, T=Tarr, E=E, Phi=Phi, Gamma=Gamma, F_mid=F_mid,
-                     F_rad=F_rad, Ft_mid=Ft_mid, Ft_rad=Ft_rad)
+                     F_rad=F_rad, Ft_mid=Ft_mid, Ft_rad=Ft_rad, M=M)
 
 
 def abs_extent(Z: Zonotope) -> np.ndarray:
@@ -155,10 +171,26 @@ def interval_matrix_times(M_mid: np.ndarray, M_rad: np.ndarray, Z: Zonotope) -> 
     return Zonotope(core.c, np.hstack([core.G, np.diag(r)[:, r > 0]]))
 
 
-def with_fp_margin(Z: Zonotope) -> Zonotope:
-    """``Z`` plus the rounding box ``FP_REL (|c| + sum|g|)`` (module docstring)."""
-    r = FP_REL * abs_extent(Z) + 1e-300
-    return Zonotope(Z.c, np.hstack([Z.G, np.diag(r)]))
+def pad(Z: Zonotope, r: np.ndarray) -> Zonotope:
+    """``Z`` plus the box of radii ``r`` (a rounding bound, :func:`step_rounding`)."""
+    r = np.asarray(r, dtype=float)
+    return Zonotope(Z.c, np.hstack([Z.G, np.diag(r)[:, r > 0]]))
+
+
+def step_rounding(et: ExpmTerms, R: Zonotope, xs: np.ndarray, u_abs: np.ndarray,
+                  W_abs: np.ndarray, n_sum: int) -> np.ndarray:
+    """Rigorous bound of the floating-point error of the time-point and time-interval sets of one
+    step (module docstring, "Floating point") from the set ``R`` shifted by the linearisation
+    point (the step maps ``R0 = R - x*`` and adds ``x*`` back; ``xs = 0`` if ``R`` is ``R0``),
+    ``u_abs >= |u_c|_abs``, ``W_abs >= sum_j |w_j|_abs`` (the uncertain input's generators,
+    absolutely evaluated), ``n_sum`` the most terms summed in one entry outside the matrix
+    products (generators in a radius, inputs in a generator)."""
+    xs_abs = np.abs(np.asarray(xs, dtype=float))
+    aR = np.abs(R.c) + xs_abs + np.abs(R.G).sum(axis=1)
+    h = et.h
+    total = 2.0 * aR + 3.0 * (et.M @ (aR + h * (u_abs + W_abs))) + xs_abs
+    k = 2 * R.dim + et.eta + int(n_sum) + 12
+    return rounding_radius(total, k)
 
 
 def input_solution(W: Zonotope, et: ExpmTerms) -> Zonotope:
@@ -220,4 +252,8 @@ def linear_step(R0: Zonotope, A: np.ndarray, h: float, u_c: np.ndarray, W: Zonot
         W0 = Zonotope(np.zeros(R0.dim))
     hs = homogeneous_step(R0, u_c, et)
     RW = input_solution(W0, et)
-    return LinearStep(point=with_fp_margin(hs.point + RW), tube=with_fp_margin(hs.tube + RW))
+    W_abs = np.abs(W0.G).sum(axis=1) if W is None else np.abs(W.G).sum(axis=1)
+    u_abs = np.abs(u_c) if W is None else np.abs(u_c) + 2 * np.abs(W.c)
+    r = step_rounding(et, R0, np.zeros(R0.dim), u_abs, W_abs,
+                      max(R0.n_generators, W0.n_generators) + 2)
+    return LinearStep(point=pad(hs.point + RW, r), tube=pad(hs.tube + RW, r))

@@ -51,10 +51,12 @@ from ocreach.reach.linsys import (
     expm_terms,
     homogeneous_step,
     input_solution,
-    with_fp_margin,
+    pad,
+    step_rounding,
 )
 from ocreach.reach.result import ReachResult
 from ocreach.sets.interval import Interval
+from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope
 
@@ -232,17 +234,46 @@ def lin_fun(model) -> ca.Function:
 
 
 def hessian_interval(model):
-    """Interval extension of the Hessian ``d^2 f_i / dz_a dz_b`` (flat ``(n_x n_z, n_z)``)."""
+    """Interval extension of ``(f, df/dx, df/dv, H)`` with the Hessian ``H = d^2 f_i / dz_a dz_b``
+    (flat ``(n_x n_z, n_z)``), ``v = u`` or ``(u, t)``: one call bounds the Hessian over the tube's
+    box and, on a second (point) box, the rounding of the float ``f``, ``A``, ``B`` at ``z*``."""
     from ocreach.intervals import interval_function
 
     def build():
         z = z_symbol(model)
+        v = ca.vertcat(model.u, model.t) if time_dependent(model) else model.u
         J = ca.jacobian(model.f, z)
         H = ca.jacobian(ca.reshape(J.T, -1, 1), z)
-        return ca.Function("taylor_hess", [model.x, model.u, model.t, model.p], [H])
+        return ca.Function("taylor_hess", [model.x, model.u, model.t, model.p],
+                           [model.f, ca.jacobian(model.f, model.x), ca.jacobian(model.f, v), H])
 
-    fun = model.cached(("taylor", "hess_fun"), build)
-    return interval_function(fun, model=model, key=("taylor", "hess"))
+    fun = model.cached(("taylor", "lin_hess_fun"), build)
+    return interval_function(fun, model=model, key=("taylor", "lin_hess"))
+
+
+def dense(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Column ``(rows cols,)`` of a flat column-major interval output as a ``(rows, cols)`` matrix."""
+    return a.reshape(cols, rows).T
+
+
+def eval_error(iv: list, lin: tuple, gx: np.ndarray, gv: np.ndarray) -> np.ndarray:
+    """Bound of ``|f(z*) - f0| + |J_x(z*) - A| gx + |J_v(z*) - B| gv``: the error of the float
+    linearisation ``(f0, A, B)`` (CasADi, not rounded outward) against the interval enclosures
+    ``iv = [(flo, fhi), (Jlo, Jhi), (Blo, Bhi)]`` at the point ``z*`` (column 0 of each), for the
+    deviations ``|x - x*| <= gx``, ``|v - v*| <= gv``.  Added to the remainder it makes the
+    expansion ``f(z) in f0 + A (x - x*) + B (v - v*) + L`` rigorous."""
+    f0, A, B = (np.asarray(a, dtype=float) for a in lin)
+    f0 = f0.ravel()
+    n = f0.size
+
+    def rad(lo, hi, mid):
+        return up(np.maximum(hi - mid, mid - lo), 1)
+
+    (flo, fhi), (Jlo, Jhi), (Blo, Bhi) = iv
+    rf = rad(flo[:, 0], fhi[:, 0], f0)
+    rA = rad(dense(Jlo[:, 0], n, A.shape[1]), dense(Jhi[:, 0], n, A.shape[1]), A)
+    rB = rad(dense(Blo[:, 0], n, B.shape[1]), dense(Bhi[:, 0], n, B.shape[1]), B)
+    return up(rf + rA @ gx + rB @ gv, A.shape[1] + B.shape[1] + 2)
 
 
 def unflatten_hessian(lo: np.ndarray, n_x: int, n_z: int) -> np.ndarray:
@@ -271,6 +302,14 @@ def quadratic_interval(Hlo: np.ndarray, Hhi: np.ndarray, dlo: np.ndarray, dhi: n
     return lo - m - 1e-300, hi + m + 1e-300
 
 
+def interval_box(lo: np.ndarray, hi: np.ndarray) -> Zonotope:
+    """The box ``[lo, hi]`` as a zonotope, its centre and radius rounded so that it contains
+    ``[lo, hi]`` (the radius is widened by the rounding of the centre)."""
+    c = 0.5 * (lo + hi)
+    r = up(np.maximum(hi - c, c - lo), 1)
+    return box_zonotope(c, r)
+
+
 def inflate_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     w = BOX_INFLATE * (hi - lo) + 1e-15 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-300
     return lo - w, hi + w
@@ -290,25 +329,36 @@ class TaylorError:
         self.n_z = model.n_x + model.n_u + (1 if self.td else 0)
         self.hmag: np.ndarray | None = None
 
-    def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple
-              ) -> Zonotope:
-        """Box (as a zonotope) enclosing ``L(x, v)`` for every ``x`` in the tube's box, ``v`` in ``V``."""
+    def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple,
+              lin: tuple) -> Zonotope:
+        """Box (as a zonotope) enclosing ``f(z) - f0 - A (x - x*) - B (v - v*)`` for every ``x`` in
+        the tube's box and ``v`` in ``V``: the Lagrange remainder ``L`` plus the rounding error of
+        the float linearisation ``lin = (f0, A, B)`` (:func:`eval_error`)."""
         m = self.model
         hull = tube.interval_hull()
         xlo, xhi = inflate_box(np.minimum(hull.lo, xs), np.maximum(hull.hi, xs))
         ulo, uhi = Vbox
         tlo, thi = t_box
-        (Hlo, Hhi), = self.H([xlo, ulo, np.array([tlo]), self.p], [xhi, uhi, np.array([thi]), self.p])
-        Hlo = unflatten_hessian(Hlo, m.n_x, self.n_z)[0]
-        Hhi = unflatten_hessian(Hhi, m.n_x, self.n_z)[0]
+        uc = vs[: m.n_u]
+        ts = vs[-1] if self.td else tlo
+        out = self.H([np.column_stack([xs, xlo]), np.column_stack([uc, ulo]), np.array([ts, tlo]),
+                      self.p],
+                     [np.column_stack([xs, xhi]), np.column_stack([uc, uhi]), np.array([ts, thi]),
+                      self.p])
+        Hlo, Hhi = out[3]
+        Hlo = unflatten_hessian(Hlo[:, 1:], m.n_x, self.n_z)[0]
+        Hhi = unflatten_hessian(Hhi[:, 1:], m.n_x, self.n_z)[0]
         zs = np.concatenate([xs, vs])
         zlo = np.concatenate([xlo, ulo] + ([[tlo]] if self.td else []))
         zhi = np.concatenate([xhi, uhi] + ([[thi]] if self.td else []))
         dlo, dhi = zlo - zs, zhi - zs
         lo, hi = quadratic_interval(Hlo, Hhi, dlo, dhi)
+        gz = up(np.maximum(np.abs(dlo), np.abs(dhi)), 1)
+        e = eval_error(out[:3], lin, gz[: m.n_x], gz[m.n_x:])
+        lo, hi = lo - e, hi + e
         self.hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))[:, : m.n_x, : m.n_x].sum(axis=0)
         self.gamma = np.maximum(np.abs(dlo), np.abs(dhi))[: m.n_x]
-        return box_zonotope(0.5 * (lo + hi), 0.5 * (hi - lo))
+        return interval_box(lo, hi)
 
     def split_scores(self, Z: Zonotope) -> np.ndarray:
         """Contribution of each generator of ``Z`` to the remainder: ``|g_j|^T sum_i |H_i| gamma``."""
@@ -383,6 +433,13 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
         u_c = u_c + ctx.W.c
         Gu = np.hstack([Gu, ctx.W.G])
     Ubase = Zonotope(np.zeros(n), Gu)
+    # absolute values of the step's inputs for the floating-point bound (linsys.step_rounding)
+    u_abs0 = np.abs(f0) + (np.abs(ctx.W.c) if ctx.W is not None else 0.0)
+    W_abs0 = np.abs(Bv) @ np.abs(Gv).sum(axis=1)
+    if ctx.W is not None:
+        W_abs0 = W_abs0 + np.abs(ctx.W.G).sum(axis=1)
+    n_sum = max(R.n_generators, Gu.shape[1] + n) + Gv.shape[0] + 2
+    lin = (f0, A, Bv)
     try:
         et = expm_terms(A, h)
     except SolverError as exc:
@@ -399,10 +456,11 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     need = None
     for it in range(1, ctx.opts.max_iter + 1):
         tube = base_tube + input_solution(box_zonotope(np.zeros(n), Lbar), et) + xs
+        tube = pad(tube, step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum))
         if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
             return StepFail("the tube is not finite", need)
         try:
-            err = ctx.err.bound(tube, xs, vs, Vbox, t_box)
+            err = ctx.err.bound(tube, xs, vs, Vbox, t_box, lin)
         except OcreachError as exc:  # e.g. IntervalDomainError: a singularity inside the box
             msg = str(exc)
             msg = msg if len(msg) < 300 else msg[:300] + " ..."
@@ -425,8 +483,10 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     W2 = Zonotope(np.zeros(n), np.hstack([Gu, err.G]))
     hs2 = homogeneous_step(R0, u_c2, et)
     RU2 = input_solution(W2, et)
-    point = with_fp_margin(hs2.point + RU2 + xs)
-    tube = with_fp_margin(hs2.tube + RU2 + xs)
+    r_fp = step_rounding(et, R, xs, u_abs0 + np.abs(err.c), W_abs0 + np.abs(err.G).sum(axis=1),
+                         max(n_sum, W2.n_generators + Gv.shape[0] + 2))
+    point = pad(hs2.point + RU2 + xs, r_fp)
+    tube = pad(hs2.tube + RU2 + xs, r_fp)
     return StepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)
 
 
@@ -575,7 +635,8 @@ class ZonotopeReach:
 # discrete time: the paper's literal Eq. 8-15 on the RK4 map
 # ------------------------------------------------------------------------------------------------
 def rk4_funs(model, h: float, n_sub: int):
-    """``(x, u, t, p) -> (g, dg/dz)`` and the interval Hessian of the RK4 map ``g`` over one step."""
+    """``(x, u, t, p) -> (g, dg/dz)`` and the interval extension of ``(g, dg/dx, dg/du, H)`` of the
+    RK4 map ``g`` over one step (``H`` the Hessian in ``z = (x, u)``)."""
     from ocreach.control.discretize import rk4_expression
     from ocreach.intervals import interval_function
 
@@ -587,10 +648,11 @@ def rk4_funs(model, h: float, n_sub: int):
         J = ca.jacobian(g, z)
         H = ca.jacobian(ca.reshape(J.T, -1, 1), z)
         return (ca.Function("rk4_jac", [model.x, model.u, model.t, model.p], [g, J]),
-                ca.Function("rk4_hess", [model.x, model.u, model.t, model.p], [H]))
+                ca.Function("rk4_hess", [model.x, model.u, model.t, model.p],
+                            [g, ca.jacobian(g, model.x), ca.jacobian(g, model.u), H]))
 
     jac, hess = model.cached(key, build)
-    return jac, interval_function(hess, model=model, key=key + ("hess",))
+    return jac, interval_function(hess, model=model, key=key + ("lin_hess",))
 
 
 class DiscreteTaylor:
@@ -613,19 +675,32 @@ class DiscreteTaylor:
         g, J = (np.asarray(a) for a in jac(Z.c, self.V.c, t, p))
         hz = Z.interval_hull()
         hv = self.V.interval_hull()
-        (Hlo, Hhi), = H([hz.lo, hv.lo, np.array([t]), p], [hz.hi, hv.hi, np.array([t]), p])
+        zlo, zhi = inflate_box(hz.lo, hz.hi)
+        tt = np.array([t, t])
+        out = H([np.column_stack([Z.c, zlo]), np.column_stack([self.V.c, hv.lo]), tt, p],
+                [np.column_stack([Z.c, zhi]), np.column_stack([self.V.c, hv.hi]), tt, p])
+        Hlo, Hhi = out[3]
         nz = n + nu
-        Hlo = unflatten_hessian(Hlo, n, nz)[0]
-        Hhi = unflatten_hessian(Hhi, n, nz)[0]
-        dlo = np.concatenate([hz.lo - Z.c, hv.lo - self.V.c])
-        dhi = np.concatenate([hz.hi - Z.c, hv.hi - self.V.c])
+        Hlo = unflatten_hessian(Hlo[:, 1:], n, nz)[0]
+        Hhi = unflatten_hessian(Hhi[:, 1:], n, nz)[0]
+        dlo = np.concatenate([zlo - Z.c, hv.lo - self.V.c])
+        dhi = np.concatenate([zhi - Z.c, hv.hi - self.V.c])
         lo, hi = quadratic_interval(Hlo, Hhi, dlo, dhi)
+        gz = up(np.maximum(np.abs(dlo), np.abs(dhi)), 1)
+        g = g.ravel()
+        e = eval_error(out[:3], (g, J[:, :n], J[:, n:]), gz[:n], gz[n:])
+        lo, hi = lo - e, hi + e
         ZV = Z.cartesian(self.V)
-        lin = J @ (ZV - np.concatenate([Z.c, self.V.c]))
-        out = lin + g.ravel() + box_zonotope(0.5 * (lo + hi), 0.5 * (hi - lo))
+        zc = np.concatenate([Z.c, self.V.c])
+        res = J @ (ZV - zc) + g + interval_box(lo, hi)
+        # rounding of J (ZV - zc) + g + box (+ W): abs value |J| (2|zc| + sum|G|) + |g| + |box|
+        a = (np.abs(J) @ (2 * np.abs(zc) + np.abs(ZV.G).sum(axis=1)) + np.abs(g)
+             + np.maximum(np.abs(lo), np.abs(hi)))
         if self.W is not None:
-            out = out + self.W
-        return with_fp_margin(out), np.maximum(np.abs(lo), np.abs(hi))
+            res = res + self.W
+            a = a + np.abs(self.W.c) + np.abs(self.W.G).sum(axis=1)
+        r = rounding_radius(a, nz + ZV.n_generators + 4)
+        return pad(res, r), np.maximum(np.abs(lo), np.abs(hi))
 
     def run(self) -> ReachResult:
         prob = self.problem

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets.rounding import U as U_ROUND
+from ocreach.sets.rounding import rounding_radius, up
 
 if TYPE_CHECKING:
     from ocreach.sets._base import SetBase
@@ -31,15 +33,34 @@ def _check_method(method: str) -> str:
 
 
 def box_generators(G: np.ndarray, method: str) -> np.ndarray:
-    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``."""
-    n = G.shape[0]
-    if G.shape[1] == 0:
+    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``, rigorously
+    against floating point (:mod:`ocreach.sets.rounding`).
+
+    ``girard``: the box ``sum_j |g_j|``, rounded up.  ``pca``: ``B = fl(U diag(r))`` with ``U`` the
+    computed left singular vectors; as ``U`` is orthogonal only up to rounding and ``B`` is
+    rounded, ``r`` bounds ``|U~^{-1} x|`` for the exact ``U~ = B diag(r)^{-1}``: with
+    ``D = |fl(U U^T) - I| + gamma_n |U||U^T| + u |U||U^T|`` (``>= |U~ U^T - I|``),
+    ``|U~^{-1} x| <= |U^T x| + ||U^T||_inf / (1 - ||D||_inf) ||D |x|||_inf``.
+    """
+    n, h = G.shape
+    if h == 0:
         return np.zeros((n, 0))
+    absG = np.abs(G).sum(axis=1)
     if method == "girard":
-        B = np.diag(np.abs(G).sum(axis=1))
+        B = np.diag(up(absG, h))
     else:
         U, _, _ = np.linalg.svd(G @ G.T)
-        r = np.abs(U.T @ G).sum(axis=1)
+        Ut = U.T
+        aU, aUt = np.abs(U), np.abs(Ut)
+        r = up(np.abs(Ut @ G).sum(axis=1), h) + rounding_radius(aUt @ up(absG, h), n)
+        UUt = aU @ aUt
+        D = up(np.abs(U @ Ut - np.eye(n)), 1) + rounding_radius(UUt, n) + up(U_ROUND * UUt, 1)
+        d_inf = float(up(D.sum(axis=1), n).max())
+        if d_inf >= 0.5:  # not orthogonal at all (cannot happen for an SVD): the sound box instead
+            return box_generators(G, "girard")
+        ut_inf = float(up(aUt.sum(axis=1), n).max())
+        s = float(up(ut_inf / (1.0 - d_inf) * float(up(D @ up(absG, h), n).max()), 4))
+        r = up(r + s, 2)
         B = U * r[None, :]
     return B[:, np.any(B != 0, axis=0)]
 
