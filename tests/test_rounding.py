@@ -126,3 +126,17 @@ def test_linear_step_point_set_contains_the_exact_image_with_large_centre():
             y = E * x0
             for i in range(2):
                 assert mpmath.mpf(float(hull.lo[i])) <= y[i] <= mpmath.mpf(float(hull.hi[i]))
+
+
+def test_interval_outward_rounding_nextafter_mode(monkeypatch):
+    """The ``np.nextafter`` mode of ``ocreach.intervals`` (small evaluations) rounds outward past
+    the neighbouring float, also for subnormals, infinities and NaN, like the formula mode."""
+    import ocreach.intervals as iv
+
+    monkeypatch.setitem(iv._ROUNDING, "nextafter", True)
+    x = np.array([0.0, -0.0, 5e-324, -5e-324, 2.0**-1022, 1.0, -1.0, 1.5, 1e308, -1e308, 3.0**40])
+    assert np.all(iv._up(x) >= np.nextafter(x, np.inf)) and np.all(iv._up(x) > x)
+    assert np.all(iv._dn(x) <= np.nextafter(x, -np.inf)) and np.all(iv._dn(x) < x)
+    assert iv._up(np.inf) == np.inf and iv._dn(-np.inf) == -np.inf
+    assert 1e308 < iv._dn(np.inf) < np.inf and -np.inf < iv._up(-np.inf) < -1e308
+    assert np.isnan(iv._dn(np.nan)) and np.isnan(iv._up(np.nan))

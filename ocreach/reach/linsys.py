@@ -93,6 +93,10 @@ def _q(i: int) -> float:
     return v * (1 + 1e-12)
 
 
+#: ``_Q[i] = q_i`` of :func:`_q` for ``i >= 2`` (0 for ``i < 2``), up to the most terms used
+_Q = np.array([0.0, 0.0] + [_q(i) for i in range(2, MAX_TERMS + 3)])
+
+
 def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
     """Taylor terms of ``e^{A h}`` with the remainder bound ``E`` and the matrices ``F``, ``F~``
     (Althoff CDC 2008, Eq. 6-8; module docstring).  Raises :class:`SolverError` if ``||A h||`` is so
@@ -127,27 +131,24 @@ def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
     E = (np.repeat(E_row[:, None], n, axis=1) * (1 + 1e-10)
          + 2.0 * (eta + 1) * (n + 2) * u * S_abs + 1e-300)
     Tarr = np.array(T)
+    absT = np.abs(Tarr)
     Phi = Tarr.sum(axis=0)
-    Gamma = h * sum(T[i] / (i + 1) for i in range(eta + 1))
-    F_mid = np.zeros((n, n))
-    F_rad = E.copy()
-    for i in range(2, eta + 1):
-        q = _q(i)
-        F_mid += 0.5 * q * T[i]
-        F_rad += 0.5 * abs(q) * np.abs(T[i])
-    Ft_mid = np.zeros((n, n))
-    Ft_rad = E * h
-    for i in range(1, eta + 1):
-        q = _q(i + 1)
-        M = h / (i + 1) * T[i]
-        Ft_mid += 0.5 * q * M
-        Ft_rad += 0.5 * abs(q) * np.abs(M)
+    # weighted sums of the T_i as one tensordot each: Gamma = h sum T_i / (i+1),
+    # F = sum_{i>=2} [q_i, 0] T_i, F~ = sum_{i>=1} [q_{i+1}, 0] h/(i+1) T_i (as midpoint/radius)
+    inv = 1.0 / np.arange(1, eta + 2)
+    wF = 0.5 * _Q[: eta + 1]               # _Q[i] = q_i (0 for i < 2)
+    wFt = 0.5 * _Q[1: eta + 2] * (h * inv)  # 0.5 q_{i+1} h / (i+1)
+    Gamma = np.tensordot(h * inv, Tarr, axes=1)
+    F_mid = np.tensordot(wF, Tarr, axes=1)
+    F_rad = E + np.tensordot(np.abs(wF), absT, axes=1)
+    Ft_mid = np.tensordot(wFt, Tarr, axes=1)
+    Ft_rad = E * h + np.tensordot(np.abs(wFt), absT, axes=1)
     # the computed F_mid, Ft_mid carry the rounding of their sums (<= eta + 3 operations, abs value
     # <= F_rad): the radii are widened by that bound and rounded up
     k = eta + 4
     F_rad = up(F_rad + rounding_radius(F_rad, k), 2)
     Ft_rad = up(Ft_rad + rounding_radius(Ft_rad, k), 2)
-    M = up(np.abs(Tarr).sum(axis=0), eta + 1) + E
+    M = up(absT.sum(axis=0), eta + 1) + E
     return ExpmTerms(h=float(h), eta=eta, T=Tarr, E=E, Phi=Phi, Gamma=Gamma, F_mid=F_mid,
                      F_rad=F_rad, Ft_mid=Ft_mid, Ft_rad=Ft_rad, M=M)
 
@@ -161,20 +162,35 @@ def box_zonotope(c: np.ndarray, r: np.ndarray) -> Zonotope:
     """The box ``c +- r`` as a zonotope (zero radii give no generator)."""
     r = np.asarray(r, dtype=float)
     keep = r > 0
-    return Zonotope(np.asarray(c, dtype=float), np.diag(r)[:, keep])
+    return Zonotope.trusted(np.asarray(c, dtype=float), np.diag(r)[:, keep])
 
 
 def interval_matrix_times(M_mid: np.ndarray, M_rad: np.ndarray, Z: Zonotope) -> Zonotope:
     """Enclosure of ``{M x : M in [M_mid -+ M_rad], x in Z}``: ``M_mid Z + box(M_rad |Z|)``."""
-    core = M_mid @ Z
+    core = Zonotope.trusted(M_mid @ Z.c, M_mid @ Z.G)
     r = M_rad @ abs_extent(Z)
-    return Zonotope(core.c, np.hstack([core.G, np.diag(r)[:, r > 0]]))
+    return Zonotope.trusted(core.c, np.hstack([core.G, np.diag(r)[:, r > 0]]))
+
+
+def zsum(*parts: Zonotope | np.ndarray) -> Zonotope:
+    """Minkowski sum of zonotopes and translation vectors (internal, :meth:`Zonotope.trusted`)."""
+    cs, Gs = [], []
+    for P in parts:
+        if isinstance(P, Zonotope):
+            cs.append(P.c)
+            Gs.append(P.G)
+        else:
+            cs.append(P)
+    c = cs[0]
+    for v in cs[1:]:
+        c = c + v
+    return Zonotope.trusted(np.asarray(c, dtype=float), np.hstack(Gs))
 
 
 def pad(Z: Zonotope, r: np.ndarray) -> Zonotope:
     """``Z`` plus the box of radii ``r`` (a rounding bound, :func:`step_rounding`)."""
     r = np.asarray(r, dtype=float)
-    return Zonotope(Z.c, np.hstack([Z.G, np.diag(r)[:, r > 0]]))
+    return Zonotope.trusted(Z.c, np.hstack([Z.G, np.diag(r)[:, r > 0]]))
 
 
 def step_rounding(et: ExpmTerms, R: Zonotope, xs: np.ndarray, u_abs: np.ndarray,
@@ -201,12 +217,14 @@ def input_solution(W: Zonotope, et: ExpmTerms) -> Zonotope:
                           "(move the centre into the constant input u_c)")
     n = W.dim
     if W.n_generators == 0:
-        return Zonotope(np.zeros(n))
+        return Zonotope.trusted(np.zeros(n), np.zeros((n, 0)))
     h = et.h
-    blocks = [(h / (i + 1)) * (et.T[i] @ W.G) for i in range(et.eta + 1)]
+    # blocks h/(i+1) T_i W.G for i = 0..eta, side by side (one batched product)
+    TG = (et.T @ W.G) * (h / np.arange(1, et.eta + 2))[:, None, None]
+    blocks = TG.transpose(1, 0, 2).reshape(n, -1)
     r = (et.E * h) @ np.abs(W.G).sum(axis=1)
-    G = np.hstack(blocks + [np.diag(r)[:, r > 0]])
-    return Zonotope(np.zeros(n), G)
+    G = np.hstack([blocks, np.diag(r)[:, r > 0]])
+    return Zonotope.trusted(np.zeros(n), G)
 
 
 @dataclass(frozen=True)
@@ -223,10 +241,10 @@ def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms) -> LinearStep
     u_c = np.asarray(u_c, dtype=float)
     h = et.h
     # time point: Phi_T R0 + [-E, E] R0 + Gamma_T u_c + [-E h, E h] u_c
-    PR = et.Phi @ R0
+    PR = Zonotope.trusted(et.Phi @ R0.c, et.Phi @ R0.G)
     r_pt = et.E @ abs_extent(R0) + (et.E * h) @ np.abs(u_c)
     c_end = PR.c + et.Gamma @ u_c
-    point = Zonotope(c_end, np.hstack([PR.G, np.diag(r_pt)[:, r_pt > 0]]))
+    point = Zonotope.trusted(c_end, np.hstack([PR.G, np.diag(r_pt)[:, r_pt > 0]]))
     # time interval: convex hull of R0 and Phi_T R0 + Gamma_T u_c with common factors
     c1, G1 = R0.c, R0.G
     c2, G2 = c_end, PR.G
@@ -235,7 +253,7 @@ def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms) -> LinearStep
     FR = interval_matrix_times(et.F_mid, et.F_rad, R0)
     Ftu_c = et.Ft_mid @ u_c
     Ftu_r = et.Ft_rad @ np.abs(u_c)
-    tube = Zonotope(ch_c + FR.c + Ftu_c, np.hstack([ch_G, FR.G, np.diag(Ftu_r)[:, Ftu_r > 0]]))
+    tube = Zonotope.trusted(ch_c + FR.c + Ftu_c, np.hstack([ch_G, FR.G, np.diag(Ftu_r)[:, Ftu_r > 0]]))
     return LinearStep(point=point, tube=tube)
 
 
@@ -256,4 +274,13 @@ def linear_step(R0: Zonotope, A: np.ndarray, h: float, u_c: np.ndarray, W: Zonot
     u_abs = np.abs(u_c) if W is None else np.abs(u_c) + 2 * np.abs(W.c)
     r = step_rounding(et, R0, np.zeros(R0.dim), u_abs, W_abs,
                       max(R0.n_generators, W0.n_generators) + 2)
-    return LinearStep(point=pad(hs.point + RW, r), tube=pad(hs.tube + RW, r))
+    point, tube = pad(zsum(hs.point, RW), r), pad(zsum(hs.tube, RW), r)
+    check_finite(point, tube)
+    return LinearStep(point=point, tube=tube)
+
+
+def check_finite(*sets: Zonotope) -> None:
+    """Raise :class:`SolverError` if a computed set is not finite (overflow)."""
+    for Z in sets:
+        if not (np.all(np.isfinite(Z.c)) and np.all(np.isfinite(Z.G))):
+            raise SolverError("the linear step's set is not finite (overflow); use a shorter step")

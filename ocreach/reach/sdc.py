@@ -40,6 +40,7 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, check_count
+from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import box_zonotope, pad
@@ -49,13 +50,13 @@ from ocreach.reach.taylor import (
     ZonotopeReach,
     check_smooth,
     eval_error,
-    inflate_box,
     initial_zonotope,
     time_dependent,
+    tube_box,
     unflatten_hessian,
 )
-from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.matzonotope import MatrixZonotope, matzonotope_times_zonotope
+from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.zonotope import Zonotope
 
 BASES = ("center", "origin")
@@ -102,7 +103,7 @@ class SDCError:
         self.p = np.asarray(p, dtype=float)
         self.dev_order = dev_order
         self.base = base
-        self.sdc = model.sdc_fun()
+        self.sdc = FastFunction(model.sdc_fun())  # one per run: not re-entrant
         self.T = third_interval(model) if base == "center" else None
         self.hmag: np.ndarray | None = None
         self.gamma: np.ndarray | None = None
@@ -132,7 +133,7 @@ class SDCError:
         n = self.model.n_x
         nu = self.model.n_u
         # D must contain tube - x* exactly: the centre's subtraction is rounded
-        D0 = tube - xs
+        D0 = Zonotope.trusted(tube.c - xs, tube.G)
         D0 = pad(D0, rounding_radius(np.abs(tube.c) + np.abs(xs), 1))
         D = D0.reduce(self.dev_order, "girard")
         base = xs if self.base == "center" else np.zeros(n)
@@ -151,8 +152,7 @@ class SDCError:
         dev = pad(dev, rounding_radius(dev_abs, 2 * n + 4))
         dev = dev.reduce(max(self.dev_order, 2.0), "girard")
         self.hmag = 2.0 * np.abs(dA).sum(axis=0)
-        hull = tube.interval_hull()
-        xlo, xhi = inflate_box(np.minimum(hull.lo, xs), np.maximum(hull.hi, xs))
+        xlo, xhi = tube_box(tube, xs)
         gamma = np.maximum(np.abs(xlo - xs), np.abs(xhi - xs))
         self.gamma = gamma
         if self.T is None:

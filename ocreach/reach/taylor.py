@@ -44,6 +44,7 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import OcreachError, ProblemError, SolverError, check_count, check_real
+from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import (
@@ -53,6 +54,7 @@ from ocreach.reach.linsys import (
     input_solution,
     pad,
     step_rounding,
+    zsum,
 )
 from ocreach.reach.result import ReachResult
 from ocreach.sets.interval import Interval
@@ -310,6 +312,12 @@ def interval_box(lo: np.ndarray, hi: np.ndarray) -> Zonotope:
     return box_zonotope(c, r)
 
 
+def tube_box(tube: Zonotope, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The inflated interval hull of ``tube`` and the point ``xs`` (:func:`inflate_box`)."""
+    r = np.abs(tube.G).sum(axis=1)
+    return inflate_box(np.minimum(tube.c - r, xs), np.maximum(tube.c + r, xs))
+
+
 def inflate_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     w = BOX_INFLATE * (hi - lo) + 1e-15 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-300
     return lo - w, hi + w
@@ -335,8 +343,7 @@ class TaylorError:
         the tube's box and ``v`` in ``V``: the Lagrange remainder ``L`` plus the rounding error of
         the float linearisation ``lin = (f0, A, B)`` (:func:`eval_error`)."""
         m = self.model
-        hull = tube.interval_hull()
-        xlo, xhi = inflate_box(np.minimum(hull.lo, xs), np.maximum(hull.hi, xs))
+        xlo, xhi = tube_box(tube, xs)
         ulo, uhi = Vbox
         tlo, thi = t_box
         uc = vs[: m.n_u]
@@ -398,7 +405,7 @@ class Context:
         self.V = V
         self.W = W
         self.td = time_dependent(self.model)
-        self.lin = lin_fun(self.model)
+        self.lin = FastFunction(lin_fun(self.model))  # one per run: not re-entrant
         hull = V.interval_hull()
         self.Ubox = (hull.lo, hull.hi)
 
@@ -409,10 +416,10 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     m = ctx.model
     n = m.n_x
     uc = ctx.V.c
-    f_c = np.asarray(ctx.lin(R.c, uc, t0, ctx.p)[0]).ravel()
+    f_c = ctx.lin(R.c, uc, t0, ctx.p)[0].ravel()
     xs = R.c + 0.5 * h * f_c
     ts = t0 + 0.5 * h
-    f0, A, Bv = (np.asarray(a) for a in ctx.lin(xs, uc, ts, ctx.p))
+    f0, A, Bv = ctx.lin(xs, uc, ts, ctx.p)
     override = getattr(ctx.err, "linearize", None)  # sdc's literal variant linearises differently
     alt = override(xs, uc, ts) if override is not None else None
     if alt is not None:
@@ -432,7 +439,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     if ctx.W is not None:
         u_c = u_c + ctx.W.c
         Gu = np.hstack([Gu, ctx.W.G])
-    Ubase = Zonotope(np.zeros(n), Gu)
+    Ubase = Zonotope.trusted(np.zeros(n), Gu)
     # absolute values of the step's inputs for the floating-point bound (linsys.step_rounding)
     u_abs0 = np.abs(f0) + (np.abs(ctx.W.c) if ctx.W is not None else 0.0)
     W_abs0 = np.abs(Bv) @ np.abs(Gv).sum(axis=1)
@@ -444,10 +451,10 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
         et = expm_terms(A, h)
     except SolverError as exc:
         return StepFail(str(exc))
-    R0 = R - xs
+    R0 = Zonotope.trusted(R.c - xs, R.G)
     hs = homogeneous_step(R0, u_c, et)
     RU = input_solution(Ubase, et)
-    base_tube = hs.tube + RU
+    base_tube = zsum(hs.tube, RU)
     Vbox = (ctx.Ubox[0], ctx.Ubox[1])
     t_box = (t0, t0 + h)
     # warm start: the previous step's remainder, enlarged once (the loop then usually closes at once)
@@ -455,7 +462,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     err = None
     need = None
     for it in range(1, ctx.opts.max_iter + 1):
-        tube = base_tube + input_solution(box_zonotope(np.zeros(n), Lbar), et) + xs
+        tube = zsum(base_tube, input_solution(box_zonotope(np.zeros(n), Lbar), et), xs)
         tube = pad(tube, step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum))
         if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
             return StepFail("the tube is not finite", need)
@@ -468,8 +475,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                 msg = (f"the remainder loop diverged (iteration {it}, last bound "
                        f"{np.array2string(need, precision=3)}) until: {msg}")
             return StepFail("remainder bound failed: " + msg, need)
-        hull = err.interval_hull()
-        need = np.maximum(np.abs(hull.lo), np.abs(hull.hi))
+        need = np.abs(err.c) + np.abs(err.G).sum(axis=1)
         if not np.all(np.isfinite(need)):
             return StepFail("the remainder bound is not finite", need)
         if np.all(need <= Lbar):
@@ -480,13 +486,15 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                         f"(last bound {np.array2string(need, precision=3)})", need)
     # final sets with the error set found on the tube (valid: every trajectory stays in the tube)
     u_c2 = u_c + err.c
-    W2 = Zonotope(np.zeros(n), np.hstack([Gu, err.G]))
+    W2 = Zonotope.trusted(np.zeros(n), np.hstack([Gu, err.G]))
     hs2 = homogeneous_step(R0, u_c2, et)
     RU2 = input_solution(W2, et)
     r_fp = step_rounding(et, R, xs, u_abs0 + np.abs(err.c), W_abs0 + np.abs(err.G).sum(axis=1),
                          max(n_sum, W2.n_generators + Gv.shape[0] + 2))
-    point = pad(hs2.point + RU2 + xs, r_fp)
-    tube = pad(hs2.tube + RU2 + xs, r_fp)
+    point = pad(zsum(hs2.point, RU2, xs), r_fp)
+    tube = pad(zsum(hs2.tube, RU2, xs), r_fp)
+    if not all(np.all(np.isfinite(a)) for a in (point.c, point.G, tube.c, tube.G)):
+        return StepFail("the step's sets are not finite", need)
     return StepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)
 
 

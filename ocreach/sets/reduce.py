@@ -84,7 +84,11 @@ def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> 
     metric = _girard_metric(Z.G) if method == "girard" else np.linalg.norm(Z.G, axis=0)
     order_idx = np.argsort(-metric, kind="stable")
     keep, drop = order_idx[:n_keep], order_idx[n_keep:]
-    return Zonotope(Z.c, np.hstack([Z.G[:, keep], box_generators(Z.G[:, drop], method)]))
+    B = box_generators(Z.G[:, drop], method)
+    if not np.isfinite(B).all():
+        raise SetError("reduce: the box of the removed generators overflowed (generators near the "
+                       "largest float)")
+    return Zonotope.trusted(Z.c, np.hstack([Z.G[:, keep], B]))  # Z is valid, B finite
 
 
 def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope:

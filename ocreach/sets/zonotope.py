@@ -38,6 +38,20 @@ class Zonotope(SetBase):
         self.G = ro(G_a)
         self._freeze()
 
+    @classmethod
+    def trusted(cls, c: np.ndarray, G: np.ndarray) -> Zonotope:
+        """Fast constructor for internal set arithmetic: ``c`` (n,) and ``G`` (n, h) float arrays
+        of matching shape, neither validated nor copied (read-only views).  The caller checks
+        finiteness (e.g. the zonotope methods check every step's sets once)."""
+        self = object.__new__(cls)
+        cv, Gv = c.view(), G.view()
+        cv.setflags(write=False)
+        Gv.setflags(write=False)
+        object.__setattr__(self, "c", cv)
+        object.__setattr__(self, "G", Gv)
+        self._freeze()
+        return self
+
     @property
     def dim(self) -> int:
         return int(self.c.shape[0])
