@@ -261,3 +261,47 @@ def test_taylor_time_dependent_model_contains_scipy_solutions():
         X = sol.y[:, -1].reshape(N, 2)
         g = union_gauge(res.sets[k + 1], X)
         assert g.max() <= TOL, f"step {k + 1}: gauge {g.max()!r} > 1"
+
+
+def test_mass_varies_encloses_the_propellant_burn():
+    """A double integrator ``p'' = a u`` (``a = T/m0``, box control): at full thrust the true
+    acceleration grows to ``T / m(t)``, ``m(t) = m0 - T t / (Isp g0)`` (SciPy on the rocket
+    equation).  Those trajectories leave the constant-mass set and lie in the ``mass_varies``
+    set, whose input scale is ``m0 / m_min`` computed here by hand."""
+    from scipy.integrate import solve_ivp
+
+    from ocreach.units import Units
+
+    T_N, m0, isp, g0 = 0.003, 10.0, 30.0, 9.80665
+    units = Units(length=1e3, time=1e3)
+    a = T_N / m0 / (units.length / units.time**2)          # model units
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    m = Model.build("dbl", x, u, ca.vertcat(x[1], a * u[0]), control_set="box", units=units)
+    grid = np.linspace(0.0, 10.0, 6)
+    p = Problem(id="dbl", model=m, x0=np.zeros(2), grid=grid,
+                extra={"thrust_N": T_N, "mass_kg": m0, "isp_s": isp})
+    plain = ocreach.reach(p, "taylor")
+    burn = ocreach.reach(p, "taylor", mass_varies=True)
+    m_min = m0 - T_N / (isp * g0) * 10.0 * units.time
+    assert "mass_varies" in burn.meta["input_enclosure"]
+    assert f"{m0 / m_min:.6g}" in burn.meta["input_enclosure"]
+    mdot = T_N / (isp * g0)
+
+    def rhs(t, y, s):   # SI: position, velocity; s = +-1 full thrust, 0 coast (no burn)
+        return [y[1], s * T_N / (m0 - abs(s) * mdot * t)]
+
+    escaped = False
+    for s in (-1.0, 1.0, 0.0):
+        sol = solve_ivp(rhs, (0.0, grid[-1] * units.time), [0.0, 0.0], args=(s,), method="DOP853",
+                        rtol=1e-12, atol=1e-12, t_eval=grid * units.time)
+        X = np.column_stack([sol.y[0] / units.length, sol.y[1] / (units.length / units.time)])
+        for k in range(1, grid.size):
+            assert union_gauge(burn.sets[k], X[k:k + 1]).max() <= TOL, (s, k)
+            escaped |= bool(union_gauge(plain.sets[k], X[k:k + 1]).max() > TOL)
+    assert escaped  # the burn matters: without mass_varies the full-thrust trajectories escape
+    with pytest.raises(ProblemError, match="mass_varies"):
+        ocreach.reach(Problem(id="dbl", model=m, x0=np.zeros(2), grid=grid), "taylor",
+                      mass_varies=True)
+    with pytest.raises(ProblemError, match="mass_varies"):
+        ocreach.reach(p, "taylor", mass_varies="maybe")

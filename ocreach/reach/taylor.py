@@ -36,6 +36,7 @@ the box of ``R_k x U``.  Sound for the discrete model only (``meta["guaranteed_f
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -96,7 +97,12 @@ class ZonotopeOptions:
     * ``disturbance`` (None): additive disturbance on ``dx/dt``: a number ``w`` (the box ``+-w`` on
       the velocity rows, the paper's ``W_gen = w I_3``), a sequence of ``n_x`` radii, or an
       ``Interval``/``Zonotope`` of dimension ``n_x``;
-    * ``max_iter`` (16): iterations of the remainder fixed-point loop.
+    * ``max_iter`` (16): iterations of the remainder fixed-point loop;
+    * ``mass_varies`` (False): the model's thrust acceleration ``a_max = T / m0`` is constant; with
+      True the propellant burn is enclosed: the mass stays above ``m_min = m0 - T / (Isp g0) t``
+      (full thrust over the whole horizon), so the thrust acceleration is in ``[0, T / m_min]``
+      and the input set is scaled by ``m0 / m_min`` (:func:`mass_scale`; needs ``thrust_N``,
+      ``mass_kg``, ``isp_s`` in ``problem.extra`` and model units).
     """
 
     order: float = 10.0
@@ -110,6 +116,7 @@ class ZonotopeOptions:
     input_generators: int | None = None
     disturbance: Any = None
     max_iter: int = 16
+    mass_varies: bool = False
 
     def __post_init__(self) -> None:
         self.order = check_real("order", self.order)
@@ -132,6 +139,8 @@ class ZonotopeOptions:
         if self.input_generators is not None:
             self.input_generators = check_count("input_generators", self.input_generators, 1)
         self.max_iter = check_count("max_iter", self.max_iter, 1)
+        if not isinstance(self.mass_varies, (bool, np.bool_)):
+            raise ProblemError(f"mass_varies must be True or False; got {self.mass_varies!r}")
 
 
 def check_smooth(model) -> None:
@@ -167,6 +176,37 @@ def initial_zonotope(problem: Problem) -> Zonotope:
     return Z
 
 
+#: standard gravity [m/s^2] of the rocket equation's exhaust velocity ``Isp g0``
+G0 = 9.80665
+
+
+def mass_scale(problem: Problem) -> float:
+    """``m0 / m_min`` with ``m_min = m0 - T / (Isp g0) (t_f - t_0)``: the largest thrust
+    acceleration over the horizon relative to the model's ``a_max = T / m0`` (full thrust all the
+    time burns the most propellant), rounded up."""
+    ex = problem.extra or {}
+    vals = {k: ex.get(k) for k in ("thrust_N", "mass_kg", "isp_s")}
+    units = problem.model.units
+    missing = [k for k, v in vals.items() if v is None]
+    if missing or units is None:
+        raise ProblemError(f"mass_varies=True needs thrust_N, mass_kg and isp_s in problem.extra and "
+                           f"model units; problem {problem.id!r} lacks "
+                           f"{missing + ([] if units is not None else ['units'])}")
+    if any(name in ("m", "mass") for name in problem.model.state_names):
+        raise ProblemError(f"mass_varies=True: model {problem.model.name!r} already has a mass "
+                           "state (its thrust acceleration varies with it); use mass_varies=False")
+    T, m0, isp = (float(vals[k]) for k in ("thrust_N", "mass_kg", "isp_s"))
+    if not (T > 0 and m0 > 0 and isp > 0):
+        raise ProblemError(f"mass_varies=True needs thrust_N, mass_kg, isp_s > 0; got {vals}")
+    horizon_s = abs(float(problem.grid[-1] - problem.grid[0])) * units.time
+    m_min = m0 - T / (isp * G0) * horizon_s
+    if m_min <= 0:
+        raise ProblemError(f"mass_varies=True: the propellant of m0 = {m0:g} kg lasts "
+                           f"{m0 * isp * G0 / T / 86400:.4g} d at full thrust, less than the horizon "
+                           f"{horizon_s / 86400:.4g} d")
+    return float(up(m0 / m_min, 2))
+
+
 def input_zonotope(problem: Problem, opts: ZonotopeOptions) -> tuple[Zonotope, str]:
     """Enclosure of the normalised control set and its description."""
     from ocreach.sets.convert import unit_ball_zonotope
@@ -176,6 +216,11 @@ def input_zonotope(problem: Problem, opts: ZonotopeOptions) -> tuple[Zonotope, s
     if cs.kind == "free":
         raise ProblemError(f"problem {problem.id!r} has a 'free' (unbounded) control set; taylor/sdc "
                            "need a bounded one ('ball' or 'box')")
+    if opts.mass_varies:
+        k = mass_scale(problem)
+        V, desc = input_zonotope(problem, dataclasses.replace(opts, mass_varies=False))
+        return (Zonotope(k * V.c, k * V.G),
+                f"{desc}, scaled by m0/m_min = {k:.6g} (variable mass, mass_varies=True)")
     kind = opts.input_set
     if kind == "auto":
         kind = "zonotope" if cs.kind == "ball" else "box"
