@@ -767,8 +767,26 @@ class IntervalFunction:
         B = widths.pop() if widths else 1
         return los, his, B
 
-    def __call__(self, lo: Sequence, hi: Sequence) -> list[tuple[np.ndarray, np.ndarray]]:
-        los, his, B = self._check_inputs(lo, hi)
+    def _trusted_inputs(self, lo, hi) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+        """Shapes only (``check=False``): float arrays of the documented shapes from the caller."""
+        los, his, B = [], [], 1
+        for i, n in enumerate(self.in_numel):
+            l, h = lo[i], hi[i]
+            if l.ndim <= 1:
+                shape_1d = (1, -1) if n == 1 else (-1, 1)
+                l, h = l.reshape(shape_1d), h.reshape(shape_1d)
+            if n and l.shape[1] != 1:
+                B = l.shape[1]
+            los.append(l)
+            his.append(h)
+        return los, his, B
+
+    def __call__(self, lo: Sequence, hi: Sequence, *, check: bool = True
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Bounds over the boxes (class docstring).  ``check=False`` skips the validation of the
+        inputs (shapes, finiteness, ``lo <= hi``) for internal callers that pass float arrays of
+        the right shapes; non-finite results are still reported by the NaN guard and the caller."""
+        los, his, B = self._check_inputs(lo, hi) if check else self._trusted_inputs(lo, hi)
         outs = [(np.zeros((k, B)), np.zeros((k, B))) for k in self._out_numel]
         cache_chunk = int(np.clip(CHUNK_GROUP_ELEMS // max(self._max_group, 1), 256, 2048))
         chunk = max(1, min(B, cache_chunk, CHUNK_BYTES // (16 * max(self.n_values, 1))))

@@ -93,6 +93,8 @@ def _q(i: int) -> float:
     return v * (1 + 1e-12)
 
 
+#: ``i!`` as floats (``float(factorial(i))``, exact up to 22!, correctly rounded beyond)
+_FACT = [float(factorial(i)) for i in range(MAX_TERMS + 3)]
 #: ``_Q[i] = q_i`` of :func:`_q` for ``i >= 2`` (0 for ``i < 2``), up to the most terms used
 _Q = np.array([0.0, 0.0] + [_q(i) for i in range(2, MAX_TERMS + 3)])
 
@@ -114,17 +116,17 @@ def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
         eta += 1
         T.append(T[-1] @ Ah / eta)
         P = P @ absAh
-        S_abs = S_abs + P / factorial(eta)
+        S_abs = S_abs + P / _FACT[eta]
         # tail after eta terms: uses (|A|h)^(eta+1)
         if a < eta + 2:
-            scalar = a ** (eta + 1) / factorial(eta + 1) / (1.0 - a / (eta + 2))
+            scalar = a ** (eta + 1) / _FACT[eta + 1] / (1.0 - a / (eta + 2))
             if eta >= 2 and scalar <= TAIL_TOL * max(1.0, a):
                 break
         if eta >= MAX_TERMS:
             raise SolverError(f"exponential-matrix remainder: ||A h||_inf = {a:.4g} is too large for "
                               f"{MAX_TERMS} Taylor terms (step h = {h:.4g}); use a shorter step")
     P1 = P @ absAh  # (|A| h)^(eta+1)
-    E_row = P1.sum(axis=1) / factorial(eta + 1) / (1.0 - a / (eta + 2))
+    E_row = P1.sum(axis=1) / _FACT[eta + 1] / (1.0 - a / (eta + 2))
     # plus the rounding of the computed T_i and their sums: (eta + 1)(n + 2) u sum_i (|A| h)^i / i!
     # (first-order error bound of the recursive products T_i = T_{i-1} A h / i and the sums)
     u = np.finfo(float).eps
@@ -235,14 +237,32 @@ class LinearStep:
     tube: Zonotope
 
 
-def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms) -> LinearStep:
+@dataclass(frozen=True)
+class StateMaps:
+    """The products of a step that do not depend on the input: ``Phi_T R0``, ``F R0`` and
+    ``E |R0|`` (reused when the step is recomputed with another constant input)."""
+
+    PR: Zonotope
+    FR: Zonotope
+    ER: np.ndarray
+
+
+def state_maps(R0: Zonotope, et: ExpmTerms) -> StateMaps:
+    return StateMaps(PR=Zonotope.trusted(et.Phi @ R0.c, et.Phi @ R0.G),
+                     FR=interval_matrix_times(et.F_mid, et.F_rad, R0), ER=et.E @ abs_extent(R0))
+
+
+def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms,
+                     maps: StateMaps | None = None) -> LinearStep:
     """The part of the step without the uncertain input: ``e^{A h} R0 + Gamma(h) u_c`` and
-    ``CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c`` (module docstring)."""
+    ``CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c`` (module docstring); ``maps`` are
+    :func:`state_maps` of ``R0`` if already computed."""
     u_c = np.asarray(u_c, dtype=float)
     h = et.h
+    maps = state_maps(R0, et) if maps is None else maps
     # time point: Phi_T R0 + [-E, E] R0 + Gamma_T u_c + [-E h, E h] u_c
-    PR = Zonotope.trusted(et.Phi @ R0.c, et.Phi @ R0.G)
-    r_pt = et.E @ abs_extent(R0) + (et.E * h) @ np.abs(u_c)
+    PR = maps.PR
+    r_pt = maps.ER + (et.E * h) @ np.abs(u_c)
     c_end = PR.c + et.Gamma @ u_c
     point = Zonotope.trusted(c_end, np.hstack([PR.G, np.diag(r_pt)[:, r_pt > 0]]))
     # time interval: convex hull of R0 and Phi_T R0 + Gamma_T u_c with common factors
@@ -250,7 +270,7 @@ def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms) -> LinearStep
     c2, G2 = c_end, PR.G
     ch_c = 0.5 * (c1 + c2)
     ch_G = np.hstack([0.5 * (G1 + G2), 0.5 * (c1 - c2)[:, None], 0.5 * (G1 - G2)])
-    FR = interval_matrix_times(et.F_mid, et.F_rad, R0)
+    FR = maps.FR
     Ftu_c = et.Ft_mid @ u_c
     Ftu_r = et.Ft_rad @ np.abs(u_c)
     tube = Zonotope.trusted(ch_c + FR.c + Ftu_c, np.hstack([ch_G, FR.G, np.diag(Ftu_r)[:, Ftu_r > 0]]))

@@ -162,7 +162,7 @@ class SDCError:
         out = self.T([np.column_stack([xs, xlo]), np.column_stack([u, ulo]),
                       np.array([t_box[0], t_box[0]]), self.p],
                      [np.column_stack([xs, xhi]), np.column_stack([u, uhi]),
-                      np.array([t_box[0], t_box[1]]), self.p])
+                      np.array([t_box[0], t_box[1]]), self.p], check=False)
         Tlo, Thi = out[4]
         Tmag = np.maximum(np.abs(Tlo[:, 1]), np.abs(Thi[:, 1])).reshape(n, n, n, n)  # (l, i, j, k)
         r = np.einsum("lijk,j,k,l->i", Tmag, gamma, gamma, gamma) / 6.0

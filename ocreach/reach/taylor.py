@@ -54,6 +54,7 @@ from ocreach.reach.linsys import (
     homogeneous_step,
     input_solution,
     pad,
+    state_maps,
     step_rounding,
     zsum,
 )
@@ -374,12 +375,16 @@ def inflate_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 class TaylorError:
     """Lagrange remainder of the first-order expansion, bounded by the interval Hessian (Eq. 13)."""
 
+    #: :meth:`bound` reads only the interval hull of the tube (the driver may pass a box)
+    box_only = True
+
     def __init__(self, model, p: np.ndarray):
         self.model = model
         self.p = np.asarray(p, dtype=float)
         self.td = time_dependent(model)
         self.H = hessian_interval(model)
         self.n_z = model.n_x + model.n_u + (1 if self.td else 0)
+        self.sizes = (model.n_x, model.n_u)
         self.hmag: np.ndarray | None = None
 
     def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple,
@@ -387,29 +392,29 @@ class TaylorError:
         """Box (as a zonotope) enclosing ``f(z) - f0 - A (x - x*) - B (v - v*)`` for every ``x`` in
         the tube's box and ``v`` in ``V``: the Lagrange remainder ``L`` plus the rounding error of
         the float linearisation ``lin = (f0, A, B)`` (:func:`eval_error`)."""
-        m = self.model
+        nx, nu = self.sizes
         xlo, xhi = tube_box(tube, xs)
         ulo, uhi = Vbox
         tlo, thi = t_box
-        uc = vs[: m.n_u]
+        uc = vs[: nu]
         ts = vs[-1] if self.td else tlo
         out = self.H([np.column_stack([xs, xlo]), np.column_stack([uc, ulo]), np.array([ts, tlo]),
                       self.p],
                      [np.column_stack([xs, xhi]), np.column_stack([uc, uhi]), np.array([ts, thi]),
-                      self.p])
+                      self.p], check=False)
         Hlo, Hhi = out[3]
-        Hlo = unflatten_hessian(Hlo[:, 1:], m.n_x, self.n_z)[0]
-        Hhi = unflatten_hessian(Hhi[:, 1:], m.n_x, self.n_z)[0]
+        Hlo = unflatten_hessian(Hlo[:, 1:], nx, self.n_z)[0]
+        Hhi = unflatten_hessian(Hhi[:, 1:], nx, self.n_z)[0]
         zs = np.concatenate([xs, vs])
         zlo = np.concatenate([xlo, ulo] + ([[tlo]] if self.td else []))
         zhi = np.concatenate([xhi, uhi] + ([[thi]] if self.td else []))
         dlo, dhi = zlo - zs, zhi - zs
         lo, hi = quadratic_interval(Hlo, Hhi, dlo, dhi)
         gz = up(np.maximum(np.abs(dlo), np.abs(dhi)), 1)
-        e = eval_error(out[:3], lin, gz[: m.n_x], gz[m.n_x:])
+        e = eval_error(out[:3], lin, gz[: nx], gz[nx:])
         lo, hi = lo - e, hi + e
-        self.hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))[:, : m.n_x, : m.n_x].sum(axis=0)
-        self.gamma = np.maximum(np.abs(dlo), np.abs(dhi))[: m.n_x]
+        self.hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))[:, : nx, : nx].sum(axis=0)
+        self.gamma = np.maximum(np.abs(dlo), np.abs(dhi))[: nx]
         return interval_box(lo, hi)
 
     def split_scores(self, Z: Zonotope) -> np.ndarray:
@@ -497,9 +502,14 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     except SolverError as exc:
         return StepFail(str(exc))
     R0 = Zonotope.trusted(R.c - xs, R.G)
-    hs = homogeneous_step(R0, u_c, et)
+    maps = state_maps(R0, et)
+    hs = homogeneous_step(R0, u_c, et, maps)
     RU = input_solution(Ubase, et)
     base_tube = zsum(hs.tube, RU)
+    box_only = getattr(ctx.err, "box_only", False)  # the error model reads only the tube's box
+    if box_only:  # then its radii suffice: |RU(box(L))| = (sum_i h/(i+1) |T_i| + E h) L
+        r_base = np.abs(base_tube.G).sum(axis=1)
+        S_L = np.tensordot(h / np.arange(1, et.eta + 2), np.abs(et.T), axes=1) + et.E * h
     Vbox = (ctx.Ubox[0], ctx.Ubox[1])
     t_box = (t0, t0 + h)
     # warm start: the previous step's remainder, enlarged once (the loop then usually closes at once)
@@ -507,8 +517,12 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     err = None
     need = None
     for it in range(1, ctx.opts.max_iter + 1):
-        tube = zsum(base_tube, input_solution(box_zonotope(np.zeros(n), Lbar), et), xs)
-        tube = pad(tube, step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum))
+        r_fp = step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum)
+        if box_only:  # a box zonotope with the tube's interval hull (rounding: inflate_box)
+            tube = Zonotope.trusted(base_tube.c + xs, np.diag(r_base + S_L @ Lbar + r_fp))
+        else:
+            tube = zsum(base_tube, input_solution(box_zonotope(np.zeros(n), Lbar), et), xs)
+            tube = pad(tube, r_fp)
         if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
             return StepFail("the tube is not finite", need)
         try:
@@ -532,7 +546,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     # final sets with the error set found on the tube (valid: every trajectory stays in the tube)
     u_c2 = u_c + err.c
     W2 = Zonotope.trusted(np.zeros(n), np.hstack([Gu, err.G]))
-    hs2 = homogeneous_step(R0, u_c2, et)
+    hs2 = homogeneous_step(R0, u_c2, et, maps)
     RU2 = input_solution(W2, et)
     r_fp = step_rounding(et, R, xs, u_abs0 + np.abs(err.c), W_abs0 + np.abs(err.G).sum(axis=1),
                          max(n_sum, W2.n_generators + Gv.shape[0] + 2))
