@@ -70,6 +70,8 @@ NONSMOOTH_OPS = ("OP_FABS", "OP_SIGN", "OP_IF_ELSE_ZERO", "OP_FMIN", "OP_FMAX", 
                  "OP_CEIL", "OP_FMOD", "OP_LT", "OP_LE", "OP_EQ", "OP_NE", "OP_COPYSIGN")
 #: relative inflation of the box on which the remainder is bounded (the continuity argument)
 BOX_INFLATE = 1e-9
+#: relative enlargement of the outer zonotope of the thrust ball (its facets' rounding)
+BALL_MARGIN = 1e-12
 #: growth factor of the guessed remainder in the fixed-point loop
 GROWTH = 1.25
 ALGS = ("ct", "dt")
@@ -232,7 +234,11 @@ def input_zonotope(problem: Problem, opts: ZonotopeOptions) -> tuple[Zonotope, s
     k = opts.input_generators or 3 * m
     if k < m:
         raise ProblemError(f"input_generators must be >= n_u = {m}; got {k}")
-    return unit_ball_zonotope(m, k), f"zonotope ({k} generators) enclosing the unit ball"
+    # the ball touches the zonotope's facets from inside, up to the rounding of the computed facet
+    # offsets (~1e-16 relative): a relative margin BALL_MARGIN makes the enclosure rigorous
+    Z = unit_ball_zonotope(m, k)
+    return (Zonotope(Z.c, Z.G * (1.0 + BALL_MARGIN)),
+            f"zonotope ({k} generators) enclosing the unit ball")
 
 
 def disturbance_zonotope(problem: Problem, W: Any) -> Zonotope | None:
@@ -457,7 +463,7 @@ class Context:
         self.td = time_dependent(self.model)
         self.lin = FastFunction(lin_fun(self.model))  # one per run: not re-entrant
         hull = V.interval_hull()
-        self.Ubox = (hull.lo, hull.hi)
+        self.Ubox = inflate_box(hull.lo, hull.hi)   # the hull's rounding
 
 
 def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray | None
@@ -534,7 +540,8 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                 msg = (f"the remainder loop diverged (iteration {it}, last bound "
                        f"{np.array2string(need, precision=3)}) until: {msg}")
             return StepFail("remainder bound failed: " + msg, need)
-        need = np.abs(err.c) + np.abs(err.G).sum(axis=1)
+        # rounded up: the loop closes only if the error box surely lies in [-Lbar, Lbar]
+        need = up(np.abs(err.c) + np.abs(err.G).sum(axis=1), err.n_generators + 1)
         if not np.all(np.isfinite(need)):
             return StepFail("the remainder bound is not finite", need)
         if np.all(need <= Lbar):
@@ -743,15 +750,16 @@ class DiscreteTaylor:
         hz = Z.interval_hull()
         hv = self.V.interval_hull()
         zlo, zhi = inflate_box(hz.lo, hz.hi)
+        vlo, vhi = inflate_box(hv.lo, hv.hi)
         tt = np.array([t, t])
-        out = H([np.column_stack([Z.c, zlo]), np.column_stack([self.V.c, hv.lo]), tt, p],
-                [np.column_stack([Z.c, zhi]), np.column_stack([self.V.c, hv.hi]), tt, p])
+        out = H([np.column_stack([Z.c, zlo]), np.column_stack([self.V.c, vlo]), tt, p],
+                [np.column_stack([Z.c, zhi]), np.column_stack([self.V.c, vhi]), tt, p])
         Hlo, Hhi = out[3]
         nz = n + nu
         Hlo = unflatten_hessian(Hlo[:, 1:], n, nz)[0]
         Hhi = unflatten_hessian(Hhi[:, 1:], n, nz)[0]
-        dlo = np.concatenate([zlo - Z.c, hv.lo - self.V.c])
-        dhi = np.concatenate([zhi - Z.c, hv.hi - self.V.c])
+        dlo = np.concatenate([zlo - Z.c, vlo - self.V.c])
+        dhi = np.concatenate([zhi - Z.c, vhi - self.V.c])
         lo, hi = quadratic_interval(Hlo, Hhi, dlo, dhi)
         gz = up(np.maximum(np.abs(dlo), np.abs(dhi)), 1)
         g = g.ravel()
