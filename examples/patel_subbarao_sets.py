@@ -8,7 +8,9 @@ remainder loop cannot close within the part budget) it keeps the sets computed s
 Monte Carlo control laws of ``ocreach.reach.mc`` (random, constant and bang-bang thrust),
 integrated by the project's DOP853 batch integrator (``ocreach.flow.propagate``, rtol 1e-11) on a
 grid refined by the segment midpoints; every endpoint must lie in the set at its grid time, the
-midpoints of the first ``TUBE_SAMPLES`` (2,000) trajectories in their step's time-interval set (scaled gauge <= 1 + 1e-9).  Tightness: the ratio of the
+midpoints of the first ``TUBE_SAMPLES`` (2,000) trajectories in their step's time-interval set
+(scaled gauge <= 1 + 1e-9); so must the boundary points of ``ode`` (PMP extremals from the
+initial set's boundary) at every grid time.  Tightness: the ratio of the
 set's width to the samples' width in 50 random position directions, and of the position volumes.
 
     python examples/patel_subbarao_sets.py [--samples 10000] [--out out/patel_subbarao_sets]
@@ -74,6 +76,29 @@ def truth(problem, samples: int, seed: int, K: int):
     return traj[:, 0::2], traj[:, 1::2]
 
 
+def extremal_check(problem, res, K: int) -> dict:
+    """Boundary points of ``ode`` (PMP extremals from the initial set's boundary, admissible
+    trajectories of the same model) on the first ``K`` segments: each must lie in the set at its
+    grid time.  ``ffoe`` needs an ellipsoidal initial set, so it is not used for these problems."""
+    from ocreach.errors import OcreachError
+
+    sub = problem.__class__(**{**problem.__dict__, "grid": problem.grid[: K + 1]})
+    t0 = time.perf_counter()
+    try:
+        ext = ocreach.reach(sub, "ode")
+    except OcreachError as exc:
+        return {"extremals": f"ode failed: {str(exc)[:200]}"}
+    worst, escapes, n = 0.0, 0, 0
+    for k in range(ext.times.size):
+        P = ext.points_at(k)
+        gk = union_gauge(res.sets[k], P)
+        worst = max(worst, float(gk.max()))
+        escapes += int(np.sum(gk > 1 + 1e-9))
+        n += len(P)
+    return {"extremal_points": n, "extremal_escapes": escapes, "max_gauge_extremals": worst,
+            "extremals_runtime_s": time.perf_counter() - t0}
+
+
 def check(problem, res, samples: int, seed: int = 0) -> dict:
     """MC containment at every grid time and step midpoint, tightness at the last time."""
     K = res.times.size - 1
@@ -103,10 +128,12 @@ def check(problem, res, samples: int, seed: int = 0) -> dict:
 
     v_set = position_volume(res, problem)
     v_mc = float(ConvexHull(P).volume)
-    return {"samples": samples, "escapes": escapes, "tube_samples": min(samples, TUBE_SAMPLES), "max_gauge_sets": worst, "max_gauge_tubes": worst_tube,
+    return {"samples": samples, "escapes": escapes, "tube_samples": min(samples, TUBE_SAMPLES),
+            "max_gauge_sets": worst, "max_gauge_tubes": worst_tube,
             "checked_times": K + 1, "width_ratio_mean": float(ratio.mean()),
             "width_ratio_min": float(ratio.min()), "width_ratio_max": float(ratio.max()),
-            "volume_ratio": v_set / v_mc if v_mc > 0 else float("nan")}
+            "volume_ratio": v_set / v_mc if v_mc > 0 else float("nan"),
+            **extremal_check(problem, res, K)}
 
 
 def volumes(problem, res) -> np.ndarray:
@@ -225,12 +252,14 @@ def main() -> None:
                 print(json.dumps(jsonable(rows[-1])))
 
     lines = [("| problem | method | reached | requested | runtime [s] | parts | escapes / samples | "
-              "width ratio mean (min..max) | volume ratio |"), "|" + "---|" * 9]
+              "ode extremals: escapes / points | width ratio mean (min..max) | volume ratio |"),
+             "|" + "---|" * 10]
     for e in rows:
         reached = (f"{e['reached_days']:.0f} d" if "reached_days" in e else f"{e.get('reached_h', 0):.1f} h")
         lines.append(f"| {e['problem']} | {e['method']} | {reached} | "
                      f"{'ok' if e['failure'] is None else 'stopped'} | {e['runtime_s']:.2f} | {e['max_parts']} | "
                      f"{e.get('escapes', '-')} / {e.get('samples', '-')} | "
+                     f"{e.get('extremal_escapes', '-')} / {e.get('extremal_points', '-')} | "
                      f"{e.get('width_ratio_mean', float('nan')):.3g} ({e.get('width_ratio_min', float('nan')):.3g}.."
                      f"{e.get('width_ratio_max', float('nan')):.3g}) | {e.get('volume_ratio', float('nan')):.3g} |")
     text = "\n".join(lines)

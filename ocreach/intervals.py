@@ -43,6 +43,13 @@ from ocreach.errors import ProblemError, SolverError, check_count
 LIBM_REL = 2.0**-46
 #: Absolute outward margin after a libm/SIMD function (covers results in the subnormal range).
 LIBM_ABS = 2.0**-1000
+#: An evaluation whose largest group has at most this many entries (rows x boxes of the whole
+#: call, so the choice does not depend on the chunking) is rounded outward by ``np.nextafter``
+#: (one call, faster for small arrays, e.g. the few boxes of one reachability step), larger ones
+#: by the scaled-ulp formula of :func:`_dn` (both sound; they may differ by one ulp).
+NEXTAFTER_MAX = 1024
+#: the rounding mode of the evaluation in progress (set by ``IntervalFunction.__call__``)
+_ROUNDING = {"nextafter": False}
 #: Memory budget (bytes) of the value arrays of one evaluation chunk.
 CHUNK_BYTES = 2**27
 #: Target number of elements (rows x boxes) of the largest group's temporaries per chunk: boxes
@@ -94,14 +101,21 @@ def _dn(x):
     >= the power of two ulp(x) by monotone rounding), so the exact difference is <= pred(x) and
     rounding to nearest (monotone, pred(x) is a float) cannot go above pred(x).  Cf. Rump,
     Zimmermann, Boldo & Melquiond, BIT 49 (2009).  About 4x faster than ``np.nextafter``, which
-    numpy does not vectorise.  An overflowed ``x = +inf`` (the exact value is a finite number
-    above the largest float) gives a float just below the largest float; NaN stays NaN."""
+    numpy does not vectorise -- for large arrays; for evaluations of few values (see
+    :data:`NEXTAFTER_MAX`) the one ``np.nextafter`` call (exactly the predecessor) is faster than
+    these five.  An overflowed
+    ``x = +inf`` (the exact value is a finite number above the largest float) gives a float just
+    below the largest float (``nextafter``: the largest float); NaN stays NaN."""
+    if _ROUNDING["nextafter"]:
+        return np.nextafter(x, -_INF)
     x = np.minimum(x, _FMAX)
     return x - (np.abs(x) * _ULP_REL + _ETA)
 
 
 def _up(x):
     """A float >= the successor of ``x`` (see :func:`_dn`); ``-inf`` gives about ``-FMAX``."""
+    if _ROUNDING["nextafter"]:
+        return np.nextafter(x, _INF)
     x = np.maximum(x, -_FMAX)
     return x + (np.abs(x) * _ULP_REL + _ETA)
 
@@ -137,7 +151,7 @@ def _mig_mag(lo, hi):
 
 
 def _require(mask, reason):
-    if np.any(mask):
+    if mask.any():
         raise _Fail(mask, reason)
 
 
@@ -522,9 +536,17 @@ class _Group:
     op: int
     start: int          # first value row written by the group
     stop: int
-    a: np.ndarray       # value rows of the first argument
-    b: np.ndarray | None
+    a: np.ndarray | slice    # value rows of the first argument (a slice if consecutive)
+    b: np.ndarray | slice | None
     instr: np.ndarray   # CasADi instruction index of each row (for messages)
+
+
+def _rows_or_slice(rows: list[int]) -> np.ndarray | slice:
+    """Value rows read by a group: a slice (a view, no copy) when they are consecutive."""
+    r = np.asarray(rows, dtype=np.int64)
+    if r.size and np.all(np.diff(r) == 1):
+        return slice(int(r[0]), int(r[-1]) + 1)
+    return r
 
 
 def _as_sx(fun: ca.Function) -> ca.Function:
@@ -614,6 +636,7 @@ class IntervalFunction:
         self.n_in, self.n_out = f.n_in(), f.n_out()
         self.in_numel = [f.sparsity_in(i).numel() for i in range(self.n_in)]
         self.out_shape = [f.sparsity_out(i).shape for i in range(self.n_out)]
+        self._out_numel = [int(r * c) for r, c in self.out_shape]
         in_dense = [np.asarray(f.sparsity_in(i).find(), dtype=np.int64) for i in range(self.n_in)]
         out_dense = [np.asarray(f.sparsity_out(i).find(), dtype=np.int64) for i in range(self.n_out)]
 
@@ -676,13 +699,15 @@ class IntervalFunction:
         self._groups = []
         for batch in batches:
             op = node_op[batch[0]]
-            a = np.asarray([row(node_args[i][0]) for i in batch], dtype=np.int64)
-            b = (np.asarray([row(node_args[i][1]) for i in batch], dtype=np.int64)
+            a = _rows_or_slice([row(node_args[i][0]) for i in batch])
+            b = (_rows_or_slice([row(node_args[i][1]) for i in batch])
                  if _KERNELS[op][0] == 2 else None)
             start = int(op_row[batch[0]])
             self._groups.append(_Group(op, start, start + len(batch), a, b,
                                        np.asarray([node_instr[i] for i in batch], dtype=np.int64)))
         self._starts = np.asarray([g.start for g in self._groups], dtype=np.int64)
+        self._plan = [(g, _KERNELS[g.op][1], isinstance(g.a, slice), isinstance(g.b, slice))
+                      for g in self._groups]
         self._max_group = max((g.stop - g.start for g in self._groups), default=1)
         # input gathers: per Function input, the value rows and the dense entries they read
         keys = sorted(inputs, key=inputs.get)
@@ -724,10 +749,10 @@ class IntervalFunction:
             if l.ndim != 2 or h.ndim != 2 or l.shape[0] != n or h.shape != l.shape:
                 raise ProblemError(f"input {arg!r} of {name!r}: lo and hi must have shape ({n},) "
                                    f"or ({n}, B); got {np.shape(lo[i])} and {np.shape(hi[i])}")
-            if not (np.all(np.isfinite(l)) and np.all(np.isfinite(h))):
+            if not (np.isfinite(l).all() and np.isfinite(h).all()):
                 raise ProblemError(f"input {arg!r} of {name!r}: box bounds must be finite; "
                                    f"got lo={l.ravel()[:8]!r}, hi={h.ravel()[:8]!r}")
-            if np.any(l > h):
+            if (l > h).any():
                 j, b = np.argwhere(l > h)[0]
                 raise ProblemError(f"input {arg!r} of {name!r}: inverted box (lo > hi) at entry "
                                    f"{j} of box {b}: lo={l[j, b]!r} > hi={h[j, b]!r}")
@@ -742,48 +767,73 @@ class IntervalFunction:
         B = widths.pop() if widths else 1
         return los, his, B
 
-    def __call__(self, lo: Sequence, hi: Sequence) -> list[tuple[np.ndarray, np.ndarray]]:
-        los, his, B = self._check_inputs(lo, hi)
-        outs = [(np.zeros((int(np.prod(s)), B)), np.zeros((int(np.prod(s)), B))) for s in self.out_shape]
+    def _trusted_inputs(self, lo, hi) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+        """Shapes only (``check=False``): float arrays of the documented shapes from the caller."""
+        los, his, B = [], [], 1
+        for i, n in enumerate(self.in_numel):
+            l, h = lo[i], hi[i]
+            if l.ndim <= 1:
+                shape_1d = (1, -1) if n == 1 else (-1, 1)
+                l, h = l.reshape(shape_1d), h.reshape(shape_1d)
+            if n and l.shape[1] != 1:
+                B = l.shape[1]
+            los.append(l)
+            his.append(h)
+        return los, his, B
+
+    def __call__(self, lo: Sequence, hi: Sequence, *, check: bool = True
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Bounds over the boxes (class docstring).  ``check=False`` skips the validation of the
+        inputs (shapes, finiteness, ``lo <= hi``) for internal callers that pass float arrays of
+        the right shapes; non-finite results are still reported by the NaN guard and the caller."""
+        los, his, B = self._check_inputs(lo, hi) if check else self._trusted_inputs(lo, hi)
+        outs = [(np.zeros((k, B)), np.zeros((k, B))) for k in self._out_numel]
         cache_chunk = int(np.clip(CHUNK_GROUP_ELEMS // max(self._max_group, 1), 256, 2048))
         chunk = max(1, min(B, cache_chunk, CHUNK_BYTES // (16 * max(self.n_values, 1))))
-        for s in range(0, B, chunk):
-            e = min(B, s + chunk)
-            self._eval_chunk(los, his, s, e, outs)
+        previous = _ROUNDING["nextafter"]
+        _ROUNDING["nextafter"] = self._max_group * B <= NEXTAFTER_MAX
+        try:
+            for s in range(0, B, chunk):
+                e = min(B, s + chunk)
+                self._eval_chunk(los, his, s, e, outs)
+        finally:
+            _ROUNDING["nextafter"] = previous
         return outs
 
     def _eval_chunk(self, los, his, s, e, outs):
+        # lower and upper bounds in one array V[0], V[1]: one gather per argument of a group
         nb = e - s
-        L = np.empty((self.n_values, nb))
-        H = np.empty((self.n_values, nb))
+        V = np.empty((2, self.n_values, nb))
         for i, (rows, idx) in enumerate(self._in_gather):
             if rows.size:
                 li, hi_ = los[i], his[i]
-                L[rows] = li[idx] if li.shape[1] == 1 else li[idx, s:e]
-                H[rows] = hi_[idx] if hi_.shape[1] == 1 else hi_[idx, s:e]
-        L[self._const_rows] = self._const_vals
-        H[self._const_rows] = self._const_vals
+                V[0, rows] = li[idx] if li.shape[1] == 1 else li[idx, s:e]
+                V[1, rows] = hi_[idx] if hi_.shape[1] == 1 else hi_[idx, s:e]
+        V[:, self._const_rows] = self._const_vals
         und = self.undecided
         kink_check = self.kinks == "error"
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            for g in self._groups:
+            for g, fn, a_slice, b_slice in self._plan:
                 try:
+                    # ndarray.take is several times faster than fancy indexing on small arrays
+                    A = V[:, g.a] if a_slice else V.take(g.a, axis=1)
                     if g.b is None:
-                        args = (L[g.a], H[g.a], None, None)
+                        args = (A[0], A[1], None, None)
                     else:
-                        args = (L[g.a], H[g.a], L[g.b], H[g.b])
+                        Bv = V[:, g.b] if b_slice else V.take(g.b, axis=1)
+                        args = (A[0], A[1], Bv[0], Bv[1])
                     if kink_check and g.op in _KINK_TESTS:
                         _require(_KINK_TESTS[g.op](*args), "non-smooth point (kink or jump of "
                                  "the op) inside the box, so derivative-based bounds of this "
                                  "function do not hold there; split the box")
-                    rlo, rhi = _KERNELS[g.op][1](*args, und)
+                    rlo, rhi = fn(*args, und)
                 except _Fail as fail:
                     self._raise(fail.mask, fail.reason, g, los, his, s)
-                L[g.start:g.stop] = rlo
-                H[g.start:g.stop] = rhi
+                V[0, g.start:g.stop] = rlo
+                V[1, g.start:g.stop] = rhi
         # NaN guard, once per chunk: values are never overwritten, so a NaN made by any group is
         # still in its row (NaN arguments make later comparisons undecided, i.e. errors, too)
-        bad = np.isnan(L[self._op_start:]) | np.isnan(H[self._op_start:])
+        bad = np.isnan(V[:, self._op_start:]).any(axis=0)
         if bad.any():
             r0 = self._op_start + int(np.argwhere(bad)[0][0])
             g = self._groups[int(np.searchsorted(self._starts, r0, side="right")) - 1]
@@ -791,8 +841,9 @@ class IntervalFunction:
                         "the bound is not a number (an overflow to inf, then inf - inf or 0 * inf)",
                         g, los, his, s)
         for i, (olo, ohi) in enumerate(outs):
-            olo[self._out_dense[i], s:e] = L[self._out_rows[i]]
-            ohi[self._out_dense[i], s:e] = H[self._out_rows[i]]
+            O = V.take(self._out_rows[i], axis=1)
+            olo[self._out_dense[i], s:e] = O[0]
+            ohi[self._out_dense[i], s:e] = O[1]
 
     def _raise(self, mask, reason, g: _Group, los, his, offset):
         r, c = np.argwhere(mask)[0]

@@ -220,3 +220,88 @@ def test_box_around_the_singularity_fails_with_partial_result():
     assert "primary" in str(info.value) or "contain" in str(info.value)
     assert info.value.partial.meta["truncated"] is True
     assert len(info.value.partial.sets) == 1
+
+
+def test_taylor_time_dependent_model_contains_scipy_solutions():
+    """``f`` depends on ``t`` (a forced, softening oscillator): ``taylor`` takes ``t`` as an input
+    with the box ``[t, t + h]`` and must contain solutions of a numpy right-hand side integrated by
+    SciPy (DOP853, rtol 1e-11), controls in [-1, 1] constant or bang-bang per step, started at
+    the vertices and inside the initial box; checked at every grid time by the scaled gauge."""
+    from scipy.integrate import solve_ivp
+
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    t = ca.SX.sym("t")
+    f = ca.vertcat(x[1], -x[0] + 0.3 * x[0] ** 3 * ca.cos(t) + 0.5 * ca.sin(2 * t) + 0.2 * u[0])
+    m = Model.build("forced", x, u, f, t=t, control_set="box")
+    Z0 = Zonotope([0.5, 0.0], np.diag([0.05, 0.05]))
+    grid = np.linspace(0.0, 3.0, 16)
+    p = Problem(id="forced", model=m, x0=np.array([0.5, 0.0]), grid=grid, initial_set=Z0)
+    res = ocreach.reach(p, "taylor")
+    assert res.meta["guaranteed"] and len(res.sets) == grid.size
+
+    def rhs(tt, y, uk):
+        X = y.reshape(-1, 2)
+        dx = np.column_stack([X[:, 1], -X[:, 0] + 0.3 * X[:, 0] ** 3 * np.cos(tt)
+                              + 0.5 * np.sin(2 * tt) + 0.2 * uk])
+        return dx.ravel()
+
+    rng = np.random.default_rng(7)
+    corners = np.array([[s1, s2] for s1 in (-1, 1) for s2 in (-1, 1)], dtype=float)
+    X0 = np.vstack([Z0.evaluate(np.repeat(corners, 10, axis=0)), Z0.sample(60, rng)])
+    N, K = X0.shape[0], grid.size - 1
+    U = np.where(rng.random((N, K)) < 0.5, -1.0, 1.0)
+    U[: N // 3] = U[: N // 3, :1]          # constant controls for a third
+    U[N // 3: N // 2] = rng.uniform(-1, 1, (N // 2 - N // 3, K))
+    X = X0.copy()
+    for k in range(K):
+        sol = solve_ivp(rhs, (grid[k], grid[k + 1]), X.ravel(), args=(U[:, k],), method="DOP853",
+                        rtol=1e-11, atol=1e-13)
+        assert sol.success
+        X = sol.y[:, -1].reshape(N, 2)
+        g = union_gauge(res.sets[k + 1], X)
+        assert g.max() <= TOL, f"step {k + 1}: gauge {g.max()!r} > 1"
+
+
+def test_mass_varies_encloses_the_propellant_burn():
+    """A double integrator ``p'' = a u`` (``a = T/m0``, box control): at full thrust the true
+    acceleration grows to ``T / m(t)``, ``m(t) = m0 - T t / (Isp g0)`` (SciPy on the rocket
+    equation).  Those trajectories leave the constant-mass set and lie in the ``mass_varies``
+    set, whose input scale is ``m0 / m_min`` computed here by hand."""
+    from scipy.integrate import solve_ivp
+
+    from ocreach.units import Units
+
+    T_N, m0, isp, g0 = 0.003, 10.0, 30.0, 9.80665
+    units = Units(length=1e3, time=1e3)
+    a = T_N / m0 / (units.length / units.time**2)          # model units
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    m = Model.build("dbl", x, u, ca.vertcat(x[1], a * u[0]), control_set="box", units=units)
+    grid = np.linspace(0.0, 10.0, 6)
+    p = Problem(id="dbl", model=m, x0=np.zeros(2), grid=grid,
+                extra={"thrust_N": T_N, "mass_kg": m0, "isp_s": isp})
+    plain = ocreach.reach(p, "taylor")
+    burn = ocreach.reach(p, "taylor", mass_varies=True)
+    m_min = m0 - T_N / (isp * g0) * 10.0 * units.time
+    assert "mass_varies" in burn.meta["input_enclosure"]
+    assert f"{m0 / m_min:.6g}" in burn.meta["input_enclosure"]
+    mdot = T_N / (isp * g0)
+
+    def rhs(t, y, s):   # SI: position, velocity; s = +-1 full thrust, 0 coast (no burn)
+        return [y[1], s * T_N / (m0 - abs(s) * mdot * t)]
+
+    escaped = False
+    for s in (-1.0, 1.0, 0.0):
+        sol = solve_ivp(rhs, (0.0, grid[-1] * units.time), [0.0, 0.0], args=(s,), method="DOP853",
+                        rtol=1e-12, atol=1e-12, t_eval=grid * units.time)
+        X = np.column_stack([sol.y[0] / units.length, sol.y[1] / (units.length / units.time)])
+        for k in range(1, grid.size):
+            assert union_gauge(burn.sets[k], X[k:k + 1]).max() <= TOL, (s, k)
+            escaped |= bool(union_gauge(plain.sets[k], X[k:k + 1]).max() > TOL)
+    assert escaped  # the burn matters: without mass_varies the full-thrust trajectories escape
+    with pytest.raises(ProblemError, match="mass_varies"):
+        ocreach.reach(Problem(id="dbl", model=m, x0=np.zeros(2), grid=grid), "taylor",
+                      mass_varies=True)
+    with pytest.raises(ProblemError, match="mass_varies"):
+        ocreach.reach(p, "taylor", mass_varies="maybe")

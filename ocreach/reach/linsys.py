@@ -31,10 +31,19 @@ thesis 2010, Sec. 3.2).  Every approximation is an enclosure:
   ``R([0, h]) = CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c + R_W``.
 
 Interval matrices act on zonotopes through ``M Z in mid(M) Z + box(rad(M) (|c| + sum |g|))``.
-Floating-point rounding of the zonotope arithmetic (matrix products, sums) is not tracked
-operation by operation; instead every result gets an extra box of ``FP_REL`` times
-``|c| + sum_j |g_j|`` per component, about 500 times the unit round-off times the dimension-
-dependent growth of a dot product of these sizes (documented in ``docs/validation.md``).
+
+**Floating point.**  The zonotope arithmetic of a step (the products with ``Phi``, ``Gamma``,
+``T_i``, ``F``, the Minkowski sums, the boxes) is a sum-of-products expression of the float inputs
+``R0``, ``u_c``, ``W`` and the computed matrices, so its rounding error is at most ``gamma_k`` times
+the same expression on absolute values (:mod:`ocreach.sets.rounding`, Higham Lemma 3.1).  With
+``M = sum_i |T_i| + E`` (which bounds ``|Phi|``, every ``|T_i|``, ``|F|`` and ``|Gamma| / h``) and
+``a_R = |c_0| + sum |g_0|`` (``|R0|`` evaluated absolutely), ``a_u = |u_c|``, ``a_W = sum |w_j|``,
+both the time-point and the time-interval set are within
+``gamma_k (2 a_R + 3 M (a_R + h a_u + h a_W) + |x*|)`` of the exact ones, ``k`` the longest chain of
+roundings (``n + eta`` for the matrices and their products plus the number of generators summed in
+a radius, :func:`step_rounding`); that box is added to every set (:func:`pad`).  The matrices
+themselves are enclosures: ``E`` contains the rounding of the computed ``T_i`` and ``Phi``, and
+``F_rad``/``Ft_rad`` are rounded up past the rounding of their sums.
 """
 from __future__ import annotations
 
@@ -44,10 +53,9 @@ from math import factorial
 import numpy as np
 
 from ocreach.errors import SolverError
+from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.zonotope import Zonotope
 
-#: relative box added to every computed set for the rounding of the zonotope arithmetic
-FP_REL = 1e-13
 #: largest number of Taylor terms of the exponential matrix
 MAX_TERMS = 40
 #: the tail bound must be below this (relative to ||A h||) before the series is truncated
@@ -62,7 +70,8 @@ class ExpmTerms:
     remainder bound ``(n, n)`` valid for every ``t`` in ``[0, h]``, ``Phi = sum T``,
     ``Gamma = h sum T_i / (i+1)`` (the series part of ``int_0^h e^{A s} ds``),
     ``F_mid``/``F_rad`` midpoint and radius of the interval matrix ``F``, ``Ft_mid``/``Ft_rad``
-    of ``F~``.
+    of ``F~``; ``M = sum_i |T_i| + E`` bounds the magnitude of every matrix of the step (the
+    floating-point analysis of :func:`step_rounding`).
     """
 
     h: float
@@ -75,12 +84,19 @@ class ExpmTerms:
     F_rad: np.ndarray
     Ft_mid: np.ndarray
     Ft_rad: np.ndarray
+    M: np.ndarray
 
 
 def _q(i: int) -> float:
     """``min_{tau in [0,1]} tau^i - tau = i^{-i/(i-1)} - i^{-1/(i-1)}`` (i >= 2), rounded down."""
     v = i ** (-i / (i - 1)) - i ** (-1 / (i - 1))
     return v * (1 + 1e-12)
+
+
+#: ``i!`` as floats (``float(factorial(i))``, exact up to 22!, correctly rounded beyond)
+_FACT = [float(factorial(i)) for i in range(MAX_TERMS + 3)]
+#: ``_Q[i] = q_i`` of :func:`_q` for ``i >= 2`` (0 for ``i < 2``), up to the most terms used
+_Q = np.array([0.0, 0.0] + [_q(i) for i in range(2, MAX_TERMS + 3)])
 
 
 def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
@@ -100,40 +116,43 @@ def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
         eta += 1
         T.append(T[-1] @ Ah / eta)
         P = P @ absAh
-        S_abs = S_abs + P / factorial(eta)
+        S_abs = S_abs + P / _FACT[eta]
         # tail after eta terms: uses (|A|h)^(eta+1)
         if a < eta + 2:
-            scalar = a ** (eta + 1) / factorial(eta + 1) / (1.0 - a / (eta + 2))
+            scalar = a ** (eta + 1) / _FACT[eta + 1] / (1.0 - a / (eta + 2))
             if eta >= 2 and scalar <= TAIL_TOL * max(1.0, a):
                 break
         if eta >= MAX_TERMS:
             raise SolverError(f"exponential-matrix remainder: ||A h||_inf = {a:.4g} is too large for "
                               f"{MAX_TERMS} Taylor terms (step h = {h:.4g}); use a shorter step")
     P1 = P @ absAh  # (|A| h)^(eta+1)
-    E_row = P1.sum(axis=1) / factorial(eta + 1) / (1.0 - a / (eta + 2))
+    E_row = P1.sum(axis=1) / _FACT[eta + 1] / (1.0 - a / (eta + 2))
     # plus the rounding of the computed T_i and their sums: (eta + 1)(n + 2) u sum_i (|A| h)^i / i!
     # (first-order error bound of the recursive products T_i = T_{i-1} A h / i and the sums)
     u = np.finfo(float).eps
     E = (np.repeat(E_row[:, None], n, axis=1) * (1 + 1e-10)
          + 2.0 * (eta + 1) * (n + 2) * u * S_abs + 1e-300)
     Tarr = np.array(T)
+    absT = np.abs(Tarr)
     Phi = Tarr.sum(axis=0)
-    Gamma = h * sum(T[i] / (i + 1) for i in range(eta + 1))
-    F_mid = np.zeros((n, n))
-    F_rad = E.copy()
-    for i in range(2, eta + 1):
-        q = _q(i)
-        F_mid += 0.5 * q * T[i]
-        F_rad += 0.5 * abs(q) * np.abs(T[i])
-    Ft_mid = np.zeros((n, n))
-    Ft_rad = E * h
-    for i in range(1, eta + 1):
-        q = _q(i + 1)
-        M = h / (i + 1) * T[i]
-        Ft_mid += 0.5 * q * M
-        Ft_rad += 0.5 * abs(q) * np.abs(M)
+    # weighted sums of the T_i as one tensordot each: Gamma = h sum T_i / (i+1),
+    # F = sum_{i>=2} [q_i, 0] T_i, F~ = sum_{i>=1} [q_{i+1}, 0] h/(i+1) T_i (as midpoint/radius)
+    inv = 1.0 / np.arange(1, eta + 2)
+    wF = 0.5 * _Q[: eta + 1]               # _Q[i] = q_i (0 for i < 2)
+    wFt = 0.5 * _Q[1: eta + 2] * (h * inv)  # 0.5 q_{i+1} h / (i+1)
+    Gamma = np.tensordot(h * inv, Tarr, axes=1)
+    F_mid = np.tensordot(wF, Tarr, axes=1)
+    F_rad = E + np.tensordot(np.abs(wF), absT, axes=1)
+    Ft_mid = np.tensordot(wFt, Tarr, axes=1)
+    Ft_rad = E * h + np.tensordot(np.abs(wFt), absT, axes=1)
+    # the computed F_mid, Ft_mid carry the rounding of their sums (<= eta + 3 operations, abs value
+    # <= F_rad): the radii are widened by that bound and rounded up
+    k = eta + 4
+    F_rad = up(F_rad + rounding_radius(F_rad, k), 2)
+    Ft_rad = up(Ft_rad + rounding_radius(Ft_rad, k), 2)
+    M = up(absT.sum(axis=0), eta + 1) + E
     return ExpmTerms(h=float(h), eta=eta, T=Tarr, E=E, Phi=Phi, Gamma=Gamma, F_mid=F_mid,
-                     F_rad=F_rad, Ft_mid=Ft_mid, Ft_rad=Ft_rad)
+                     F_rad=F_rad, Ft_mid=Ft_mid, Ft_rad=Ft_rad, M=M)
 
 
 def abs_extent(Z: Zonotope) -> np.ndarray:
@@ -145,20 +164,51 @@ def box_zonotope(c: np.ndarray, r: np.ndarray) -> Zonotope:
     """The box ``c +- r`` as a zonotope (zero radii give no generator)."""
     r = np.asarray(r, dtype=float)
     keep = r > 0
-    return Zonotope(np.asarray(c, dtype=float), np.diag(r)[:, keep])
+    return Zonotope.trusted(np.asarray(c, dtype=float), np.diag(r)[:, keep])
 
 
 def interval_matrix_times(M_mid: np.ndarray, M_rad: np.ndarray, Z: Zonotope) -> Zonotope:
     """Enclosure of ``{M x : M in [M_mid -+ M_rad], x in Z}``: ``M_mid Z + box(M_rad |Z|)``."""
-    core = M_mid @ Z
+    core = Zonotope.trusted(M_mid @ Z.c, M_mid @ Z.G)
     r = M_rad @ abs_extent(Z)
-    return Zonotope(core.c, np.hstack([core.G, np.diag(r)[:, r > 0]]))
+    return Zonotope.trusted(core.c, np.hstack([core.G, np.diag(r)[:, r > 0]]))
 
 
-def with_fp_margin(Z: Zonotope) -> Zonotope:
-    """``Z`` plus the rounding box ``FP_REL (|c| + sum|g|)`` (module docstring)."""
-    r = FP_REL * abs_extent(Z) + 1e-300
-    return Zonotope(Z.c, np.hstack([Z.G, np.diag(r)]))
+def zsum(*parts: Zonotope | np.ndarray) -> Zonotope:
+    """Minkowski sum of zonotopes and translation vectors (internal, :meth:`Zonotope.trusted`)."""
+    cs, Gs = [], []
+    for P in parts:
+        if isinstance(P, Zonotope):
+            cs.append(P.c)
+            Gs.append(P.G)
+        else:
+            cs.append(P)
+    c = cs[0]
+    for v in cs[1:]:
+        c = c + v
+    return Zonotope.trusted(np.asarray(c, dtype=float), np.hstack(Gs))
+
+
+def pad(Z: Zonotope, r: np.ndarray) -> Zonotope:
+    """``Z`` plus the box of radii ``r`` (a rounding bound, :func:`step_rounding`)."""
+    r = np.asarray(r, dtype=float)
+    return Zonotope.trusted(Z.c, np.hstack([Z.G, np.diag(r)[:, r > 0]]))
+
+
+def step_rounding(et: ExpmTerms, R: Zonotope, xs: np.ndarray, u_abs: np.ndarray,
+                  W_abs: np.ndarray, n_sum: int) -> np.ndarray:
+    """Rigorous bound of the floating-point error of the time-point and time-interval sets of one
+    step (module docstring, "Floating point") from the set ``R`` shifted by the linearisation
+    point (the step maps ``R0 = R - x*`` and adds ``x*`` back; ``xs = 0`` if ``R`` is ``R0``),
+    ``u_abs >= |u_c|_abs``, ``W_abs >= sum_j |w_j|_abs`` (the uncertain input's generators,
+    absolutely evaluated), ``n_sum`` the most terms summed in one entry outside the matrix
+    products (generators in a radius, inputs in a generator)."""
+    xs_abs = np.abs(np.asarray(xs, dtype=float))
+    aR = np.abs(R.c) + xs_abs + np.abs(R.G).sum(axis=1)
+    h = et.h
+    total = 2.0 * aR + 3.0 * (et.M @ (aR + h * (u_abs + W_abs))) + xs_abs
+    k = 2 * R.dim + et.eta + int(n_sum) + 12
+    return rounding_radius(total, k)
 
 
 def input_solution(W: Zonotope, et: ExpmTerms) -> Zonotope:
@@ -169,12 +219,14 @@ def input_solution(W: Zonotope, et: ExpmTerms) -> Zonotope:
                           "(move the centre into the constant input u_c)")
     n = W.dim
     if W.n_generators == 0:
-        return Zonotope(np.zeros(n))
+        return Zonotope.trusted(np.zeros(n), np.zeros((n, 0)))
     h = et.h
-    blocks = [(h / (i + 1)) * (et.T[i] @ W.G) for i in range(et.eta + 1)]
+    # blocks h/(i+1) T_i W.G for i = 0..eta, side by side (one batched product)
+    TG = (et.T @ W.G) * (h / np.arange(1, et.eta + 2))[:, None, None]
+    blocks = TG.transpose(1, 0, 2).reshape(n, -1)
     r = (et.E * h) @ np.abs(W.G).sum(axis=1)
-    G = np.hstack(blocks + [np.diag(r)[:, r > 0]])
-    return Zonotope(np.zeros(n), G)
+    G = np.hstack([blocks, np.diag(r)[:, r > 0]])
+    return Zonotope.trusted(np.zeros(n), G)
 
 
 @dataclass(frozen=True)
@@ -185,25 +237,43 @@ class LinearStep:
     tube: Zonotope
 
 
-def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms) -> LinearStep:
+@dataclass(frozen=True)
+class StateMaps:
+    """The products of a step that do not depend on the input: ``Phi_T R0``, ``F R0`` and
+    ``E |R0|`` (reused when the step is recomputed with another constant input)."""
+
+    PR: Zonotope
+    FR: Zonotope
+    ER: np.ndarray
+
+
+def state_maps(R0: Zonotope, et: ExpmTerms) -> StateMaps:
+    return StateMaps(PR=Zonotope.trusted(et.Phi @ R0.c, et.Phi @ R0.G),
+                     FR=interval_matrix_times(et.F_mid, et.F_rad, R0), ER=et.E @ abs_extent(R0))
+
+
+def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms,
+                     maps: StateMaps | None = None) -> LinearStep:
     """The part of the step without the uncertain input: ``e^{A h} R0 + Gamma(h) u_c`` and
-    ``CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c`` (module docstring)."""
+    ``CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c`` (module docstring); ``maps`` are
+    :func:`state_maps` of ``R0`` if already computed."""
     u_c = np.asarray(u_c, dtype=float)
     h = et.h
+    maps = state_maps(R0, et) if maps is None else maps
     # time point: Phi_T R0 + [-E, E] R0 + Gamma_T u_c + [-E h, E h] u_c
-    PR = et.Phi @ R0
-    r_pt = et.E @ abs_extent(R0) + (et.E * h) @ np.abs(u_c)
+    PR = maps.PR
+    r_pt = maps.ER + (et.E * h) @ np.abs(u_c)
     c_end = PR.c + et.Gamma @ u_c
-    point = Zonotope(c_end, np.hstack([PR.G, np.diag(r_pt)[:, r_pt > 0]]))
+    point = Zonotope.trusted(c_end, np.hstack([PR.G, np.diag(r_pt)[:, r_pt > 0]]))
     # time interval: convex hull of R0 and Phi_T R0 + Gamma_T u_c with common factors
     c1, G1 = R0.c, R0.G
     c2, G2 = c_end, PR.G
     ch_c = 0.5 * (c1 + c2)
     ch_G = np.hstack([0.5 * (G1 + G2), 0.5 * (c1 - c2)[:, None], 0.5 * (G1 - G2)])
-    FR = interval_matrix_times(et.F_mid, et.F_rad, R0)
+    FR = maps.FR
     Ftu_c = et.Ft_mid @ u_c
     Ftu_r = et.Ft_rad @ np.abs(u_c)
-    tube = Zonotope(ch_c + FR.c + Ftu_c, np.hstack([ch_G, FR.G, np.diag(Ftu_r)[:, Ftu_r > 0]]))
+    tube = Zonotope.trusted(ch_c + FR.c + Ftu_c, np.hstack([ch_G, FR.G, np.diag(Ftu_r)[:, Ftu_r > 0]]))
     return LinearStep(point=point, tube=tube)
 
 
@@ -220,4 +290,17 @@ def linear_step(R0: Zonotope, A: np.ndarray, h: float, u_c: np.ndarray, W: Zonot
         W0 = Zonotope(np.zeros(R0.dim))
     hs = homogeneous_step(R0, u_c, et)
     RW = input_solution(W0, et)
-    return LinearStep(point=with_fp_margin(hs.point + RW), tube=with_fp_margin(hs.tube + RW))
+    W_abs = np.abs(W0.G).sum(axis=1) if W is None else np.abs(W.G).sum(axis=1)
+    u_abs = np.abs(u_c) if W is None else np.abs(u_c) + 2 * np.abs(W.c)
+    r = step_rounding(et, R0, np.zeros(R0.dim), u_abs, W_abs,
+                      max(R0.n_generators, W0.n_generators) + 2)
+    point, tube = pad(zsum(hs.point, RW), r), pad(zsum(hs.tube, RW), r)
+    check_finite(point, tube)
+    return LinearStep(point=point, tube=tube)
+
+
+def check_finite(*sets: Zonotope) -> None:
+    """Raise :class:`SolverError` if a computed set is not finite (overflow)."""
+    for Z in sets:
+        if not (np.all(np.isfinite(Z.c)) and np.all(np.isfinite(Z.G))):
+            raise SolverError("the linear step's set is not finite (overflow); use a shorter step")

@@ -40,19 +40,23 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, check_count
+from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
-from ocreach.reach.linsys import box_zonotope
+from ocreach.reach.linsys import box_zonotope, pad
 from ocreach.reach.result import ReachResult
 from ocreach.reach.taylor import (
     ZonotopeOptions,
     ZonotopeReach,
     check_smooth,
-    inflate_box,
+    eval_error,
     initial_zonotope,
     time_dependent,
+    tube_box,
+    unflatten_hessian,
 )
 from ocreach.sets.matzonotope import MatrixZonotope, matzonotope_times_zonotope
+from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.zonotope import Zonotope
 
 BASES = ("center", "origin")
@@ -73,7 +77,10 @@ def check_sdc_model(model) -> None:
 
 
 def third_interval(model):
-    """Interval extension of ``T[l, i, j, k] = d^3 f_i / dx_j dx_k dx_l`` (flat)."""
+    """Interval extension of ``(f, df/dx, df/du, H, T)``: ``H`` the Hessian in ``x`` (flat
+    ``(n n, n)``) and ``T[l, i, j, k] = d^3 f_i / dx_j dx_k dx_l`` (flat).  One call on two boxes:
+    the point ``x*`` (the rounding of the float ``f0``, ``A``, ``B``, ``dA``) and the tube's box
+    (``R_err``)."""
     from ocreach.intervals import interval_function
 
     def build():
@@ -81,10 +88,11 @@ def third_interval(model):
         J = ca.jacobian(model.f, x)
         H = ca.jacobian(ca.reshape(J.T, -1, 1), x)
         T = ca.jacobian(ca.reshape(H.T, -1, 1), x)
-        return ca.Function("sdc_third", [model.x, model.u, model.t, model.p], [T])
+        return ca.Function("sdc_third", [model.x, model.u, model.t, model.p],
+                           [model.f, J, ca.jacobian(model.f, model.u), H, T])
 
-    fun = model.cached(("sdc", "third_fun"), build)
-    return interval_function(fun, model=model, key=("sdc", "third"))
+    fun = model.cached(("sdc", "lin_third_fun"), build)
+    return interval_function(fun, model=model, key=("sdc", "lin_third"))
 
 
 class SDCError:
@@ -95,7 +103,7 @@ class SDCError:
         self.p = np.asarray(p, dtype=float)
         self.dev_order = dev_order
         self.base = base
-        self.sdc = model.sdc_fun()
+        self.sdc = FastFunction(model.sdc_fun())  # one per run: not re-entrant
         self.T = third_interval(model) if base == "center" else None
         self.hmag: np.ndarray | None = None
         self.gamma: np.ndarray | None = None
@@ -117,33 +125,56 @@ class SDCError:
         A0, _ = self._dA(xs, np.zeros_like(xs), uc)
         return A0 @ xs + self.B @ uc, A0, self.B
 
-    def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple
-              ) -> Zonotope:
+    def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple,
+              lin: tuple) -> Zonotope:
+        """Error set ``R_dev + R_err d`` on the tube, plus (``base="center"``) the rounding of the
+        float ``f0``, ``A``, ``B`` (:func:`~ocreach.reach.taylor.eval_error`) and ``dA`` against
+        their interval enclosures at ``x*``, and the rounding of the matrix-zonotope product."""
         n = self.model.n_x
-        D = (tube - xs).reduce(self.dev_order, "girard")
+        nu = self.model.n_u
+        # D must contain tube - x* exactly: the centre's subtraction is rounded
+        D0 = Zonotope.trusted(tube.c - xs, tube.G)
+        D0 = pad(D0, rounding_radius(np.abs(tube.c) + np.abs(xs), 1))
+        D = D0.reduce(self.dev_order, "girard")
         base = xs if self.base == "center" else np.zeros(n)
-        _, dA = self._dA(xs, base, vs[: self.model.n_u])
+        u = vs[:nu]
+        _, dA = self._dA(xs, base, u)
         # matrix zonotope of Eq. 21 about x*: centre sum_k dA_k c_k, generators sum_k dA_k g_kj
         C = np.tensordot(dA, D.c, axes=([2], [0]))
         Gs = np.einsum("ijk,kh->hij", dA, D.G)
         MZ = MatrixZonotope(C, Gs)
-        if self.base == "center":
-            dev = matzonotope_times_zonotope(MZ, D)
-        else:  # literal: (sum dA_k d_k) x with x = x* + d in the tube
-            dev = matzonotope_times_zonotope(MZ, D + xs)
+        Dx = D if self.base == "center" else D + xs
+        dev = matzonotope_times_zonotope(MZ, Dx)   # literal: (sum dA_k d_k) x, x = x* + d
+        # rounding of C, Gs and the product: absolute value (sum_k |dA_k| a_D,k) a_Dx
+        aD = np.abs(D.c) + np.abs(D.G).sum(axis=1)
+        aDx = aD if self.base == "center" else aD + np.abs(xs)
+        dev_abs = np.einsum("ijk,k->ij", np.abs(dA), aD) @ aDx
+        dev = pad(dev, rounding_radius(dev_abs, 2 * n + 4))
         dev = dev.reduce(max(self.dev_order, 2.0), "girard")
         self.hmag = 2.0 * np.abs(dA).sum(axis=0)
-        hull = tube.interval_hull()
-        xlo, xhi = inflate_box(np.minimum(hull.lo, xs), np.maximum(hull.hi, xs))
+        xlo, xhi = tube_box(tube, xs)
         gamma = np.maximum(np.abs(xlo - xs), np.abs(xhi - xs))
         self.gamma = gamma
         if self.T is None:
             return dev
-        u = vs[: self.model.n_u]
-        (Tlo, Thi), = self.T([xlo, u, np.array([t_box[0]]), self.p], [xhi, u, np.array([t_box[1]]), self.p])
-        Tmag = np.maximum(np.abs(Tlo), np.abs(Thi)).reshape(n, n, n, n)  # (l, i, j, k)
+        gamma = up(gamma, 1)
+        ulo, uhi = Vbox
+        out = self.T([np.column_stack([xs, xlo]), np.column_stack([u, ulo]),
+                      np.array([t_box[0], t_box[0]]), self.p],
+                     [np.column_stack([xs, xhi]), np.column_stack([u, uhi]),
+                      np.array([t_box[0], t_box[1]]), self.p], check=False)
+        Tlo, Thi = out[4]
+        Tmag = np.maximum(np.abs(Tlo[:, 1]), np.abs(Thi[:, 1])).reshape(n, n, n, n)  # (l, i, j, k)
         r = np.einsum("lijk,j,k,l->i", Tmag, gamma, gamma, gamma) / 6.0
         r = r * (1 + 1e-12) + 1e-300
+        # float dA against the interval Hessian at x*: dA_ijk = 1/2 d^2 f_i / dx_j dx_k
+        Hlo, Hhi = out[3]
+        Hlo = unflatten_hessian(Hlo[:, :1], n, n)[0]
+        Hhi = unflatten_hessian(Hhi[:, :1], n, n)[0]
+        rdA = up(np.maximum(dA - 0.5 * Hlo, 0.5 * Hhi - dA), 2)
+        r = r + np.einsum("ijk,j,k->i", rdA, gamma, gamma)
+        gv = up(np.maximum(np.abs(ulo - u), np.abs(uhi - u)), 1)
+        r = up(r + eval_error(out[:3], lin, gamma, gv), n * n + 4)
         return dev + box_zonotope(np.zeros(n), r)
 
     def split_scores(self, Z: Zonotope) -> np.ndarray:

@@ -36,6 +36,7 @@ the box of ``R_k x U``.  Sound for the discrete model only (``meta["guaranteed_f
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -44,6 +45,7 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import OcreachError, ProblemError, SolverError, check_count, check_real
+from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import (
@@ -51,10 +53,14 @@ from ocreach.reach.linsys import (
     expm_terms,
     homogeneous_step,
     input_solution,
-    with_fp_margin,
+    pad,
+    state_maps,
+    step_rounding,
+    zsum,
 )
 from ocreach.reach.result import ReachResult
 from ocreach.sets.interval import Interval
+from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope
 
@@ -64,6 +70,8 @@ NONSMOOTH_OPS = ("OP_FABS", "OP_SIGN", "OP_IF_ELSE_ZERO", "OP_FMIN", "OP_FMAX", 
                  "OP_CEIL", "OP_FMOD", "OP_LT", "OP_LE", "OP_EQ", "OP_NE", "OP_COPYSIGN")
 #: relative inflation of the box on which the remainder is bounded (the continuity argument)
 BOX_INFLATE = 1e-9
+#: relative enlargement of the outer zonotope of the thrust ball (its facets' rounding)
+BALL_MARGIN = 1e-12
 #: growth factor of the guessed remainder in the fixed-point loop
 GROWTH = 1.25
 ALGS = ("ct", "dt")
@@ -92,7 +100,12 @@ class ZonotopeOptions:
     * ``disturbance`` (None): additive disturbance on ``dx/dt``: a number ``w`` (the box ``+-w`` on
       the velocity rows, the paper's ``W_gen = w I_3``), a sequence of ``n_x`` radii, or an
       ``Interval``/``Zonotope`` of dimension ``n_x``;
-    * ``max_iter`` (16): iterations of the remainder fixed-point loop.
+    * ``max_iter`` (16): iterations of the remainder fixed-point loop;
+    * ``mass_varies`` (False): the model's thrust acceleration ``a_max = T / m0`` is constant; with
+      True the propellant burn is enclosed: the mass stays above ``m_min = m0 - T / (Isp g0) t``
+      (full thrust over the whole horizon), so the thrust acceleration is in ``[0, T / m_min]``
+      and the input set is scaled by ``m0 / m_min`` (:func:`mass_scale`; needs ``thrust_N``,
+      ``mass_kg``, ``isp_s`` in ``problem.extra`` and model units).
     """
 
     order: float = 10.0
@@ -106,6 +119,7 @@ class ZonotopeOptions:
     input_generators: int | None = None
     disturbance: Any = None
     max_iter: int = 16
+    mass_varies: bool = False
 
     def __post_init__(self) -> None:
         self.order = check_real("order", self.order)
@@ -128,6 +142,8 @@ class ZonotopeOptions:
         if self.input_generators is not None:
             self.input_generators = check_count("input_generators", self.input_generators, 1)
         self.max_iter = check_count("max_iter", self.max_iter, 1)
+        if not isinstance(self.mass_varies, (bool, np.bool_)):
+            raise ProblemError(f"mass_varies must be True or False; got {self.mass_varies!r}")
 
 
 def check_smooth(model) -> None:
@@ -163,6 +179,37 @@ def initial_zonotope(problem: Problem) -> Zonotope:
     return Z
 
 
+#: standard gravity [m/s^2] of the rocket equation's exhaust velocity ``Isp g0``
+G0 = 9.80665
+
+
+def mass_scale(problem: Problem) -> float:
+    """``m0 / m_min`` with ``m_min = m0 - T / (Isp g0) (t_f - t_0)``: the largest thrust
+    acceleration over the horizon relative to the model's ``a_max = T / m0`` (full thrust all the
+    time burns the most propellant), rounded up."""
+    ex = problem.extra or {}
+    vals = {k: ex.get(k) for k in ("thrust_N", "mass_kg", "isp_s")}
+    units = problem.model.units
+    missing = [k for k, v in vals.items() if v is None]
+    if missing or units is None:
+        raise ProblemError(f"mass_varies=True needs thrust_N, mass_kg and isp_s in problem.extra and "
+                           f"model units; problem {problem.id!r} lacks "
+                           f"{missing + ([] if units is not None else ['units'])}")
+    if any(name in ("m", "mass") for name in problem.model.state_names):
+        raise ProblemError(f"mass_varies=True: model {problem.model.name!r} already has a mass "
+                           "state (its thrust acceleration varies with it); use mass_varies=False")
+    T, m0, isp = (float(vals[k]) for k in ("thrust_N", "mass_kg", "isp_s"))
+    if not (T > 0 and m0 > 0 and isp > 0):
+        raise ProblemError(f"mass_varies=True needs thrust_N, mass_kg, isp_s > 0; got {vals}")
+    horizon_s = abs(float(problem.grid[-1] - problem.grid[0])) * units.time
+    m_min = m0 - T / (isp * G0) * horizon_s
+    if m_min <= 0:
+        raise ProblemError(f"mass_varies=True: the propellant of m0 = {m0:g} kg lasts "
+                           f"{m0 * isp * G0 / T / 86400:.4g} d at full thrust, less than the horizon "
+                           f"{horizon_s / 86400:.4g} d")
+    return float(up(m0 / m_min, 2))
+
+
 def input_zonotope(problem: Problem, opts: ZonotopeOptions) -> tuple[Zonotope, str]:
     """Enclosure of the normalised control set and its description."""
     from ocreach.sets.convert import unit_ball_zonotope
@@ -172,6 +219,11 @@ def input_zonotope(problem: Problem, opts: ZonotopeOptions) -> tuple[Zonotope, s
     if cs.kind == "free":
         raise ProblemError(f"problem {problem.id!r} has a 'free' (unbounded) control set; taylor/sdc "
                            "need a bounded one ('ball' or 'box')")
+    if opts.mass_varies:
+        k = mass_scale(problem)
+        V, desc = input_zonotope(problem, dataclasses.replace(opts, mass_varies=False))
+        return (Zonotope(k * V.c, k * V.G),
+                f"{desc}, scaled by m0/m_min = {k:.6g} (variable mass, mass_varies=True)")
     kind = opts.input_set
     if kind == "auto":
         kind = "zonotope" if cs.kind == "ball" else "box"
@@ -182,7 +234,11 @@ def input_zonotope(problem: Problem, opts: ZonotopeOptions) -> tuple[Zonotope, s
     k = opts.input_generators or 3 * m
     if k < m:
         raise ProblemError(f"input_generators must be >= n_u = {m}; got {k}")
-    return unit_ball_zonotope(m, k), f"zonotope ({k} generators) enclosing the unit ball"
+    # the ball touches the zonotope's facets from inside, up to the rounding of the computed facet
+    # offsets (~1e-16 relative): a relative margin BALL_MARGIN makes the enclosure rigorous
+    Z = unit_ball_zonotope(m, k)
+    return (Zonotope(Z.c, Z.G * (1.0 + BALL_MARGIN)),
+            f"zonotope ({k} generators) enclosing the unit ball")
 
 
 def disturbance_zonotope(problem: Problem, W: Any) -> Zonotope | None:
@@ -232,17 +288,46 @@ def lin_fun(model) -> ca.Function:
 
 
 def hessian_interval(model):
-    """Interval extension of the Hessian ``d^2 f_i / dz_a dz_b`` (flat ``(n_x n_z, n_z)``)."""
+    """Interval extension of ``(f, df/dx, df/dv, H)`` with the Hessian ``H = d^2 f_i / dz_a dz_b``
+    (flat ``(n_x n_z, n_z)``), ``v = u`` or ``(u, t)``: one call bounds the Hessian over the tube's
+    box and, on a second (point) box, the rounding of the float ``f``, ``A``, ``B`` at ``z*``."""
     from ocreach.intervals import interval_function
 
     def build():
         z = z_symbol(model)
+        v = ca.vertcat(model.u, model.t) if time_dependent(model) else model.u
         J = ca.jacobian(model.f, z)
         H = ca.jacobian(ca.reshape(J.T, -1, 1), z)
-        return ca.Function("taylor_hess", [model.x, model.u, model.t, model.p], [H])
+        return ca.Function("taylor_hess", [model.x, model.u, model.t, model.p],
+                           [model.f, ca.jacobian(model.f, model.x), ca.jacobian(model.f, v), H])
 
-    fun = model.cached(("taylor", "hess_fun"), build)
-    return interval_function(fun, model=model, key=("taylor", "hess"))
+    fun = model.cached(("taylor", "lin_hess_fun"), build)
+    return interval_function(fun, model=model, key=("taylor", "lin_hess"))
+
+
+def dense(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Column ``(rows cols,)`` of a flat column-major interval output as a ``(rows, cols)`` matrix."""
+    return a.reshape(cols, rows).T
+
+
+def eval_error(iv: list, lin: tuple, gx: np.ndarray, gv: np.ndarray) -> np.ndarray:
+    """Bound of ``|f(z*) - f0| + |J_x(z*) - A| gx + |J_v(z*) - B| gv``: the error of the float
+    linearisation ``(f0, A, B)`` (CasADi, not rounded outward) against the interval enclosures
+    ``iv = [(flo, fhi), (Jlo, Jhi), (Blo, Bhi)]`` at the point ``z*`` (column 0 of each), for the
+    deviations ``|x - x*| <= gx``, ``|v - v*| <= gv``.  Added to the remainder it makes the
+    expansion ``f(z) in f0 + A (x - x*) + B (v - v*) + L`` rigorous."""
+    f0, A, B = (np.asarray(a, dtype=float) for a in lin)
+    f0 = f0.ravel()
+    n = f0.size
+
+    def rad(lo, hi, mid):
+        return up(np.maximum(hi - mid, mid - lo), 1)
+
+    (flo, fhi), (Jlo, Jhi), (Blo, Bhi) = iv
+    rf = rad(flo[:, 0], fhi[:, 0], f0)
+    rA = rad(dense(Jlo[:, 0], n, A.shape[1]), dense(Jhi[:, 0], n, A.shape[1]), A)
+    rB = rad(dense(Blo[:, 0], n, B.shape[1]), dense(Bhi[:, 0], n, B.shape[1]), B)
+    return up(rf + rA @ gx + rB @ gv, A.shape[1] + B.shape[1] + 2)
 
 
 def unflatten_hessian(lo: np.ndarray, n_x: int, n_z: int) -> np.ndarray:
@@ -271,6 +356,20 @@ def quadratic_interval(Hlo: np.ndarray, Hhi: np.ndarray, dlo: np.ndarray, dhi: n
     return lo - m - 1e-300, hi + m + 1e-300
 
 
+def interval_box(lo: np.ndarray, hi: np.ndarray) -> Zonotope:
+    """The box ``[lo, hi]`` as a zonotope, its centre and radius rounded so that it contains
+    ``[lo, hi]`` (the radius is widened by the rounding of the centre)."""
+    c = 0.5 * (lo + hi)
+    r = up(np.maximum(hi - c, c - lo), 1)
+    return box_zonotope(c, r)
+
+
+def tube_box(tube: Zonotope, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The inflated interval hull of ``tube`` and the point ``xs`` (:func:`inflate_box`)."""
+    r = np.abs(tube.G).sum(axis=1)
+    return inflate_box(np.minimum(tube.c - r, xs), np.maximum(tube.c + r, xs))
+
+
 def inflate_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     w = BOX_INFLATE * (hi - lo) + 1e-15 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-300
     return lo - w, hi + w
@@ -282,33 +381,47 @@ def inflate_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 class TaylorError:
     """Lagrange remainder of the first-order expansion, bounded by the interval Hessian (Eq. 13)."""
 
+    #: :meth:`bound` reads only the interval hull of the tube (the driver may pass a box)
+    box_only = True
+
     def __init__(self, model, p: np.ndarray):
         self.model = model
         self.p = np.asarray(p, dtype=float)
         self.td = time_dependent(model)
         self.H = hessian_interval(model)
         self.n_z = model.n_x + model.n_u + (1 if self.td else 0)
+        self.sizes = (model.n_x, model.n_u)
         self.hmag: np.ndarray | None = None
 
-    def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple
-              ) -> Zonotope:
-        """Box (as a zonotope) enclosing ``L(x, v)`` for every ``x`` in the tube's box, ``v`` in ``V``."""
-        m = self.model
-        hull = tube.interval_hull()
-        xlo, xhi = inflate_box(np.minimum(hull.lo, xs), np.maximum(hull.hi, xs))
+    def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple,
+              lin: tuple) -> Zonotope:
+        """Box (as a zonotope) enclosing ``f(z) - f0 - A (x - x*) - B (v - v*)`` for every ``x`` in
+        the tube's box and ``v`` in ``V``: the Lagrange remainder ``L`` plus the rounding error of
+        the float linearisation ``lin = (f0, A, B)`` (:func:`eval_error`)."""
+        nx, nu = self.sizes
+        xlo, xhi = tube_box(tube, xs)
         ulo, uhi = Vbox
         tlo, thi = t_box
-        (Hlo, Hhi), = self.H([xlo, ulo, np.array([tlo]), self.p], [xhi, uhi, np.array([thi]), self.p])
-        Hlo = unflatten_hessian(Hlo, m.n_x, self.n_z)[0]
-        Hhi = unflatten_hessian(Hhi, m.n_x, self.n_z)[0]
+        uc = vs[: nu]
+        ts = vs[-1] if self.td else tlo
+        out = self.H([np.column_stack([xs, xlo]), np.column_stack([uc, ulo]), np.array([ts, tlo]),
+                      self.p],
+                     [np.column_stack([xs, xhi]), np.column_stack([uc, uhi]), np.array([ts, thi]),
+                      self.p], check=False)
+        Hlo, Hhi = out[3]
+        Hlo = unflatten_hessian(Hlo[:, 1:], nx, self.n_z)[0]
+        Hhi = unflatten_hessian(Hhi[:, 1:], nx, self.n_z)[0]
         zs = np.concatenate([xs, vs])
         zlo = np.concatenate([xlo, ulo] + ([[tlo]] if self.td else []))
         zhi = np.concatenate([xhi, uhi] + ([[thi]] if self.td else []))
         dlo, dhi = zlo - zs, zhi - zs
         lo, hi = quadratic_interval(Hlo, Hhi, dlo, dhi)
-        self.hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))[:, : m.n_x, : m.n_x].sum(axis=0)
-        self.gamma = np.maximum(np.abs(dlo), np.abs(dhi))[: m.n_x]
-        return box_zonotope(0.5 * (lo + hi), 0.5 * (hi - lo))
+        gz = up(np.maximum(np.abs(dlo), np.abs(dhi)), 1)
+        e = eval_error(out[:3], lin, gz[: nx], gz[nx:])
+        lo, hi = lo - e, hi + e
+        self.hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))[:, : nx, : nx].sum(axis=0)
+        self.gamma = np.maximum(np.abs(dlo), np.abs(dhi))[: nx]
+        return interval_box(lo, hi)
 
     def split_scores(self, Z: Zonotope) -> np.ndarray:
         """Contribution of each generator of ``Z`` to the remainder: ``|g_j|^T sum_i |H_i| gamma``."""
@@ -348,9 +461,9 @@ class Context:
         self.V = V
         self.W = W
         self.td = time_dependent(self.model)
-        self.lin = lin_fun(self.model)
+        self.lin = FastFunction(lin_fun(self.model))  # one per run: not re-entrant
         hull = V.interval_hull()
-        self.Ubox = (hull.lo, hull.hi)
+        self.Ubox = inflate_box(hull.lo, hull.hi)   # the hull's rounding
 
 
 def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray | None
@@ -359,10 +472,10 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     m = ctx.model
     n = m.n_x
     uc = ctx.V.c
-    f_c = np.asarray(ctx.lin(R.c, uc, t0, ctx.p)[0]).ravel()
+    f_c = ctx.lin(R.c, uc, t0, ctx.p)[0].ravel()
     xs = R.c + 0.5 * h * f_c
     ts = t0 + 0.5 * h
-    f0, A, Bv = (np.asarray(a) for a in ctx.lin(xs, uc, ts, ctx.p))
+    f0, A, Bv = ctx.lin(xs, uc, ts, ctx.p)
     override = getattr(ctx.err, "linearize", None)  # sdc's literal variant linearises differently
     alt = override(xs, uc, ts) if override is not None else None
     if alt is not None:
@@ -382,15 +495,27 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     if ctx.W is not None:
         u_c = u_c + ctx.W.c
         Gu = np.hstack([Gu, ctx.W.G])
-    Ubase = Zonotope(np.zeros(n), Gu)
+    Ubase = Zonotope.trusted(np.zeros(n), Gu)
+    # absolute values of the step's inputs for the floating-point bound (linsys.step_rounding)
+    u_abs0 = np.abs(f0) + (np.abs(ctx.W.c) if ctx.W is not None else 0.0)
+    W_abs0 = np.abs(Bv) @ np.abs(Gv).sum(axis=1)
+    if ctx.W is not None:
+        W_abs0 = W_abs0 + np.abs(ctx.W.G).sum(axis=1)
+    n_sum = max(R.n_generators, Gu.shape[1] + n) + Gv.shape[0] + 2
+    lin = (f0, A, Bv)
     try:
         et = expm_terms(A, h)
     except SolverError as exc:
         return StepFail(str(exc))
-    R0 = R - xs
-    hs = homogeneous_step(R0, u_c, et)
+    R0 = Zonotope.trusted(R.c - xs, R.G)
+    maps = state_maps(R0, et)
+    hs = homogeneous_step(R0, u_c, et, maps)
     RU = input_solution(Ubase, et)
-    base_tube = hs.tube + RU
+    base_tube = zsum(hs.tube, RU)
+    box_only = getattr(ctx.err, "box_only", False)  # the error model reads only the tube's box
+    if box_only:  # then its radii suffice: |RU(box(L))| = (sum_i h/(i+1) |T_i| + E h) L
+        r_base = np.abs(base_tube.G).sum(axis=1)
+        S_L = np.tensordot(h / np.arange(1, et.eta + 2), np.abs(et.T), axes=1) + et.E * h
     Vbox = (ctx.Ubox[0], ctx.Ubox[1])
     t_box = (t0, t0 + h)
     # warm start: the previous step's remainder, enlarged once (the loop then usually closes at once)
@@ -398,11 +523,16 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     err = None
     need = None
     for it in range(1, ctx.opts.max_iter + 1):
-        tube = base_tube + input_solution(box_zonotope(np.zeros(n), Lbar), et) + xs
+        r_fp = step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum)
+        if box_only:  # a box zonotope with the tube's interval hull (rounding: inflate_box)
+            tube = Zonotope.trusted(base_tube.c + xs, np.diag(r_base + S_L @ Lbar + r_fp))
+        else:
+            tube = zsum(base_tube, input_solution(box_zonotope(np.zeros(n), Lbar), et), xs)
+            tube = pad(tube, r_fp)
         if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
             return StepFail("the tube is not finite", need)
         try:
-            err = ctx.err.bound(tube, xs, vs, Vbox, t_box)
+            err = ctx.err.bound(tube, xs, vs, Vbox, t_box, lin)
         except OcreachError as exc:  # e.g. IntervalDomainError: a singularity inside the box
             msg = str(exc)
             msg = msg if len(msg) < 300 else msg[:300] + " ..."
@@ -410,8 +540,8 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                 msg = (f"the remainder loop diverged (iteration {it}, last bound "
                        f"{np.array2string(need, precision=3)}) until: {msg}")
             return StepFail("remainder bound failed: " + msg, need)
-        hull = err.interval_hull()
-        need = np.maximum(np.abs(hull.lo), np.abs(hull.hi))
+        # rounded up: the loop closes only if the error box surely lies in [-Lbar, Lbar]
+        need = up(np.abs(err.c) + np.abs(err.G).sum(axis=1), err.n_generators + 1)
         if not np.all(np.isfinite(need)):
             return StepFail("the remainder bound is not finite", need)
         if np.all(need <= Lbar):
@@ -422,11 +552,15 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                         f"(last bound {np.array2string(need, precision=3)})", need)
     # final sets with the error set found on the tube (valid: every trajectory stays in the tube)
     u_c2 = u_c + err.c
-    W2 = Zonotope(np.zeros(n), np.hstack([Gu, err.G]))
-    hs2 = homogeneous_step(R0, u_c2, et)
+    W2 = Zonotope.trusted(np.zeros(n), np.hstack([Gu, err.G]))
+    hs2 = homogeneous_step(R0, u_c2, et, maps)
     RU2 = input_solution(W2, et)
-    point = with_fp_margin(hs2.point + RU2 + xs)
-    tube = with_fp_margin(hs2.tube + RU2 + xs)
+    r_fp = step_rounding(et, R, xs, u_abs0 + np.abs(err.c), W_abs0 + np.abs(err.G).sum(axis=1),
+                         max(n_sum, W2.n_generators + Gv.shape[0] + 2))
+    point = pad(zsum(hs2.point, RU2, xs), r_fp)
+    tube = pad(zsum(hs2.tube, RU2, xs), r_fp)
+    if not all(np.all(np.isfinite(a)) for a in (point.c, point.G, tube.c, tube.G)):
+        return StepFail("the step's sets are not finite", need)
     return StepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)
 
 
@@ -575,7 +709,8 @@ class ZonotopeReach:
 # discrete time: the paper's literal Eq. 8-15 on the RK4 map
 # ------------------------------------------------------------------------------------------------
 def rk4_funs(model, h: float, n_sub: int):
-    """``(x, u, t, p) -> (g, dg/dz)`` and the interval Hessian of the RK4 map ``g`` over one step."""
+    """``(x, u, t, p) -> (g, dg/dz)`` and the interval extension of ``(g, dg/dx, dg/du, H)`` of the
+    RK4 map ``g`` over one step (``H`` the Hessian in ``z = (x, u)``)."""
     from ocreach.control.discretize import rk4_expression
     from ocreach.intervals import interval_function
 
@@ -587,10 +722,11 @@ def rk4_funs(model, h: float, n_sub: int):
         J = ca.jacobian(g, z)
         H = ca.jacobian(ca.reshape(J.T, -1, 1), z)
         return (ca.Function("rk4_jac", [model.x, model.u, model.t, model.p], [g, J]),
-                ca.Function("rk4_hess", [model.x, model.u, model.t, model.p], [H]))
+                ca.Function("rk4_hess", [model.x, model.u, model.t, model.p],
+                            [g, ca.jacobian(g, model.x), ca.jacobian(g, model.u), H]))
 
     jac, hess = model.cached(key, build)
-    return jac, interval_function(hess, model=model, key=key + ("hess",))
+    return jac, interval_function(hess, model=model, key=key + ("lin_hess",))
 
 
 class DiscreteTaylor:
@@ -613,19 +749,33 @@ class DiscreteTaylor:
         g, J = (np.asarray(a) for a in jac(Z.c, self.V.c, t, p))
         hz = Z.interval_hull()
         hv = self.V.interval_hull()
-        (Hlo, Hhi), = H([hz.lo, hv.lo, np.array([t]), p], [hz.hi, hv.hi, np.array([t]), p])
+        zlo, zhi = inflate_box(hz.lo, hz.hi)
+        vlo, vhi = inflate_box(hv.lo, hv.hi)
+        tt = np.array([t, t])
+        out = H([np.column_stack([Z.c, zlo]), np.column_stack([self.V.c, vlo]), tt, p],
+                [np.column_stack([Z.c, zhi]), np.column_stack([self.V.c, vhi]), tt, p])
+        Hlo, Hhi = out[3]
         nz = n + nu
-        Hlo = unflatten_hessian(Hlo, n, nz)[0]
-        Hhi = unflatten_hessian(Hhi, n, nz)[0]
-        dlo = np.concatenate([hz.lo - Z.c, hv.lo - self.V.c])
-        dhi = np.concatenate([hz.hi - Z.c, hv.hi - self.V.c])
+        Hlo = unflatten_hessian(Hlo[:, 1:], n, nz)[0]
+        Hhi = unflatten_hessian(Hhi[:, 1:], n, nz)[0]
+        dlo = np.concatenate([zlo - Z.c, vlo - self.V.c])
+        dhi = np.concatenate([zhi - Z.c, vhi - self.V.c])
         lo, hi = quadratic_interval(Hlo, Hhi, dlo, dhi)
+        gz = up(np.maximum(np.abs(dlo), np.abs(dhi)), 1)
+        g = g.ravel()
+        e = eval_error(out[:3], (g, J[:, :n], J[:, n:]), gz[:n], gz[n:])
+        lo, hi = lo - e, hi + e
         ZV = Z.cartesian(self.V)
-        lin = J @ (ZV - np.concatenate([Z.c, self.V.c]))
-        out = lin + g.ravel() + box_zonotope(0.5 * (lo + hi), 0.5 * (hi - lo))
+        zc = np.concatenate([Z.c, self.V.c])
+        res = J @ (ZV - zc) + g + interval_box(lo, hi)
+        # rounding of J (ZV - zc) + g + box (+ W): abs value |J| (2|zc| + sum|G|) + |g| + |box|
+        a = (np.abs(J) @ (2 * np.abs(zc) + np.abs(ZV.G).sum(axis=1)) + np.abs(g)
+             + np.maximum(np.abs(lo), np.abs(hi)))
         if self.W is not None:
-            out = out + self.W
-        return with_fp_margin(out), np.maximum(np.abs(lo), np.abs(hi))
+            res = res + self.W
+            a = a + np.abs(self.W.c) + np.abs(self.W.G).sum(axis=1)
+        r = rounding_radius(a, nz + ZV.n_generators + 4)
+        return pad(res, r), np.maximum(np.abs(lo), np.abs(hi))
 
     def run(self) -> ReachResult:
         prob = self.problem

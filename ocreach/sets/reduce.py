@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets.rounding import U as U_ROUND
+from ocreach.sets.rounding import rounding_radius, up
 
 if TYPE_CHECKING:
     from ocreach.sets._base import SetBase
@@ -31,25 +33,48 @@ def _check_method(method: str) -> str:
 
 
 def box_generators(G: np.ndarray, method: str, extra: Any = None) -> np.ndarray:
-    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``.
+    """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``, rigorously
+    against floating point (:mod:`ocreach.sets.rounding`).
+
+    ``girard``: the box ``sum_j |g_j|``, rounded up.  ``pca``: ``B = fl(U diag(r))`` with ``U`` the
+    computed left singular vectors; as ``U`` is orthogonal only up to rounding and ``B`` is
+    rounded, ``r`` bounds ``|U~^{-1} x|`` for the exact ``U~ = B diag(r)^{-1}``: with
+    ``D = |fl(U U^T) - I| + gamma_n |U||U^T| + u |U||U^T|`` (``>= |U~ U^T - I|``),
+    ``|U~^{-1} x| <= |U^T x| + ||U^T||_inf / (1 - ||D||_inf) ||D |x|||_inf``.
 
     ``extra``: more generators ``X`` that are not stored but known through ``extra.gram``
-    (``X X^T``), ``extra.absum`` (row sums of ``|X|``, used by ``girard``) and
-    ``extra.proj_abs(U)`` (``sum_x |U^T x|``, used by ``pca`` once the frame is known); the box
-    is then the one of ``[G, X]`` up to round-off (the order-3 products the fused STT step
-    prunes, :mod:`ocreach.reach.stt_products`).
+    (``X X^T``), ``extra.absum`` (row sums of ``|X|``) and ``extra.proj_abs(U)``
+    (``sum_x |U^T x|``, once the frame is known); the box is then the one of ``[G, X]`` (the
+    order-3 products the fused STT step prunes, :mod:`ocreach.reach.stt_products`).  The
+    rounding of those sums themselves is not bounded: the STT sets they serve are not
+    guaranteed enclosures (Foss et al.), unlike the zonotopes of ``taylor``/``sdc``.
     """
-    n = G.shape[0]
-    if G.shape[1] == 0 and extra is None:
+    n, h = G.shape
+    if h == 0 and extra is None:
         return np.zeros((n, 0))
+    absG = np.abs(G).sum(axis=1)
+    absX = absG if extra is None else absG + extra.absum
+    k = h if extra is None else h + 1  # roundings along the sums
     if method == "girard":
-        r = np.abs(G).sum(axis=1)
-        B = np.diag(r if extra is None else r + extra.absum)
+        B = np.diag(up(absX, k))
     else:
         gram = G @ G.T if extra is None else G @ G.T + extra.gram
         U, _, _ = np.linalg.svd(gram)
-        r = np.abs(U.T @ G).sum(axis=1)
-        B = U * (r if extra is None else r + extra.proj_abs(U))[None, :]
+        Ut = U.T
+        aU, aUt = np.abs(U), np.abs(Ut)
+        proj = np.abs(Ut @ G).sum(axis=1)
+        if extra is not None:
+            proj = proj + extra.proj_abs(U)
+        r = up(proj, k) + rounding_radius(aUt @ up(absX, k), n)
+        UUt = aU @ aUt
+        D = up(np.abs(U @ Ut - np.eye(n)), 1) + rounding_radius(UUt, n) + up(U_ROUND * UUt, 1)
+        d_inf = float(up(D.sum(axis=1), n).max())
+        if d_inf >= 0.5:  # not orthogonal at all (cannot happen for an SVD): the sound box instead
+            return box_generators(G, "girard", extra)
+        ut_inf = float(up(aUt.sum(axis=1), n).max())
+        s = float(up(ut_inf / (1.0 - d_inf) * float(up(D @ up(absX, k), n).max()), 4))
+        r = up(r + s, 2)
+        B = U * r[None, :]
     return B[:, np.any(B != 0, axis=0)]
 
 
@@ -72,7 +97,11 @@ def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> 
     metric = _girard_metric(Z.G) if method == "girard" else np.linalg.norm(Z.G, axis=0)
     order_idx = np.argsort(-metric, kind="stable")
     keep, drop = order_idx[:n_keep], order_idx[n_keep:]
-    return Zonotope(Z.c, np.hstack([Z.G[:, keep], box_generators(Z.G[:, drop], method)]))
+    B = box_generators(Z.G[:, drop], method)
+    if not np.isfinite(B).all():
+        raise SetError("reduce: the box of the removed generators overflowed (generators near the "
+                       "largest float)")
+    return Zonotope.trusted(Z.c, np.hstack([Z.G[:, keep], B]))  # Z is valid, B finite
 
 
 def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope:

@@ -38,6 +38,20 @@ class Zonotope(SetBase):
         self.G = ro(G_a)
         self._freeze()
 
+    @classmethod
+    def trusted(cls, c: np.ndarray, G: np.ndarray) -> Zonotope:
+        """Fast constructor for internal set arithmetic: ``c`` (n,) and ``G`` (n, h) float arrays
+        of matching shape, neither validated nor copied (read-only views).  The caller checks
+        finiteness (e.g. the zonotope methods check every step's sets once)."""
+        self = object.__new__(cls)
+        cv, Gv = c.view(), G.view()
+        cv.setflags(write=False)
+        Gv.setflags(write=False)
+        object.__setattr__(self, "c", cv)
+        object.__setattr__(self, "G", Gv)
+        self._freeze()
+        return self
+
     @property
     def dim(self) -> int:
         return int(self.c.shape[0])
@@ -149,7 +163,10 @@ class Zonotope(SetBase):
         return reduce_zonotope(self, order, method)
 
     def split(self, j: int | None = None) -> tuple[Zonotope, Zonotope]:
-        """Split along generator ``j`` (default: the longest); the union of the halves is ``Z``."""
+        """Split along generator ``j`` (default: the longest); the union of the halves contains ``Z``
+        rigorously: the rounding error of the centres ``c -+ g/2`` is computed exactly (TwoSum,
+        :func:`ocreach.sets.rounding.two_sum_error`) and, where it is not 0, added to both halves
+        as a box (so the halves may have up to ``n`` more generators)."""
         h = self.n_generators
         if h == 0:
             raise SetError("split: the zonotope has no generators")
@@ -157,10 +174,19 @@ class Zonotope(SetBase):
             j = int(np.argmax(np.linalg.norm(self.G, axis=0)))
         if not 0 <= int(j) < h:
             raise SetError(f"split: generator index j must lie in 0..{h - 1}; got {j}")
+        from ocreach.sets.rounding import two_sum_error
+
         g = self.G[:, j] / 2.0
         G = self.G.copy()
         G[:, j] = g
-        return Zonotope(self.c - g, G), Zonotope(self.c + g, G)
+        r = np.abs(self.G[:, j] - 2.0 * g)   # halving is exact unless g is subnormal
+        ca, ea = two_sum_error(self.c, -g)
+        cb, eb = two_sum_error(self.c, g)
+        r = np.maximum(r, np.maximum(np.abs(ea), np.abs(eb)))
+        if np.any(r > 0):
+            r = np.nextafter(r, np.inf) * (r > 0)
+            G = np.hstack([G, np.diag(r)[:, r > 0]])
+        return Zonotope(ca, G), Zonotope(cb, G)
 
     def vertices(self) -> np.ndarray:
         """All candidate vertices ``c + G s``, s in {-1, 1}^h (for small h; includes non-extreme points)."""
