@@ -88,6 +88,14 @@ static double ocr_rms(const double* v, const double* scale, long n) {
   return sqrt(s / (double)n);
 }
 
+/* Step-size underflow test of the drivers: h_abs < 10 * |nextafter(t, dir * inf) - t|.  The
+ * spacing of doubles at t is at most 2^-52 |t| (or 4.9e-324 near 0), so nextafter is only
+ * called when h_abs is that small (it was ~2% of an integration). */
+static inline int ocr_too_small(double h_abs, double t, double dir) {
+  if (h_abs >= 2.3e-15 * fabs(t) && h_abs >= 1e-322) return 0;
+  return h_abs < 10 * fabs(nextafter(t, dir * INFINITY) - t);
+}
+
 /* err^(-1/8) of the step-size controller as three square roots (SciPy: err ** (-1/8)); the
  * same to a few ulps and ~4x cheaper than pow, which was ~15% of a 4-state integration. */
 static inline double ocr_err_factor(double err) { return 1.0 / sqrt(sqrt(sqrt(err))); }
@@ -167,8 +175,7 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
     }
     for (;;) {
       if (++steps > max_steps) { status[s] = 1; break; }
-      double min_step = 10 * fabs(nextafter(t, dir * INFINITY) - t);
-      if (h_abs < min_step) { status[s] = 2; break; }
+      if (ocr_too_small(h_abs, t, dir)) { status[s] = 2; break; }
       double t_new = t + dir * h_abs;
       int last = dir * (t_new - t1) >= 0;
       if (last) { t_new = t1; H[s] = h_abs; }
@@ -206,13 +213,17 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
 
 DRIVER_LANES_SRC = _DRIVER_COMMON + r'''/* The same adaptive DOP853 driver with OCR_W samples in SIMD lanes.
  *
- * Included after the scalar CasADi code of RHS (initial step of each sample) and the lane code
- * LSTEP of the step Function (ocreach.native.lanes: inputs y, f0, t, h, a, rtol, atol and outputs
- * y_new, f_new, err, each component-major (n, OCR_W)).  Every lane has its own sample, time, step
- * size and accept/reject history; a lane whose sample is done takes the next one from the
- * queue, so the lanes stay busy until the batch runs dry (idle lanes step with h = 0).  The
- * per-sample arithmetic and controller are the scalar driver's, so results do not depend on the
- * lane a sample ran in.  Status per sample as the scalar driver.
+ * Included after the scalar CasADi code of RHS (Hairer's initial step of a sample without a step
+ * size) and the lane code (ocreach.native.lanes) of the step Function LSTEP (inputs y, f0, t, h,
+ * a, rtol, atol; outputs y_new, f_new, err) and of the right-hand side LRHS (inputs y, t, a;
+ * output f), each component-major (n, OCR_W).  Every lane has its own sample, time, step size
+ * and accept/reject history; a lane whose sample is done takes the next one from the queue, so
+ * the lanes stay busy until the batch runs dry (idle lanes step with h = 0).  The derivative at
+ * the start of a sample that comes with a step size (H[s] > 0: the next segment of
+ * ocreach.flow.propagate) is one LRHS call for all lanes refilled in that round, and the
+ * controller's err^(-1/8) is computed for all lanes at once; both are the same operations per
+ * lane as before, so results do not depend on the lane a sample ran in.  Status per sample as
+ * the scalar driver.
  */
 typedef struct {
   long s;          /* sample index, -1 if idle */
@@ -232,7 +243,7 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
   casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + 8));
   casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
   casadi_real* w = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
-  long nbuf = W * (4 * ny + 2 * ny + na + ny + 3) + 5 * ny;
+  long nbuf = W * (4 * ny + 2 * ny + na + ny + 4) + 5 * ny;
   double* buf = (double*)calloc(nbuf, sizeof(double));
   ocr_lane* lane = (ocr_lane*)calloc(W, sizeof(ocr_lane));
   if (!arg || !res || !iw || !w || !buf || !lane) {
@@ -240,38 +251,63 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
   }
   double *Ly = buf, *Lf = Ly + W * ny, *Lyn = Lf + W * ny, *Lfn = Lyn + W * ny;
   double *Lrt = Lfn + W * ny, *Lat = Lrt + W * ny, *La = Lat + W * ny, *Lt = La + W * na;
-  double *Lh = Lt + W, *Lerr = Lh + W;
-  double *y = Lerr + W, *f = y + ny, *sc = f + ny;  /* sc: 3 ny */
+  double *Lh = Lt + W, *Lerr = Lh + W, *Lfac = Lerr + W;
+  double *y = Lfac + W, *f = y + ny, *sc = f + ny;  /* sc: 3 ny */
   for (long i = 0; i < ny; ++i)
     for (long l = 0; l < W; ++l) { Lrt[i * W + l] = rtol[i]; Lat[i * W + l] = atol[i]; }
   const double* lin[7] = {Ly, Lf, Lt, Lh, La, Lrt, Lat};
   double* lout[3] = {Lyn, Lfn, Lerr};
+  const double* rin[3] = {Ly, Lt, La};
+  double* rout[1] = {Lfn};
   long next = 0, active = 0;
   int n_fail = 0;
+  char need_f[OCR_W];
   for (long l = 0; l < W; ++l) lane[l].s = -1;
   for (;;) {
-    /* fill idle lanes from the queue (initial derivative and step as the scalar driver) */
+    /* fill idle lanes from the queue */
+    int n_need = 0;
     for (long l = 0; l < W; ++l) {
+      need_f[l] = 0;
       while (lane[l].s < 0 && next < N) {
         long s = next++;
         double t = T0[s], t1 = T1[s];
         const double* a = A + s * na;
         status[s] = 0; n_steps[s] = 0; t_reached[s] = t;
         if (t == t1) continue;
-        double dir = (t1 >= t) ? 1.0 : -1.0, h_abs;
-        memcpy(y, Y + s * ny, sizeof(double) * ny);
-        if ((status[s] = ocr_start(ny, y, t, t1, a, rtol, atol, H[s], f, sc, arg, res, iw, w,
-                                   &h_abs))) {
-          ++n_fail;
-          continue;
-        }
+        double dir = (t1 >= t) ? 1.0 : -1.0, h_abs, span = fabs(t1 - t);
         ocr_lane* L = lane + l;
+        if (H[s] > 0.0) {  /* step size given: the derivative comes from LRHS below */
+          h_abs = H[s] < span ? H[s] : span;
+          for (long i = 0; i < ny; ++i) Ly[i * W + l] = Y[s * ny + i];
+          need_f[l] = 1; ++n_need;
+        } else {  /* Hairer's initial step (scalar, two RHS calls) */
+          memcpy(y, Y + s * ny, sizeof(double) * ny);
+          if ((status[s] = ocr_start(ny, y, t, t1, a, rtol, atol, H[s], f, sc, arg, res, iw, w,
+                                     &h_abs))) {
+            ++n_fail;
+            continue;
+          }
+          for (long i = 0; i < ny; ++i) { Ly[i * W + l] = y[i]; Lf[i * W + l] = f[i]; }
+        }
         L->s = s; L->t = t; L->t1 = t1; L->dir = dir; L->h_abs = h_abs; L->steps = 0;
         L->rejected = 0;
-        for (long i = 0; i < ny; ++i) { Ly[i * W + l] = y[i]; Lf[i * W + l] = f[i]; }
         for (long i = 0; i < na; ++i) La[i * W + l] = a[i];
         ++active;
       }
+    }
+    if (n_need) {  /* derivatives of the refilled lanes in one lane call */
+      for (long l = 0; l < W; ++l) Lt[l] = lane[l].s >= 0 ? lane[l].t : 0.0;
+      LRHS(rin, rout);
+      for (long l = 0; l < W; ++l) {
+        if (!need_f[l]) continue;
+        int ok = 1;
+        for (long i = 0; i < ny; ++i) { Lf[i * W + l] = Lfn[i * W + l]; ok &= isfinite(Lfn[i * W + l]) ? 1 : 0; }
+        if (!ok) {
+          ocr_lane* L = lane + l;
+          status[L->s] = 3; ++n_fail; L->s = -1; --active;
+        }
+      }
+      if (active < W && next < N) continue;  /* a lane failed: refill it first */
     }
     if (active == 0) break;
     /* step sizes of the busy lanes; a lane that fails here is finished and refilled next round */
@@ -281,7 +317,7 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
       if (L->s < 0) continue;
       int st = 0;
       if (++L->steps > max_steps) st = 1;
-      else if (L->h_abs < 10 * fabs(nextafter(L->t, L->dir * INFINITY) - L->t)) st = 2;
+      else if (ocr_too_small(L->h_abs, L->t, L->dir)) st = 2;
       if (st) {
         long s = L->s;
         status[s] = st; ++n_fail;
@@ -297,12 +333,16 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
       Lh[l] = t_new - L->t;
     }
     LSTEP(lin, lout);
+    {  /* 0.9 err^(-1/8) of every lane, as ocr_err_factor */
+      ocr_v e = ocr_ld(Lerr);
+      ocr_st(Lfac, ocr_bc(0.9) * (1.0 / OCR_MAP1(sqrt, OCR_MAP1(sqrt, OCR_MAP1(sqrt, e)))));
+    }
     for (long l = 0; l < W; ++l) {
       ocr_lane* L = lane + l;
       if (L->s < 0) continue;
       double err = Lerr[l], h = Lh[l];
       if (isfinite(err) && err < 1.0) {
-        double fac = (err == 0.0) ? 10.0 : 0.9 * ocr_err_factor(err);
+        double fac = (err == 0.0) ? 10.0 : Lfac[l];
         if (fac > 10.0) fac = 10.0;
         if (L->rejected && fac > 1.0) fac = 1.0;
         L->h_abs = fabs(h) * fac;
@@ -323,7 +363,7 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
           t_reached[s] = L->t; n_steps[s] = L->steps; L->s = -1; --active;
         }
       } else {
-        double fac = isfinite(err) ? 0.9 * ocr_err_factor(err) : 0.2;
+        double fac = isfinite(err) ? Lfac[l] : 0.2;
         if (fac < 0.2) fac = 0.2;
         L->h_abs *= fac;
         L->rejected = 1;

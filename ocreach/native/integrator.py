@@ -24,7 +24,7 @@ from ocreach.native.codegen import generate_c
 from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library, opt_flags
 from ocreach.native.dop853 import (DRIVER_LANES_SRC, DRIVER_SRC, MAX_FACTOR, MIN_FACTOR,
                                    SAFETY, build_step, dense_rhs)
-from ocreach.native.lanes import LANE_FLAGS, LaneCodegenError, lane_source
+from ocreach.native.lanes import LANE_FLAGS, LaneCodegenError, lane_sources
 
 #: samples per SIMD step of the native driver (``OCREACH_LANES`` overrides; 1 = scalar driver)
 LANES = 8
@@ -97,8 +97,9 @@ class _Stepper:
         return self._sx.n_instructions()
 
     def _lane_sources(self, width: int) -> tuple[dict[str, bytes], tuple[str, ...]]:
-        lane = lane_source(self._sx, "ocr_lstep", width)
+        lane = lane_sources([(self._sx, "ocr_lstep"), (self.rhs, "ocr_lrhs")], width)
         main = (f"#define RHS {self.rhs.name()}\n#define OCR_W {width}\n#define LSTEP ocr_lstep\n"
+                "#define LRHS ocr_lrhs\n"
                 "#include \"gen.c\"\n#include \"lanes.c\"\n#include \"driver.c\"\n").encode()
         flags = LANE_FLAGS if len(lane) <= LANE_O1_BYTES else ("-O1",) + LANE_FLAGS[1:]
         return ({"gen.c": generate_c([self.rhs]), "lanes.c": lane.encode(),

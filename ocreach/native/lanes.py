@@ -20,7 +20,7 @@ import os
 
 import casadi as ca
 
-__all__ = ["LANE_FLAGS", "LaneCodegenError", "lane_source"]
+__all__ = ["LANE_FLAGS", "LaneCodegenError", "lane_source", "lane_sources"]
 
 
 class LaneCodegenError(ValueError):
@@ -113,15 +113,55 @@ def lane_source(fun: ca.Function, name: str, width: int) -> str:
     ``fun`` (expanded if it is not one) on ``width`` lanes; ``in[i]`` / ``out[j]`` point to
     component-major arrays ``(nnz_i, width)``.  Outputs are written for their structural
     non-zeros only (callers pass dense outputs)."""
-    if not fun.is_a("SXFunction"):
-        fun = fun.expand()
+    return lane_sources([(fun, name)], width)
+
+
+def lane_sources(funs: list[tuple[ca.Function, str]], width: int) -> str:
+    """One C source with the lane prelude once and a lane function per ``(fun, name)`` (see
+    :func:`lane_source`)."""
     W = int(width)
     bc = ", ".join(["c"] * W)
     lines = [f"#define OCR_LW {W}", "typedef double ocr_v __attribute__((vector_size(8 * OCR_LW)));",
              f"static inline ocr_v ocr_bc(double c) {{ return (ocr_v){{{bc}}}; }}",  # broadcast
-             _PRELUDE, f"static void {name}(const double** in, double** out) {{"]
+             _PRELUDE]
+    for fun, name in funs:
+        lines += _lane_body(_simplified(fun), name, W)
+    return "\n".join(lines) + "\n"
+
+
+def _simplified(fun: ca.Function) -> ca.Function:
+    """``fun`` as an SX Function with common subexpressions merged (``casadi.cse``)."""
+    if not fun.is_a("SXFunction"):
+        fun = fun.expand()
+    ins = fun.sx_in()
+    outs = ca.cse(fun.call(ins))
+    return ca.Function(fun.name(), ins, outs, fun.name_in(), fun.name_out())
+
+
+def _shared_divisors(fun: ca.Function) -> set[tuple[int, int]]:
+    """Divisors used by two or more divisions, as (work variable, assignment count) values
+    (work variables are re-used, so a value is a variable together with its version)."""
+    version: dict[int, int] = {}
+    uses: dict[tuple[int, int], int] = {}
+    for k in range(fun.n_instructions()):
+        op = fun.instruction_id(k)
+        if op == ca.OP_DIV:
+            d = fun.instruction_input(k)[1]
+            key = (d, version.get(d, 0))
+            uses[key] = uses.get(key, 0) + 1
+        if op != ca.OP_OUTPUT:
+            o = fun.instruction_output(k)[0]
+            version[o] = version.get(o, 0) + 1
+    return {key for key, n in uses.items() if n > 1}
+
+
+def _lane_body(fun: ca.Function, name: str, W: int) -> list[str]:
+    lines = [f"static void {name}(const double** in, double** out) {{"]
     if fun.sz_w():
         lines.append("  ocr_v " + ", ".join(f"w{i}" for i in range(fun.sz_w())) + ";")
+    shared = _shared_divisors(fun)
+    recip: dict[tuple[int, int], str] = {}  # shared divisor value -> its reciprocal variable
+    version: dict[int, int] = {}
     const: dict[int, float] = {}
     for k in range(fun.n_instructions()):
         op = fun.instruction_id(k)
@@ -137,9 +177,13 @@ def lane_source(fun: ca.Function, name: str, width: int) -> str:
         elif op == ca.OP_CONST:
             c = float(fun.instruction_constant(k))
             expr = _const(c)
-            lines.append(f"  w{o} = {expr};")
             const[o] = c
-            continue
+        elif op == ca.OP_DIV and (ins[1], version.get(ins[1], 0)) in shared:
+            key = (ins[1], version.get(ins[1], 0))
+            if key not in recip:
+                recip[key] = f"r{len(recip)}"
+                lines.append(f"  const ocr_v {recip[key]} = 1.0 / w{ins[1]};")
+            expr = f"(w{ins[0]}*{recip[key]})"
         elif op in _UNARY:
             expr = _UNARY[op].format(x=f"w{ins[0]}")
         elif op in _LIBM1:
@@ -154,5 +198,6 @@ def lane_source(fun: ca.Function, name: str, width: int) -> str:
         else:
             raise LaneCodegenError(f"operation {op} of {fun.name()} has no lane form")
         lines.append(f"  w{o} = {expr};")
+        version[o] = version.get(o, 0) + 1
     lines.append("}")
-    return "\n".join(lines) + "\n"
+    return lines
