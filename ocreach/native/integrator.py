@@ -35,7 +35,7 @@ MAX_LANE_INSTRUCTIONS = 30000
 #: lane sources above this size are compiled at -O1 (a third less compile time, same speed)
 LANE_O1_BYTES = 200_000
 
-__all__ = ["Batch", "integrate_batch", "stepper", "tol_vector"]
+__all__ = ["Batch", "integrate_batch", "propagate_segments", "stepper", "tol_vector"]
 
 
 class _Stepper:
@@ -48,6 +48,7 @@ class _Stepper:
         self.rhs = rhs
         self.step = build_step(rhs)
         self.native = None
+        self.native_segments = None  # the lane driver's ocreach_propagate (None: scalar driver)
         self.maps: dict = {}
         self._sx: ca.Function | None = None
         self.lane_width = 1  # samples per SIMD step of the native driver (1: scalar driver)
@@ -67,6 +68,11 @@ class _Stepper:
             try:
                 fn = self._load(*self._lane_sources(lanes))
                 self.lane_width = lanes
+                seg = self._dll.ocreach_propagate
+                vp, lg = ctypes.c_void_p, ctypes.c_long
+                seg.argtypes = [lg, lg, lg, vp, vp, lg, lg, vp, lg, vp, vp, vp, vp, lg, vp, vp, vp, vp]
+                seg.restype = ctypes.c_int
+                self.native_segments = seg
                 return fn
             except LaneCodegenError:
                 pass  # an operation without a lane form: the scalar driver below
@@ -276,8 +282,7 @@ class Batch:
         self.status = np.zeros(n, dtype=np.intc)
         self.t_reached = np.zeros(n)
         self.n_steps = np.zeros(n, dtype=np.int_)
-        parts = min(int(threads), max(1, n // max(2, THREAD_WORK // n_y)))
-        cuts = [n * i // parts for i in range(parts + 1)]
+        cuts = _cuts(n, n_y, threads)
         arrays = (Y, self.t0, self.t1, self.A, self.status, self.t_reached, self.n_steps, self.H)
         base = [(arr.ctypes.data, arr.strides[0]) for arr in arrays]
         tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
@@ -294,23 +299,92 @@ class Batch:
             self.Y[:] = _integrate_numpy(st, self.Y, self.t0, self.t1, self.A, self.rtol_v,
                                          self.atol_v, self.max_steps, self.H)
             return
-        fn = st.native
-        if len(self._calls) == 1:
-            rcs = [fn(*self._calls[0])]
-        else:  # the C loop runs without the GIL (ctypes releases it): one part per thread
-            pool = _pool(len(self._calls))
-            rcs = [f.result() for f in [pool.submit(fn, *c) for c in self._calls]]
-        if min(rcs) < 0:
-            raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
-        if max(rcs) > 0:
-            msgs = []
-            for code, kind in _STATUS.items():
-                bad = np.flatnonzero(self.status == code)
-                if bad.size:
-                    if code == 1:
-                        kind = f"max_steps = {self.max_steps} exceeded"
-                    msgs.append(_fail_message(kind, bad, self.Y.shape[0], self.t_reached, self.t1))
-            raise SolverError("; ".join(msgs))
+        _check(_run_parts(st.native, self._calls), self.status, self.max_steps, self.t_reached,
+               self.t1)
+
+
+def _cuts(n: int, n_y: int, threads: int, segments: int = 1) -> list[int]:
+    """Sample ranges of the threads: parts of at least ``max(2, THREAD_WORK // n_y)`` sample
+    segments each, at most ``threads`` parts."""
+    parts = min(int(threads), n, max(1, n * segments // max(2, THREAD_WORK // n_y)))
+    return [n * i // parts for i in range(parts + 1)]
+
+
+def _run_parts(fn, calls: list[tuple]) -> list[int]:
+    """``fn(*c)`` for every part ``c``; several parts run in the thread pool (the C loop runs
+    without the GIL: ctypes releases it)."""
+    if len(calls) == 1:
+        return [fn(*calls[0])]
+    pool = _pool(len(calls))
+    return [f.result() for f in [pool.submit(fn, *c) for c in calls]]
+
+
+def _check(rcs: list[int], status: np.ndarray, max_steps: int, t_reached: np.ndarray,
+           t1: np.ndarray) -> None:
+    """Raise :class:`SolverError` naming the failed samples if a driver part reported any."""
+    if min(rcs) < 0:
+        raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
+    if max(rcs) > 0:
+        msgs = []
+        for code, kind in _STATUS.items():
+            bad = np.flatnonzero(status == code)
+            if bad.size:
+                if code == 1:
+                    kind = f"max_steps = {max_steps} exceeded"
+                msgs.append(_fail_message(kind, bad, status.size, t_reached, t1))
+        raise SolverError("; ".join(msgs))
+
+
+def propagate_segments(st: _Stepper, X0: np.ndarray, U: np.ndarray, P: np.ndarray,
+                       times: np.ndarray, m: int, rtol_v: np.ndarray, atol_v: np.ndarray,
+                       max_steps: int, threads: int = 1) -> np.ndarray:
+    """States ``(N, len(times), n_y)`` of ``dy/dt = rhs(y, t, [U[:, j // m]; P])`` on each
+    segment ``[times[j], times[j+1]]`` from ``X0`` (N, n_y); ``U`` (N, (len(times)-1) / m, n_u),
+    ``P`` (N, n_p).  Inputs are the caller's validated values.
+
+    Each sample's last step size carries over to the next segment instead of restarting from
+    Hairer's starting-step rule.  The lane driver runs all segments of a sample in one C call
+    (no per-segment return to Python; a lane that ends a segment starts the next at once); the
+    scalar driver and the NumPy fallback take one :class:`Batch` run per segment, with the same
+    arithmetic per sample.  Raises :class:`SolverError` naming failed samples.
+    """
+    n, n_y = X0.shape
+    k = times.size - 1
+    nu, n_p = U.shape[2], P.shape[1]
+    if st.native_segments is None:
+        batch = Batch(st, np.array(X0, dtype=float, order="C"), nu + n_p, rtol_v, atol_v,
+                      max_steps, threads)
+        batch.A[:, nu:] = P
+        Ut = np.ascontiguousarray(np.moveaxis(U, 1, 0))  # (K/m, N, n_u): one block per control
+        out = np.empty((times.size,) + batch.Y.shape)  # time-major while filling
+        out[0] = batch.Y
+        for j in range(k):
+            batch.A[:, :nu] = Ut[j // m]
+            batch.t0.fill(times[j])
+            batch.t1.fill(times[j + 1])
+            batch.run()
+            out[j + 1] = batch.Y
+        return np.ascontiguousarray(np.moveaxis(out, 0, 1))
+    X0 = np.ascontiguousarray(X0, dtype=float)
+    U = np.ascontiguousarray(U, dtype=float)
+    P = np.ascontiguousarray(P, dtype=float)
+    G = np.ascontiguousarray(times, dtype=float)
+    out = np.empty((n, k + 1, n_y))
+    out[:, 0] = X0
+    status, t_reached = np.zeros(n, dtype=np.intc), np.zeros(n)
+    n_steps, H = np.zeros(n, dtype=np.int_), np.zeros(n)
+    arrays = (U, P, X0, out, status, t_reached, n_steps, H)
+    base = [(arr.ctypes.data, arr.strides[0]) for arr in arrays]
+    tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
+    cuts = _cuts(n, n_y, threads, k)
+    calls = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        u, p, x, o, stt, tr, ns, hh = (adr + a * stride for adr, stride in base)
+        calls.append((b - a, n_y, k, G.ctypes.data, u, nu, m, p, n_p, x, o, *tol, max_steps,
+                      stt, tr, ns, hh))
+    _check(_run_parts(st.native_segments, calls), status, max_steps, t_reached,
+           np.full(n, times[-1]))
+    return out
 
 
 def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps,
