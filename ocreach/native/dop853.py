@@ -139,13 +139,15 @@ DRIVER_SRC = _DRIVER_COMMON + r'''/* Adaptive Dormand-Prince 8(5,3) driver for o
  * controller matches SciPy's DOP853 (safety 0.9, factors in [0.2, 10], exponent -1/8) and the
  * initial step follows Hairer's algorithm as SciPy's select_initial_step.
  * Status per sample: 0 ok, 1 max_steps exceeded, 2 step-size underflow, 3 non-finite value.
+ * Threads of one batch take samples from the shared counter *queue (NULL: this call's own).
  * H[s] > 0 on entry is the first step size to try (instead of Hairer's rule); on a sample's
  * last step H[s] gets the step size the controller proposed before clipping it to t1.
  */
 CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, const double* T0,
                                            const double* T1, const double* A, const double* rtol,
                                            const double* atol, long max_steps, int* status,
-                                           double* t_reached, long* n_steps, double* H) {
+                                           double* t_reached, long* n_steps, double* H,
+                                           long* queue) {
   casadi_int sa, sr, si, sw, sa2, sr2, si2, sw2;
   OCR_CAT(STEP, _work)(&sa, &sr, &si, &sw);
   OCR_CAT(RHS, _work)(&sa2, &sr2, &si2, &sw2);
@@ -158,7 +160,11 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
   if (!arg || !res || !iw || !w || !buf) return -1;
   double *f = buf, *yn = buf + ny, *fn = buf + 2 * ny, *sc = buf + 3 * ny;  /* sc: 3 ny */
   int n_fail = 0;
-  for (long s = 0; s < N; ++s) {
+  long next = 0;
+  if (!queue) queue = &next;
+  for (;;) {  /* samples from the counter shared with the other threads of this batch */
+    long s = __atomic_fetch_add(queue, 1, __ATOMIC_RELAXED);
+    if (s >= N) break;
     double* y = Y + s * ny;
     const double* a = A + s * na;
     double t = T0[s], t1 = T1[s], err, h_abs;
@@ -226,7 +232,9 @@ DRIVER_LANES_SRC = _DRIVER_COMMON + r'''/* The same adaptive DOP853 driver with 
  * segment would.  The derivatives of all lanes that start a segment in one round are one LRHS
  * call, and the controller's err^(-1/8) is computed for all lanes at once; both are the same
  * operations per lane whatever the other lanes hold, so results do not depend on the lane (or
- * thread) a sample ran in.  max_steps counts per segment.  Status per sample as the scalar driver.
+ * thread) a sample ran in.  Several threads may run one batch together: they take samples from
+ * the shared counter *queue (atomically), so a thread that gets less CPU takes fewer samples.
+ * max_steps counts per segment.  Status per sample as the scalar driver.
  */
 typedef struct {
   long s, k;       /* sample index (-1: idle) and its current segment */
@@ -244,6 +252,7 @@ typedef struct {
   const double* P; long ps, np;          /* arguments nu..nu+np-1: P[s ps + i] */
   const double* Y0;                      /* initial state Y0[s ny + i] */
   double* OUT; long os, ok;              /* state after segment k: OUT[s os + (k + 1) ok + i] */
+  long* queue;     /* next sample to take, shared by the threads of one batch (NULL: this call's) */
 } ocr_plan;
 
 static int ocr_lanes_run(long N, long ny, const ocr_plan* pl, const double* rtol,
@@ -273,7 +282,7 @@ static int ocr_lanes_run(long N, long ny, const ocr_plan* pl, const double* rtol
   double* lout[3] = {Lyn, Lfn, Lerr};
   const double* rin[3] = {Ly, Lt, La};
   double* rout[1] = {Lfn};
-  long next = 0, active = 0;
+  long next = 0, active = 0, *queue = pl->queue ? pl->queue : &next;
   int n_fail = 0;
   char need_f[OCR_W];
   for (long l = 0; l < W; ++l) { lane[l].s = -1; lane[l].pending = 1; }
@@ -291,8 +300,8 @@ static int ocr_lanes_run(long N, long ny, const ocr_plan* pl, const double* rtol
       need_f[l] = 0;
       while (L->pending) {
         if (L->s < 0) {
-          if (next >= N) { L->pending = 0; break; }  /* queue empty: idle */
-          long s = next++;
+          long s = __atomic_fetch_add(queue, 1, __ATOMIC_RELAXED);
+          if (s >= N) { L->pending = 0; break; }  /* queue empty: idle */
           L->s = s; L->k = 0; L->kc = 0; L->ksub = 0; L->total = 0; L->t = pl->T0[s * pl->ts];
           status[s] = 0;
           for (long i = 0; i < ny; ++i) Ly[i * W + l] = pl->Y0[s * ny + i];
@@ -403,8 +412,9 @@ static int ocr_lanes_run(long N, long ny, const ocr_plan* pl, const double* rtol
 CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, const double* T0,
                                            const double* T1, const double* A, const double* rtol,
                                            const double* atol, long max_steps, int* status,
-                                           double* t_reached, long* n_steps, double* H) {
-  ocr_plan pl = {1, T0, T1, 1, 0, A, na, 0, na, 1, A, 0, 0, Y, Y, ny, 0};
+                                           double* t_reached, long* n_steps, double* H,
+                                           long* queue) {
+  ocr_plan pl = {1, T0, T1, 1, 0, A, na, 0, na, 1, A, 0, 0, Y, Y, ny, 0, queue};
   return ocr_lanes_run(N, ny, &pl, rtol, atol, max_steps, status, t_reached, n_steps, H);
 }
 
@@ -416,9 +426,9 @@ CASADI_SYMBOL_EXPORT int ocreach_propagate(long N, long ny, long K, const double
                                            long np, const double* Y0, double* OUT,
                                            const double* rtol, const double* atol, long max_steps,
                                            int* status, double* t_reached, long* n_steps,
-                                           double* H) {
+                                           double* H, long* queue) {
   ocr_plan pl = {K, G, G + 1, 0, 1, U, (K / m) * nu, nu, nu, m, P, np, np, Y0, OUT,
-                 (K + 1) * ny, ny};
+                 (K + 1) * ny, ny, queue};
   return ocr_lanes_run(N, ny, &pl, rtol, atol, max_steps, status, t_reached, n_steps, H);
 }
 '''

@@ -70,7 +70,8 @@ class _Stepper:
                 self.lane_width = lanes
                 seg = self._dll.ocreach_propagate
                 vp, lg = ctypes.c_void_p, ctypes.c_long
-                seg.argtypes = [lg, lg, lg, vp, vp, lg, lg, vp, lg, vp, vp, vp, vp, lg, vp, vp, vp, vp]
+                seg.argtypes = [lg, lg, lg, vp, vp, lg, lg, vp, lg, vp, vp, vp, vp, lg, vp, vp, vp, vp,
+                                vp]
                 seg.restype = ctypes.c_int
                 self.native_segments = seg
                 return fn
@@ -117,7 +118,7 @@ class _Stepper:
         fn = dll.ocreach_integrate
         vp = ctypes.c_void_p  # addresses passed as ints: cheaper than ctypes pointer casts
         fn.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_long, vp, vp, vp, vp, vp, vp,
-                       ctypes.c_long, vp, vp, vp, vp]
+                       ctypes.c_long, vp, vp, vp, vp, vp]
         fn.restype = ctypes.c_int
         self._dll = dll  # keep the library loaded
         return fn
@@ -282,14 +283,12 @@ class Batch:
         self.status = np.zeros(n, dtype=np.intc)
         self.t_reached = np.zeros(n)
         self.n_steps = np.zeros(n, dtype=np.int_)
-        cuts = _cuts(n, n_y, threads)
-        arrays = (Y, self.t0, self.t1, self.A, self.status, self.t_reached, self.n_steps, self.H)
-        base = [(arr.ctypes.data, arr.strides[0]) for arr in arrays]
-        tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
-        self._calls = []
-        for a, b in zip(cuts[:-1], cuts[1:]):
-            y, ta, tb, aa, stt, tr, ns, hh = (adr + a * stride for adr, stride in base)
-            self._calls.append((b - a, n_y, n_a, y, ta, tb, aa, *tol, max_steps, stt, tr, ns, hh))
+        arrays = (Y, self.t0, self.t1, self.A)
+        self._queue = np.zeros(1, dtype=np.int64)
+        self._calls = _parts(_parts_count(n, n_y, threads), self._queue,
+                             (n, n_y, n_a, *(arr.ctypes.data for arr in arrays), rtol_v.ctypes.data,
+                              atol_v.ctypes.data, max_steps, self.status.ctypes.data,
+                              self.t_reached.ctypes.data, self.n_steps.ctypes.data, self.H.ctypes.data))
 
     def run(self) -> None:
         """Integrate every sample from ``t0`` to ``t1`` (raises :class:`SolverError` naming the
@@ -299,15 +298,25 @@ class Batch:
             self.Y[:] = _integrate_numpy(st, self.Y, self.t0, self.t1, self.A, self.rtol_v,
                                          self.atol_v, self.max_steps, self.H)
             return
+        self._queue[0] = 0
         _check(_run_parts(st.native, self._calls), self.status, self.max_steps, self.t_reached,
                self.t1)
 
 
-def _cuts(n: int, n_y: int, threads: int, segments: int = 1) -> list[int]:
-    """Sample ranges of the threads: parts of at least ``max(2, THREAD_WORK // n_y)`` sample
-    segments each, at most ``threads`` parts."""
-    parts = min(int(threads), n, max(1, n * segments // max(2, THREAD_WORK // n_y)))
-    return [n * i // parts for i in range(parts + 1)]
+def _parts_count(n: int, n_y: int, threads: int, segments: int = 1) -> int:
+    """Threads for a batch: at most ``threads``, each with at least ``max(2, THREAD_WORK //
+    n_y)`` sample segments on average."""
+    return min(int(threads), n, max(1, n * segments // max(2, THREAD_WORK // n_y)))
+
+
+def _parts(parts: int, queue: np.ndarray, args: tuple) -> list[tuple]:
+    """The driver calls of a batch run by ``parts`` threads: all on the whole batch, taking
+    samples from the shared counter ``queue`` (reset to 0 before each run), so a thread that gets
+    less CPU (another process on its core) takes fewer samples; one part gets its own counter.
+    Each sample's arithmetic does not depend on the thread or lane it ran in."""
+    if parts == 1:
+        return [(*args, None)]
+    return [(*args, queue.ctypes.data)] * parts
 
 
 def _run_parts(fn, calls: list[tuple]) -> list[int]:
@@ -373,15 +382,12 @@ def propagate_segments(st: _Stepper, X0: np.ndarray, U: np.ndarray, P: np.ndarra
     out[:, 0] = X0
     status, t_reached = np.zeros(n, dtype=np.intc), np.zeros(n)
     n_steps, H = np.zeros(n, dtype=np.int_), np.zeros(n)
-    arrays = (U, P, X0, out, status, t_reached, n_steps, H)
-    base = [(arr.ctypes.data, arr.strides[0]) for arr in arrays]
-    tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
-    cuts = _cuts(n, n_y, threads, k)
-    calls = []
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        u, p, x, o, stt, tr, ns, hh = (adr + a * stride for adr, stride in base)
-        calls.append((b - a, n_y, k, G.ctypes.data, u, nu, m, p, n_p, x, o, *tol, max_steps,
-                      stt, tr, ns, hh))
+    queue = np.zeros(1, dtype=np.int64)
+    calls = _parts(_parts_count(n, n_y, threads, k), queue,
+                   (n, n_y, k, G.ctypes.data, U.ctypes.data, nu, m, P.ctypes.data, n_p,
+                    X0.ctypes.data, out.ctypes.data, rtol_v.ctypes.data, atol_v.ctypes.data,
+                    max_steps, status.ctypes.data, t_reached.ctypes.data, n_steps.ctypes.data,
+                    H.ctypes.data))
     _check(_run_parts(st.native_segments, calls), status, max_steps, t_reached,
            np.full(n, times[-1]))
     return out
