@@ -320,12 +320,14 @@ def _parts(parts: int, queue: np.ndarray, args: tuple) -> list[tuple]:
 
 
 def _run_parts(fn, calls: list[tuple]) -> list[int]:
-    """``fn(*c)`` for every part ``c``; several parts run in the thread pool (the C loop runs
-    without the GIL: ctypes releases it)."""
+    """``fn(*c)`` for every part ``c``: the first in this thread, the others in the thread pool
+    (the C loop runs without the GIL: ctypes releases it; no wake-up of a pool thread for the
+    first part, which on a loaded machine can cost a scheduler time slice)."""
     if len(calls) == 1:
         return [fn(*calls[0])]
-    pool = _pool(len(calls))
-    return [f.result() for f in [pool.submit(fn, *c) for c in calls]]
+    futures = [_pool(len(calls) - 1).submit(fn, *c) for c in calls[1:]]
+    first = fn(*calls[0])
+    return [first] + [f.result() for f in futures]
 
 
 def _check(rcs: list[int], status: np.ndarray, max_steps: int, t_reached: np.ndarray,
