@@ -106,6 +106,17 @@ def _dro_batch(n: int, seed: int = 0):
     return y0, a
 
 
+def _dro_segments(n: int, k: int, t_end: float, seed: int):
+    """A planar CR3BP DRO batch: model, grid of k segments on [0, t_end], controls (n, k, 2) in
+    [-0.7, 0.7]^2 and initial states near the DRO."""
+    from ocreach.models import cr3bp
+
+    rng = np.random.default_rng(seed)
+    U = rng.uniform(-0.7, 0.7, (n, k, 2))
+    X0 = np.array([0.2765, 0.0, 0.0, 2.1379]) + 1e-3 * rng.standard_normal((n, 4))
+    return cr3bp(0.0122, planar=True, a_max=0.02), np.linspace(0.0, t_end, k + 1), U, X0
+
+
 @pytest.mark.parametrize("kind", ["cr3bp", "ops"])
 def test_lane_driver_matches_scalar_driver_and_scipy(kind, monkeypatch):
     """The SIMD-lane driver against the one-sample-at-a-time driver and against SciPy's DOP853 at
@@ -169,13 +180,8 @@ def test_propagate_is_thread_count_independent_and_matches_scipy(monkeypatch):
 
     monkeypatch.setattr(integrator, "THREAD_WORK", 16)
     from ocreach.flow import propagate
-    from ocreach.models import cr3bp
 
-    model = cr3bp(0.0122, planar=True, a_max=0.02)
-    rng = np.random.default_rng(7)
-    grid = np.linspace(0.0, 3.0, 31)
-    U = rng.uniform(-0.7, 0.7, (100, 30, 2))
-    X0 = np.array([0.2765, 0.0, 0.0, 2.1379]) + 1e-3 * rng.standard_normal((100, 4))
+    model, grid, U, X0 = _dro_segments(100, 30, 3.0, seed=7)
     with parallel.settings(threads=1):
         one = propagate(model, X0, U, grid)
     with parallel.settings(threads=2):
@@ -289,15 +295,10 @@ def test_threads_take_samples_from_a_shared_queue_with_identical_results(monkeyp
     differs from run to run) give bit-identical states, for propagate and integrate_batch."""
     from ocreach import parallel
     from ocreach.flow import propagate
-    from ocreach.models import cr3bp
     from ocreach.native import integrator
 
     monkeypatch.setattr(integrator, "THREAD_WORK", 16)
-    model = cr3bp(0.0122, planar=True, a_max=0.02)
-    rng = np.random.default_rng(12)
-    grid = np.linspace(0.0, 2.0, 21)
-    U = rng.uniform(-0.7, 0.7, (203, 20, 2))
-    X0 = np.array([0.2765, 0.0, 0.0, 2.1379]) + 1e-3 * rng.standard_normal((203, 4))
+    model, grid, U, X0 = _dro_segments(203, 20, 2.0, seed=12)
     runs = []
     for th in (1, 2, 3, 2):
         with parallel.settings(threads=th):

@@ -6,6 +6,12 @@ over samples and steps, compiled once (:func:`ocreach.native.compile.compile_sou
 through ctypes.  Without a compiler (or with ``OCREACH_JIT=0``) the same algorithm runs as a
 NumPy loop over steps, vectorised over samples with ``Function.map``; results agree to round-off,
 only slower.  Neither path has a Python loop over samples.
+
+:func:`propagate_segments` (behind :func:`ocreach.flow.propagate`) integrates every sample over
+a grid of segments with piecewise-constant arguments; with the SIMD-lane driver all segments of
+a batch are one C call per thread.  Threads of one batch take samples from a shared counter; a
+sample's arithmetic does not depend on its thread or lane, so results are bit-identical for any
+thread count.
 """
 from __future__ import annotations
 
