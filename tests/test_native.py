@@ -316,3 +316,13 @@ def integrate_batch_threads(rhs, y0, a, threads):
     from ocreach.native.integrator import integrate_batch
 
     return integrate_batch(rhs, y0, 0.0, np.linspace(0.5, 3.0, y0.shape[0]), a, threads=threads)
+
+
+def test_segment_driver_on_an_empty_batch():
+    from ocreach import parallel
+    from ocreach.flow import propagate
+
+    model, grid, _, _ = _dro_segments(1, 3, 0.3, seed=0)
+    for th in (1, 2):
+        with parallel.settings(threads=th):
+            assert propagate(model, np.zeros((0, 4)), np.zeros((0, 3, 2)), grid).shape == (0, 4, 4)

@@ -312,7 +312,7 @@ class Batch:
 def _parts_count(n: int, n_y: int, threads: int, segments: int = 1) -> int:
     """Threads for a batch: at most ``threads``, each with at least ``max(2, THREAD_WORK //
     n_y)`` sample segments on average."""
-    return min(int(threads), n, max(1, n * segments // max(2, THREAD_WORK // n_y)))
+    return max(1, min(int(threads), n, n * segments // max(2, THREAD_WORK // n_y)))
 
 
 def _parts(parts: int, queue: np.ndarray, args: tuple) -> list[tuple]:
