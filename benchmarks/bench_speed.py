@@ -304,6 +304,19 @@ the next sample); the lane code of the step has common subexpressions merged, on
 shared divisor (the CR3BP's 1/r^3) and FMA contraction (IEEE fused operations, no -ffast-math);
 the controller's err^(-1/8), the accept test and the state update run on all lanes at once;
 threads take samples from one atomic counter.
+
+Profile (one-off, 2026-12-01, perf and a C harness calling the compiled driver on this batch, best
+of 60 runs, 1 thread).  Before this work the batch took 11.1 ms CPU, of which the per-lane scalar
+err^(-1/8) (three dependent square roots) was 12%, the scalar CasADi rhs at each segment start
+10%, Python/NumPy per segment ~15% (30 calls, transposed copies of controls and states).  Now:
+8,671 lane steps for 69,256 sample steps (1.6% rejected, 2.3 steps per 0.1-TU segment) at
+~440 ns each: the DOP853 lane step ~280 ns (12 stages, the FSAL derivative and the error norm on
+8 samples: ~35 ns per sample step; square roots ~25% and divisions ~10% of it), the lane rhs at
+segment starts ~30 ns, the rest bookkeeping; Python is < 5% of the call.  Lane width on this
+AVX-512 CPU (AMD EPYC, 512-bit operations on 256-bit units): 4 lanes 5.9 ms, 8 lanes 4.0 ms,
+16 lanes 6.3 ms (register spills).  FMA
+contraction: 4.4 -> 4.0 ms; prefetching the next segment's control and output rows: 4.4 -> 4.0 ms
+(before FMA).  Endpoint error unchanged (3.2e-12 before and after).
 """
 
 
