@@ -5,11 +5,17 @@ CasADi's code generator writes one scalar evaluation.  Here the SX instruction l
 more with every work variable a GCC/Clang vector of ``W`` doubles (``vector_size``), so every
 operation is one or two SIMD instructions on ``W`` samples, on inputs and outputs laid out
 component-major (entry ``i`` of lane ``l`` at ``i * W + l``).  Straight-line vector code compiles
-about as fast as CasADi's scalar code.  Every lane runs exactly the IEEE operations of the scalar
-code in the same order (no FMA contraction, ``fmax``/``fmin`` with C's NaN rules), so a lane's
-result does not depend on which lane or which other samples it ran with.  Integer and
-half-integer powers with a constant exponent are written as products and square roots (CasADi's
-generated C calls ``pow``; the results agree to the last bits, not bit for bit).
+about as fast as CasADi's scalar code.  Every lane runs the same IEEE operations in the same
+order (no ``-ffast-math``; ``fmax``/``fmin`` with C's NaN rules; products and sums may be fused
+into FMAs, see :data:`LANE_FLAGS_BASE`), so a lane's result does not depend on which lane or
+which other samples it ran with.  The lane code agrees with CasADi's scalar code to the last bits,
+not bit for bit, because of FMAs and two rewrites that make it cheaper: integer and half-integer
+powers with a constant exponent are products and square roots (CasADi's generated C calls
+``pow``), and a divisor shared by several divisions is inverted once (``x / d`` and ``y / d``
+become ``x * r`` and ``y * r`` with ``r = 1 / d``: at most one rounding more per quotient;
+division and square root are the slow SIMD operations in the CR3BP's ``(x + mu) / r1^3`` and
+``y / r1^3``).  Common subexpressions are merged first (``casadi.cse``, for Functions up to
+:data:`CSE_MAX_INSTRUCTIONS`; same operations, same bits).
 
 An SX Function has elementwise operations only; one without a lane form raises
 :class:`LaneCodegenError` and the caller uses the scalar path.
@@ -20,7 +26,7 @@ import os
 
 import casadi as ca
 
-__all__ = ["LANE_FLAGS", "LaneCodegenError", "lane_source", "lane_sources"]
+__all__ = ["CSE_MAX_INSTRUCTIONS", "LANE_FLAGS", "LaneCodegenError", "lane_source", "lane_sources"]
 
 
 class LaneCodegenError(ValueError):
