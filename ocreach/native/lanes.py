@@ -58,7 +58,7 @@ _BINARY = {ca.OP_ADD: "({x}+{y})", ca.OP_SUB: "({x}-{y})", ca.OP_MUL: "({x}*{y})
 #: Compiler flags of lane code: IEEE arithmetic (no ``-ffast-math``: no reassociation, no
 #: approximate reciprocals or square roots, NaN and infinity kept) with products and sums
 #: contracted into fused multiply-adds where the CPU has them (``-ffp-contract=fast``; an FMA is
-#: one IEEE operation rounded once, so each contracted expression is at least as accurate; ~8%
+#: one IEEE operation rounded once instead of twice; ~8%
 #: faster DOP853 steps on the DRO batch; every lane runs the same instructions, so results still
 #: do not depend on the lane), and the vector extensions of this CPU named explicitly (never
 #: -march=native, whose meaning differs between hosts that share one cache).
