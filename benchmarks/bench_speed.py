@@ -297,6 +297,15 @@ developers' jobs held the cores at the load above.  1-, 2-thread results bit-ide
 code generation + `cc`, then cached on disk); heyoka's JIT {d['t_build_hy8']:.2f} s (batch 8) and
 {d['t_build_hy64']:.2f} s (batch 64), per process (heyoka caches compiled systems within a process).
 
+Second thread on a quiet machine (one-off, 2026-12-02 00:00-00:04 UTC, load average 0.1-0.6,
+/proc/stat idle >= 99% just before each measurement; 9 alternating 1-/2-thread pairs per
+measurement, 10 measurements): median wall gain 1.12-1.40 per measurement, single pairs up to
+1.66, results bit-identical.  Two independent single-threaded copies of the driver (C harness)
+running at the same time are each 27% slower than one alone, so these 2 vCPUs give at most ~1.57x
+on this kernel (they share a physical core or its resources).  When another process holds one
+core, the second thread costs ~5% (median gains 0.95-0.98): a descheduled thread's 8 in-flight
+samples hold up the end of the batch.
+
 What the integrator does (ocreach.native): DOP853 on 8 samples per step in AVX-512 lanes with a
 step size and accept/reject history per lane; all 30 segments of a sample in one C call (a lane
 that ends a segment opens the next with the carried step size, a lane whose sample is done takes
