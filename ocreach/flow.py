@@ -166,31 +166,16 @@ def propagate(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike,
 def _propagate_segments(model: Model, X0: np.ndarray, U: np.ndarray, P: np.ndarray,
                         times: np.ndarray, m: int, rtol: float, atol: float,
                         max_steps: int) -> np.ndarray:
-    """States ``(N, len(times), n_x)`` from ``X0`` under ``U[:, j // m]`` on ``[times[j], times[j+1]]``.
-
-    Inputs are checked once here, not per segment (one :class:`~ocreach.native.integrator.Batch`
-    run per segment; the driver flags any non-finite state), and every sample's last step size
-    carries over to the next segment instead of restarting from Hairer's starting-step rule.
-    """
+    """States ``(N, len(times), n_x)`` from ``X0`` under ``U[:, j // m]`` on ``[times[j], times[j+1]]``
+    (inputs checked once here, not per segment; see
+    :func:`ocreach.native.integrator.propagate_segments`)."""
     from ocreach import parallel
     from ocreach.errors import check_count
-    from ocreach.native.integrator import Batch, stepper, tol_vector
+    from ocreach.native.integrator import propagate_segments, stepper, tol_vector
 
-    nu = model.n_u
-    batch = Batch(stepper(flow_rhs(model)), np.array(X0, dtype=float, order="C"), nu + model.n_p,
-                  tol_vector(rtol, model.n_x, "rtol"), tol_vector(atol, model.n_x, "atol"),
-                  int(check_count("max_steps", max_steps, 1)), parallel.threads())
-    batch.A[:, nu:] = P
-    Ut = np.ascontiguousarray(np.moveaxis(U, 1, 0))  # (K, N, n_u): one contiguous block per segment
-    out = np.empty((times.size,) + batch.Y.shape)  # time-major while filling (contiguous copies)
-    out[0] = batch.Y
-    for j in range(times.size - 1):
-        batch.A[:, :nu] = Ut[j // m]
-        batch.t0.fill(times[j])
-        batch.t1.fill(times[j + 1])
-        batch.run()
-        out[j + 1] = batch.Y
-    return np.ascontiguousarray(np.moveaxis(out, 0, 1))
+    return propagate_segments(stepper(flow_rhs(model)), X0, U, P, times, m,
+                              tol_vector(rtol, model.n_x, "rtol"), tol_vector(atol, model.n_x, "atol"),
+                              int(check_count("max_steps", max_steps, 1)), parallel.threads())
 
 
 # --------------------------------------------------------------------------- STT

@@ -3,9 +3,10 @@
 Two knobs, both without any change of results:
 
 * **Kernel threads** (:func:`threads`): the compiled batch integrator
-  (:func:`ocreach.native.integrator.integrate_batch`) splits a batch of samples into contiguous
-  parts and runs them in that many threads (its C loop runs without the GIL).  Each sample's
-  arithmetic does not depend on the split, so results are bit-identical for any thread count.
+  (:func:`ocreach.native.integrator.integrate_batch`, ``propagate_segments``) runs a batch in
+  that many threads (its C loop runs without the GIL), which take samples from one shared
+  counter, so a thread whose core is busy with other work takes fewer.  Each sample's arithmetic
+  does not depend on the thread, so results are bit-identical for any thread count.
   Default: ``$OCREACH_THREADS``, else the number of cores this process may run on.
 * **BLAS threads** (:func:`blas_limit`): OpenBLAS/MKL start one thread per core.  For the
   medium-sized products of the set library and the STT engine that is a loss as soon as another

@@ -106,6 +106,17 @@ def _dro_batch(n: int, seed: int = 0):
     return y0, a
 
 
+def _dro_segments(n: int, k: int, t_end: float, seed: int):
+    """A planar CR3BP DRO batch: model, grid of k segments on [0, t_end], controls (n, k, 2) in
+    [-0.7, 0.7]^2 and initial states near the DRO."""
+    from ocreach.models import cr3bp
+
+    rng = np.random.default_rng(seed)
+    U = rng.uniform(-0.7, 0.7, (n, k, 2))
+    X0 = np.array([0.2765, 0.0, 0.0, 2.1379]) + 1e-3 * rng.standard_normal((n, 4))
+    return cr3bp(0.0122, planar=True, a_max=0.02), np.linspace(0.0, t_end, k + 1), U, X0
+
+
 @pytest.mark.parametrize("kind", ["cr3bp", "ops"])
 def test_lane_driver_matches_scalar_driver_and_scipy(kind, monkeypatch):
     """The SIMD-lane driver against the one-sample-at-a-time driver and against SciPy's DOP853 at
@@ -169,13 +180,8 @@ def test_propagate_is_thread_count_independent_and_matches_scipy(monkeypatch):
 
     monkeypatch.setattr(integrator, "THREAD_WORK", 16)
     from ocreach.flow import propagate
-    from ocreach.models import cr3bp
 
-    model = cr3bp(0.0122, planar=True, a_max=0.02)
-    rng = np.random.default_rng(7)
-    grid = np.linspace(0.0, 3.0, 31)
-    U = rng.uniform(-0.7, 0.7, (100, 30, 2))
-    X0 = np.array([0.2765, 0.0, 0.0, 2.1379]) + 1e-3 * rng.standard_normal((100, 4))
+    model, grid, U, X0 = _dro_segments(100, 30, 3.0, seed=7)
     with parallel.settings(threads=1):
         one = propagate(model, X0, U, grid)
     with parallel.settings(threads=2):
@@ -204,3 +210,148 @@ def test_bad_thread_settings_are_problem_errors(monkeypatch):
     monkeypatch.setenv("OCREACH_THREADS", "two")
     with pytest.raises(ProblemError, match="OCREACH_THREADS must be an integer >= 1; got 'two'"):
         parallel.default_threads()
+
+
+# ----------------------------------------------------------------------------- segment driver
+def _old_paths(model):
+    """propagate through the per-segment Batch loop with the same lane code (the path before
+    the segment driver) and through the scalar one-sample driver (fresh stepper, no lanes)."""
+    from ocreach.flow import flow_rhs
+    from ocreach.native import integrator
+
+    st = integrator.stepper(flow_rhs(model))
+    assert st.native_segments is not None and st.lane_width == integrator.LANES
+    return st
+
+
+@pytest.mark.parametrize("name", ["dro", "vdp", "nrho-9-2", "earth-mars", "shuttle-reentry"])
+def test_segment_driver_matches_per_segment_loops_and_scipy(name, monkeypatch):
+    """propagate with all segments of a sample in one lane-driver call against (a) the
+    per-segment loop over the same lane code: bit-identical, (b) the scalar one-sample driver:
+    round-off (1e-10 relative), (c) SciPy's DOP853 segment by segment at rtol 1e-12 (independent
+    truth, 1e-8 relative), on problems of the registry with their own grids, sub-steps and
+    per-sample parameters."""
+    from scipy.integrate import solve_ivp
+
+    from ocreach.flow import flow_rhs, propagate
+    from ocreach.native import integrator
+    from ocreach.problem import get_problem
+
+    prob = get_problem(name)
+    model = prob.model
+    grid = np.asarray(prob.grid, dtype=float)[:11]
+    rng = np.random.default_rng(11)
+    n = 19  # not a multiple of the lane width
+    U = rng.uniform(-0.8, 0.8, (n, grid.size - 1, model.n_u)) / np.sqrt(max(model.n_u, 1))
+    x0 = np.asarray(prob.x0, dtype=float)
+    X0 = x0 + 1e-6 * np.abs(x0).max() * rng.standard_normal((n, model.n_x))
+    P = np.tile(np.asarray(prob.params if prob.params is not None else model.p_default, float), (n, 1))
+    P *= 1 + 1e-3 * rng.standard_normal(P.shape)  # per-sample parameters
+    st = _old_paths(model)
+    kw = dict(p=P, rtol=1e-11, atol=1e-13, substeps=2)
+    new, times, dense = propagate(model, X0, U, grid, **kw)
+    seg = st.native_segments
+    monkeypatch.setattr(st, "native_segments", None)
+    old, _, dense_old = propagate(model, X0, U, grid, **kw)
+    monkeypatch.setattr(st, "native_segments", seg)
+    np.testing.assert_array_equal(new, old)
+    np.testing.assert_array_equal(dense, dense_old)
+    monkeypatch.setenv("OCREACH_LANES", "1")
+    monkeypatch.setattr(integrator, "_STEPPERS", {})
+    monkeypatch.delitem(model.cache, "flow_rhs")  # a new rhs Function: a new stepper (restored after)
+    scalar = propagate(model, X0, U, grid, **{**kw, "substeps": 0})
+    assert integrator.stepper(flow_rhs(model)).native_segments is None
+    scale = np.abs(new).max(axis=(0, 1))
+    np.testing.assert_allclose(new / scale, scalar / scale, rtol=0, atol=1e-10)
+    f = model.f_fun
+    for i in (0, n - 1):
+        x = X0[i]
+        for k in range(grid.size - 1):
+            x = solve_ivp(lambda t, y, u=U[i, k]: np.asarray(f(y, u, t, P[i])).ravel(),
+                          (grid[k], grid[k + 1]), x, method="DOP853", rtol=1e-12,
+                          atol=1e-14 * scale).y[:, -1]
+            np.testing.assert_allclose(new[i, k + 1] / scale, x / scale, rtol=0, atol=1e-8)
+
+
+def test_segment_driver_reports_failed_samples(monkeypatch):
+    """A sample that hits a primary (non-finite rhs) or exceeds max_steps inside a later segment
+    is named in the SolverError; the others still integrate."""
+    from ocreach.errors import SolverError
+    from ocreach.flow import propagate
+    from ocreach.models import cr3bp
+
+    model = cr3bp(0.0122, planar=True, a_max=0.02)
+    grid = np.linspace(0.0, 1.0, 6)
+    X0 = np.tile([0.2765, 0.0, 0.0, 2.1379], (11, 1))
+    X0[7] = [-0.0122, 0.0, 0.0, 0.0]  # at the Earth: rhs not finite at the start
+    with pytest.raises(SolverError, match=r"non-finite value of the state or rhs for samples \[7\]"):
+        propagate(model, X0, np.zeros((5, 2)), grid)
+    with pytest.raises(SolverError, match=r"max_steps = 2 exceeded for samples \[0, 1, 2"):
+        propagate(model, X0[:3], np.zeros((5, 2)), grid, max_steps=2)
+
+
+def test_threads_take_samples_from_a_shared_queue_with_identical_results(monkeypatch):
+    """1, 2 and 3 threads on one batch (samples handed out by the shared counter, so the split
+    differs from run to run) give bit-identical states, for propagate and integrate_batch."""
+    from ocreach import parallel
+    from ocreach.flow import propagate
+    from ocreach.native import integrator
+
+    monkeypatch.setattr(integrator, "THREAD_WORK", 16)
+    model, grid, U, X0 = _dro_segments(203, 20, 2.0, seed=12)
+    runs = []
+    for th in (1, 2, 3, 2):
+        with parallel.settings(threads=th):
+            runs.append(propagate(model, X0, U, grid))
+    for r in runs[1:]:
+        np.testing.assert_array_equal(r, runs[0])
+    rhs = _fresh_rhs("queue_cr3bp", "cr3bp")
+    y0, a = _dro_batch(203, seed=13)
+    one = integrate_batch_threads(rhs, y0, a, 1)
+    for th in (2, 3):
+        np.testing.assert_array_equal(integrate_batch_threads(rhs, y0, a, th), one)
+
+
+def integrate_batch_threads(rhs, y0, a, threads):
+    from ocreach.native.integrator import integrate_batch
+
+    return integrate_batch(rhs, y0, 0.0, np.linspace(0.5, 3.0, y0.shape[0]), a, threads=threads)
+
+
+def test_segment_driver_on_an_empty_batch():
+    from ocreach import parallel
+    from ocreach.flow import propagate
+
+    model, grid, _, _ = _dro_segments(1, 3, 0.3, seed=0)
+    for th in (1, 2):
+        with parallel.settings(threads=th):
+            assert propagate(model, np.zeros((0, 4)), np.zeros((0, 3, 2)), grid).shape == (0, 4, 4)
+
+
+def test_lane_code_with_shared_divisors_matches_casadi(tmp_path, monkeypatch):
+    """Divisors used by several divisions become one reciprocal; work variables are re-used by
+    CasADi, so a divisor is identified by variable and assignment.  Many divisors, shared and not,
+    whose work variables are recycled between uses: the lane code on 8 random samples against
+    CasADi's own evaluation (1e-15 relative)."""
+    from ocreach.native.lanes import LANE_FLAGS, lane_source
+
+    monkeypatch.setenv("OCREACH_CACHE_DIR", str(tmp_path))
+    x = ca.SX.sym("x", 4)
+    outs = []
+    for k in range(6):
+        d = x[k % 4] + x[(k + 1) % 4] * (k + 1)          # shared by two divisions
+        e = x[(k + 2) % 4] * x[(k + 3) % 4] + k          # used once (its slot may be d's)
+        outs += [x[(k + 2) % 4] / d, (x[(k + 3) % 4] - k) / d, x[k % 4] / e, 1 / (d + e)]
+    fun = ca.Function("ocr_shared_div", [x], [ca.vertcat(*outs)])
+    src = lane_source(fun, "ocr_lane_f", 8)
+    assert src.count("1.0 / w") >= 6
+    wrap = ("\nvoid ocr_run(const double* a, double* b) {\n"
+            "  const double* i[1] = {a}; double* o[1] = {b}; ocr_lane_f(i, o);\n}\n")
+    lib = nc.compile_source("ocr_shared_div", {"main.c": (src + wrap).encode()}, "main.c", LANE_FLAGS)
+    dll = ctypes.CDLL(str(lib))
+    X = np.random.default_rng(14).uniform(0.5, 2.0, (8, 4))
+    inp = np.ascontiguousarray(X.T)  # component-major: entry i of lane l at i * 8 + l
+    out = np.zeros((len(outs), 8))
+    dll.ocr_run(ctypes.c_void_p(inp.ctypes.data), ctypes.c_void_p(out.ctypes.data))
+    ref = np.array([np.asarray(fun(X[lane])).ravel() for lane in range(8)]).T
+    np.testing.assert_allclose(out, ref, rtol=1e-15, atol=0)

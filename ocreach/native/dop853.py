@@ -88,6 +88,14 @@ static double ocr_rms(const double* v, const double* scale, long n) {
   return sqrt(s / (double)n);
 }
 
+/* Step-size underflow test of the drivers: h_abs < 10 * |nextafter(t, dir * inf) - t|.  The
+ * spacing of doubles at t is at most 2^-52 |t| (or 4.9e-324 near 0), so nextafter is only
+ * called when h_abs is that small (it was ~2% of an integration). */
+static inline int ocr_too_small(double h_abs, double t, double dir) {
+  if (h_abs >= 2.3e-15 * fabs(t) && h_abs >= 1e-322) return 0;
+  return h_abs < 10 * fabs(nextafter(t, dir * INFINITY) - t);
+}
+
 /* err^(-1/8) of the step-size controller as three square roots (SciPy: err ** (-1/8)); the
  * same to a few ulps and ~4x cheaper than pow, which was ~15% of a 4-state integration. */
 static inline double ocr_err_factor(double err) { return 1.0 / sqrt(sqrt(sqrt(err))); }
@@ -131,13 +139,15 @@ DRIVER_SRC = _DRIVER_COMMON + r'''/* Adaptive Dormand-Prince 8(5,3) driver for o
  * controller matches SciPy's DOP853 (safety 0.9, factors in [0.2, 10], exponent -1/8) and the
  * initial step follows Hairer's algorithm as SciPy's select_initial_step.
  * Status per sample: 0 ok, 1 max_steps exceeded, 2 step-size underflow, 3 non-finite value.
+ * Threads of one batch take samples from the shared counter *queue (NULL: this call's own).
  * H[s] > 0 on entry is the first step size to try (instead of Hairer's rule); on a sample's
  * last step H[s] gets the step size the controller proposed before clipping it to t1.
  */
 CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, const double* T0,
                                            const double* T1, const double* A, const double* rtol,
                                            const double* atol, long max_steps, int* status,
-                                           double* t_reached, long* n_steps, double* H) {
+                                           double* t_reached, long* n_steps, double* H,
+                                           long* queue) {
   casadi_int sa, sr, si, sw, sa2, sr2, si2, sw2;
   OCR_CAT(STEP, _work)(&sa, &sr, &si, &sw);
   OCR_CAT(RHS, _work)(&sa2, &sr2, &si2, &sw2);
@@ -150,7 +160,11 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
   if (!arg || !res || !iw || !w || !buf) return -1;
   double *f = buf, *yn = buf + ny, *fn = buf + 2 * ny, *sc = buf + 3 * ny;  /* sc: 3 ny */
   int n_fail = 0;
-  for (long s = 0; s < N; ++s) {
+  long next = 0;
+  if (!queue) queue = &next;
+  for (;;) {  /* samples from the counter shared with the other threads of this batch */
+    long s = __atomic_fetch_add(queue, 1, __ATOMIC_RELAXED);
+    if (s >= N) break;
     double* y = Y + s * ny;
     const double* a = A + s * na;
     double t = T0[s], t1 = T1[s], err, h_abs;
@@ -167,8 +181,7 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
     }
     for (;;) {
       if (++steps > max_steps) { status[s] = 1; break; }
-      double min_step = 10 * fabs(nextafter(t, dir * INFINITY) - t);
-      if (h_abs < min_step) { status[s] = 2; break; }
+      if (ocr_too_small(h_abs, t, dir)) { status[s] = 2; break; }
       double t_new = t + dir * h_abs;
       int last = dir * (t_new - t1) >= 0;
       if (last) { t_new = t1; H[s] = h_abs; }
@@ -204,35 +217,55 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
 '''
 
 
-DRIVER_LANES_SRC = _DRIVER_COMMON + r'''/* The same adaptive DOP853 driver with OCR_W samples in SIMD lanes.
+DRIVER_LANES_SRC = _DRIVER_COMMON + r'''/* The same adaptive DOP853 driver with OCR_W samples in SIMD lanes, over one or several
+ * consecutive segments per sample.
  *
- * Included after the scalar CasADi code of RHS (initial step of each sample) and the lane code
- * LSTEP of the step Function (ocreach.native.lanes: inputs y, f0, t, h, a, rtol, atol and outputs
- * y_new, f_new, err, each component-major (n, OCR_W)).  Every lane has its own sample, time, step
- * size and accept/reject history; a lane whose sample is done takes the next one from the
- * queue, so the lanes stay busy until the batch runs dry (idle lanes step with h = 0).  The
- * per-sample arithmetic and controller are the scalar driver's, so results do not depend on the
- * lane a sample ran in.  Status per sample as the scalar driver.
+ * Included after the scalar CasADi code of RHS (Hairer's initial step of a sample without a step
+ * size) and the lane code (ocreach.native.lanes) of the step Function LSTEP (inputs y, f0, t, h,
+ * a, rtol, atol; outputs y_new, f_new, err) and of the right-hand side LRHS (inputs y, t, a;
+ * output f), each component-major (n, OCR_W).  Every lane has its own sample, segment, time, step
+ * size and accept/reject history; a lane whose sample is done takes the next one from the queue,
+ * so the lanes stay busy until the batch runs dry (idle lanes step with h = 0).  A segment ends
+ * exactly at its end time; the next one (new arguments, e.g. the next piecewise-constant control
+ * of ocreach.flow.propagate) starts from the step size the controller proposed before that last
+ * step was clipped (H[s]), with rejected = 0 and a fresh derivative, exactly as a new call per
+ * segment would.  The derivatives of all lanes that start a segment in one round are one LRHS
+ * call, and the controller's err^(-1/8) is computed for all lanes at once; both are the same
+ * operations per lane whatever the other lanes hold, so results do not depend on the lane (or
+ * thread) a sample ran in.  Several threads may run one batch together: they take samples from
+ * the shared counter *queue (atomically), so a thread that gets less CPU takes fewer samples.
+ * max_steps counts per segment.  Status per sample as the scalar driver.
  */
 typedef struct {
-  long s;          /* sample index, -1 if idle */
+  long s, k;       /* sample index (-1: idle) and its current segment */
+  long kc, ksub;   /* its control index k / m and k % m (no integer division per segment) */
   double t, t1, dir, h_abs, t_new;
-  long steps;
-  int rejected, last;
+  long steps, total;
+  int rejected, last, pending;  /* pending: open segment k (or take a new sample) next round */
 } ocr_lane;
 
-CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, const double* T0,
-                                           const double* T1, const double* A, const double* rtol,
-                                           const double* atol, long max_steps, int* status,
-                                           double* t_reached, long* n_steps, double* H) {
-  const long W = OCR_W;
+/* Where segment k of sample s lives (strides in doubles). */
+typedef struct {
+  long K;                                /* segments per sample */
+  const double *T0, *T1; long ts, tk;    /* times T0[s ts + k tk] -> T1[s ts + k tk] */
+  const double* U; long us, uk, nu, m;   /* arguments 0..nu-1: U[s us + (k / m) uk + i] */
+  const double* P; long ps, np;          /* arguments nu..nu+np-1: P[s ps + i] */
+  const double* Y0;                      /* initial state Y0[s ny + i] */
+  double* OUT; long os, ok;              /* state after segment k: OUT[s os + (k + 1) ok + i] */
+  long* queue;     /* next sample to take, shared by the threads of one batch (NULL: this call's) */
+} ocr_plan;
+
+static int ocr_lanes_run(long N, long ny, const ocr_plan* pl, const double* rtol,
+                         const double* atol, long max_steps, int* status, double* t_reached,
+                         long* n_steps, double* H) {
+  const long W = OCR_W, na = pl->nu + pl->np;
   casadi_int sa, sr, si, sw;
   OCR_CAT(RHS, _work)(&sa, &sr, &si, &sw);
   const casadi_real** arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sa + 8));
   casadi_real** res = (casadi_real**)malloc(sizeof(casadi_real*) * (sr + 8));
   casadi_int* iw = (casadi_int*)malloc(sizeof(casadi_int) * (si + 1));
   casadi_real* w = (casadi_real*)malloc(sizeof(casadi_real) * (sw + 1));
-  long nbuf = W * (4 * ny + 2 * ny + na + ny + 3) + 5 * ny;
+  long nbuf = W * (4 * ny + 2 * ny + na + ny + 5) + 5 * ny + na + 1;
   double* buf = (double*)calloc(nbuf, sizeof(double));
   ocr_lane* lane = (ocr_lane*)calloc(W, sizeof(ocr_lane));
   if (!arg || !res || !iw || !w || !buf || !lane) {
@@ -240,97 +273,162 @@ CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, 
   }
   double *Ly = buf, *Lf = Ly + W * ny, *Lyn = Lf + W * ny, *Lfn = Lyn + W * ny;
   double *Lrt = Lfn + W * ny, *Lat = Lrt + W * ny, *La = Lat + W * ny, *Lt = La + W * na;
-  double *Lh = Lt + W, *Lerr = Lh + W;
-  double *y = Lerr + W, *f = y + ny, *sc = f + ny;  /* sc: 3 ny */
+  double *Lh = Lt + W, *Lerr = Lh + W, *Lfac = Lerr + W, *Lbusy = Lfac + W;
+  double *y = Lbusy + W, *f = y + ny, *sc = f + ny, *a = sc + 3 * ny;  /* sc: 3 ny */
+  const long nu = pl->nu, np = pl->np, m = pl->m;
   for (long i = 0; i < ny; ++i)
     for (long l = 0; l < W; ++l) { Lrt[i * W + l] = rtol[i]; Lat[i * W + l] = atol[i]; }
   const double* lin[7] = {Ly, Lf, Lt, Lh, La, Lrt, Lat};
   double* lout[3] = {Lyn, Lfn, Lerr};
-  long next = 0, active = 0;
+  const double* rin[3] = {Ly, Lt, La};
+  double* rout[1] = {Lfn};
+  long next = 0, active = 0, *queue = pl->queue ? pl->queue : &next;
   int n_fail = 0;
-  for (long l = 0; l < W; ++l) lane[l].s = -1;
+  char need_f[OCR_W];
+  for (long l = 0; l < W; ++l) { lane[l].s = -1; lane[l].pending = 1; }
+/* the state of lane l after segment k of its sample (also the state a failed sample stopped at) */
+#define OCR_PUT(l, L) do { double* o_ = pl->OUT + (L)->s * pl->os + ((L)->k + 1) * pl->ok; \
+    for (long i_ = 0; i_ < ny; ++i_) o_[i_] = Ly[i_ * W + (l)]; } while (0)
+#define OCR_END(L, st) do { long s_ = (L)->s; status[s_] = (st); n_fail += (st) != 0; \
+    t_reached[s_] = (L)->t; n_steps[s_] = (L)->total; (L)->s = -1; (L)->pending = 1; --active; } while (0)
+#define OCR_NEXT(L) do { ++(L)->k; if (++(L)->ksub == m) { (L)->ksub = 0; ++(L)->kc; } } while (0)
   for (;;) {
-    /* fill idle lanes from the queue (initial derivative and step as the scalar driver) */
+    /* open the next segment of lanes that finished one; refill lanes whose sample is done */
+    int n_need = 0;
     for (long l = 0; l < W; ++l) {
-      while (lane[l].s < 0 && next < N) {
-        long s = next++;
-        double t = T0[s], t1 = T1[s];
-        const double* a = A + s * na;
-        status[s] = 0; n_steps[s] = 0; t_reached[s] = t;
-        if (t == t1) continue;
-        double dir = (t1 >= t) ? 1.0 : -1.0, h_abs;
-        memcpy(y, Y + s * ny, sizeof(double) * ny);
-        if ((status[s] = ocr_start(ny, y, t, t1, a, rtol, atol, H[s], f, sc, arg, res, iw, w,
-                                   &h_abs))) {
-          ++n_fail;
-          continue;
+      ocr_lane* L = lane + l;
+      need_f[l] = 0;
+      while (L->pending) {
+        if (L->s < 0) {
+          long s = __atomic_fetch_add(queue, 1, __ATOMIC_RELAXED);
+          if (s >= N) { L->pending = 0; break; }  /* queue empty: idle */
+          L->s = s; L->k = 0; L->kc = 0; L->ksub = 0; L->total = 0; L->t = pl->T0[s * pl->ts];
+          status[s] = 0;
+          for (long i = 0; i < ny; ++i) Ly[i * W + l] = pl->Y0[s * ny + i];
+          for (long i = 0; i < np; ++i) La[(nu + i) * W + l] = pl->P[s * pl->ps + i];
+          ++active;
         }
-        ocr_lane* L = lane + l;
-        L->s = s; L->t = t; L->t1 = t1; L->dir = dir; L->h_abs = h_abs; L->steps = 0;
-        L->rejected = 0;
-        for (long i = 0; i < ny; ++i) { Ly[i * W + l] = y[i]; Lf[i * W + l] = f[i]; }
-        for (long i = 0; i < na; ++i) La[i * W + l] = a[i];
-        ++active;
+        long s = L->s, k = L->k;
+        if (k == pl->K) { OCR_END(L, 0); continue; }
+        double t = pl->T0[s * pl->ts + k * pl->tk], t1 = pl->T1[s * pl->ts + k * pl->tk];
+        L->t = t;
+        if (t == t1) { OCR_PUT(l, L); OCR_NEXT(L); continue; }
+        const double* u = pl->U + s * pl->us + L->kc * pl->uk;
+        for (long i = 0; i < nu; ++i) La[i * W + l] = u[i];
+        /* the next segment's control and output rows are read / written in a few steps: fetch
+         * them now (cache misses on these rows were ~10% of the driver's time) */
+        if (k + 1 < pl->K) {
+          __builtin_prefetch(u + pl->uk);
+          __builtin_prefetch(pl->OUT + s * pl->os + (k + 2) * pl->ok, 1);
+        }
+        double dir = (t1 >= t) ? 1.0 : -1.0, span = fabs(t1 - t), h_abs;
+        if (H[s] > 0.0) {  /* step size given: the derivative comes from LRHS below */
+          h_abs = H[s] < span ? H[s] : span;
+          need_f[l] = 1; ++n_need;
+        } else {  /* Hairer's initial step (scalar, two RHS calls) */
+          for (long i = 0; i < ny; ++i) y[i] = Ly[i * W + l];
+          for (long i = 0; i < na; ++i) a[i] = La[i * W + l];
+          if (ocr_start(ny, y, t, t1, a, rtol, atol, H[s], f, sc, arg, res, iw, w, &h_abs)) {
+            OCR_PUT(l, L); OCR_END(L, 3); continue;
+          }
+          for (long i = 0; i < ny; ++i) Lf[i * W + l] = f[i];
+        }
+        L->t1 = t1; L->dir = dir; L->h_abs = h_abs; L->steps = 0; L->rejected = 0;
+        L->pending = 0;
       }
+    }
+    if (n_need) {  /* derivatives at the start of the opened segments in one lane call */
+      int failed = 0;
+      for (long l = 0; l < W; ++l) Lt[l] = lane[l].s >= 0 ? lane[l].t : 0.0;
+      LRHS(rin, rout);
+      for (long l = 0; l < W; ++l) {
+        if (!need_f[l]) continue;
+        int ok = 1;
+        for (long i = 0; i < ny; ++i) { Lf[i * W + l] = Lfn[i * W + l]; ok &= isfinite(Lfn[i * W + l]) ? 1 : 0; }
+        if (!ok) { OCR_PUT(l, lane + l); OCR_END(lane + l, 3); failed = 1; }
+      }
+      if (failed) continue;  /* refill the lanes that failed first */
     }
     if (active == 0) break;
     /* step sizes of the busy lanes; a lane that fails here is finished and refilled next round */
     for (long l = 0; l < W; ++l) {
       ocr_lane* L = lane + l;
       Lh[l] = 0.0;
+      Lbusy[l] = 0.0;
       if (L->s < 0) continue;
       int st = 0;
       if (++L->steps > max_steps) st = 1;
-      else if (L->h_abs < 10 * fabs(nextafter(L->t, L->dir * INFINITY) - L->t)) st = 2;
-      if (st) {
-        long s = L->s;
-        status[s] = st; ++n_fail;
-        for (long i = 0; i < ny; ++i) Y[s * ny + i] = Ly[i * W + l];
-        t_reached[s] = L->t; n_steps[s] = L->steps; L->s = -1; --active;
-        continue;
-      }
+      else if (ocr_too_small(L->h_abs, L->t, L->dir)) st = 2;
+      if (st) { L->total += L->steps; OCR_PUT(l, L); OCR_END(L, st); continue; }
       double t_new = L->t + L->dir * L->h_abs;
       L->last = L->dir * (t_new - L->t1) >= 0;
       if (L->last) { t_new = L->t1; H[L->s] = L->h_abs; }
       L->t_new = t_new;
       Lt[l] = L->t;
       Lh[l] = t_new - L->t;
+      Lbusy[l] = 1.0;
     }
     LSTEP(lin, lout);
+    /* all lanes at once: 0.9 err^(-1/8) (as ocr_err_factor), the accept test
+     * (isfinite(err) && err < 1) and the finiteness of y_new; accepted lanes take y_new, f_new */
+    ocr_v e = ocr_ld(Lerr);
+    ocr_st(Lfac, ocr_bc(0.9) * (1.0 / OCR_MAP1(sqrt, OCR_MAP1(sqrt, OCR_MAP1(sqrt, e)))));
+    ocr_m acc = (e < 1.0) & (e > -INFINITY) & (ocr_ld(Lbusy) != 0.0), fin = acc;
+    for (long i = 0; i < ny; ++i) { ocr_v v = ocr_ld(Lyn + i * W); fin &= (v - v) == 0.0; }
+    for (long i = 0; i < ny; ++i) {
+      ocr_st(Ly + i * W, ocr_sel(fin, ocr_ld(Lyn + i * W), ocr_ld(Ly + i * W)));
+      ocr_st(Lf + i * W, ocr_sel(fin, ocr_ld(Lfn + i * W), ocr_ld(Lf + i * W)));
+    }
     for (long l = 0; l < W; ++l) {
       ocr_lane* L = lane + l;
-      if (L->s < 0) continue;
+      if (Lbusy[l] == 0.0) continue;
       double err = Lerr[l], h = Lh[l];
-      if (isfinite(err) && err < 1.0) {
-        double fac = (err == 0.0) ? 10.0 : 0.9 * ocr_err_factor(err);
+      if (acc[l]) {
+        double fac = (err == 0.0) ? 10.0 : Lfac[l];
         if (fac > 10.0) fac = 10.0;
         if (L->rejected && fac > 1.0) fac = 1.0;
         L->h_abs = fabs(h) * fac;
         L->rejected = 0;
-        int ok = 1;
-        for (long i = 0; i < ny; ++i) ok &= isfinite(Lyn[i * W + l]) ? 1 : 0;
-        long s = L->s;
-        if (!ok) {
-          status[s] = 3; ++n_fail;
-          for (long i = 0; i < ny; ++i) Y[s * ny + i] = Ly[i * W + l];
-          t_reached[s] = L->t; n_steps[s] = L->steps; L->s = -1; --active;
-          continue;
-        }
-        for (long i = 0; i < ny; ++i) { Ly[i * W + l] = Lyn[i * W + l]; Lf[i * W + l] = Lfn[i * W + l]; }
+        if (!fin[l]) { L->total += L->steps; OCR_PUT(l, L); OCR_END(L, 3); continue; }
         L->t = L->t_new;
-        if (L->last) {
-          for (long i = 0; i < ny; ++i) Y[s * ny + i] = Ly[i * W + l];
-          t_reached[s] = L->t; n_steps[s] = L->steps; L->s = -1; --active;
-        }
+        if (L->last) { L->total += L->steps; OCR_PUT(l, L); OCR_NEXT(L); L->pending = 1; }
       } else {
-        double fac = isfinite(err) ? 0.9 * ocr_err_factor(err) : 0.2;
+        double fac = isfinite(err) ? Lfac[l] : 0.2;
         if (fac < 0.2) fac = 0.2;
         L->h_abs *= fac;
         L->rejected = 1;
       }
     }
   }
+#undef OCR_PUT
+#undef OCR_END
+#undef OCR_NEXT
   free(arg); free(res); free(iw); free(w); free(buf); free(lane);
   return n_fail;
+}
+
+/* One segment per sample: T0[s] -> T1[s] with arguments A[s], Y advanced in place (the
+ * signature of the scalar driver). */
+CASADI_SYMBOL_EXPORT int ocreach_integrate(long N, long ny, long na, double* Y, const double* T0,
+                                           const double* T1, const double* A, const double* rtol,
+                                           const double* atol, long max_steps, int* status,
+                                           double* t_reached, long* n_steps, double* H,
+                                           long* queue) {
+  ocr_plan pl = {1, T0, T1, 1, 0, A, na, 0, na, 1, A, 0, 0, Y, Y, ny, 0, queue};
+  return ocr_lanes_run(N, ny, &pl, rtol, atol, max_steps, status, t_reached, n_steps, H);
+}
+
+/* K segments per sample on a shared grid G[0..K]: segment k under U[s, k / m] (U: N x K/m x nu)
+ * and P[s] (N x np), from Y0 (N x ny); OUT (N x (K+1) x ny) gets the state after every segment
+ * (OUT[s, 0] is left to the caller). */
+CASADI_SYMBOL_EXPORT int ocreach_propagate(long N, long ny, long K, const double* G,
+                                           const double* U, long nu, long m, const double* P,
+                                           long np, const double* Y0, double* OUT,
+                                           const double* rtol, const double* atol, long max_steps,
+                                           int* status, double* t_reached, long* n_steps,
+                                           double* H, long* queue) {
+  ocr_plan pl = {K, G, G + 1, 0, 1, U, (K / m) * nu, nu, nu, m, P, np, np, Y0, OUT,
+                 (K + 1) * ny, ny, queue};
+  return ocr_lanes_run(N, ny, &pl, rtol, atol, max_steps, status, t_reached, n_steps, H);
 }
 '''

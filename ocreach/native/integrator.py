@@ -6,6 +6,12 @@ over samples and steps, compiled once (:func:`ocreach.native.compile.compile_sou
 through ctypes.  Without a compiler (or with ``OCREACH_JIT=0``) the same algorithm runs as a
 NumPy loop over steps, vectorised over samples with ``Function.map``; results agree to round-off,
 only slower.  Neither path has a Python loop over samples.
+
+:func:`propagate_segments` (behind :func:`ocreach.flow.propagate`) integrates every sample over
+a grid of segments with piecewise-constant arguments; with the SIMD-lane driver all segments of
+a batch are one C call per thread.  Threads of one batch take samples from a shared counter; a
+sample's arithmetic does not depend on its thread or lane, so results are bit-identical for any
+thread count.
 """
 from __future__ import annotations
 
@@ -24,7 +30,7 @@ from ocreach.native.codegen import generate_c
 from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library, opt_flags
 from ocreach.native.dop853 import (DRIVER_LANES_SRC, DRIVER_SRC, MAX_FACTOR, MIN_FACTOR,
                                    SAFETY, build_step, dense_rhs)
-from ocreach.native.lanes import LANE_FLAGS, LaneCodegenError, lane_source
+from ocreach.native.lanes import LANE_FLAGS, LaneCodegenError, lane_sources
 
 #: samples per SIMD step of the native driver (``OCREACH_LANES`` overrides; 1 = scalar driver)
 LANES = 8
@@ -35,7 +41,7 @@ MAX_LANE_INSTRUCTIONS = 30000
 #: lane sources above this size are compiled at -O1 (a third less compile time, same speed)
 LANE_O1_BYTES = 200_000
 
-__all__ = ["Batch", "integrate_batch", "stepper", "tol_vector"]
+__all__ = ["Batch", "integrate_batch", "propagate_segments", "stepper", "tol_vector"]
 
 
 class _Stepper:
@@ -48,6 +54,7 @@ class _Stepper:
         self.rhs = rhs
         self.step = build_step(rhs)
         self.native = None
+        self.native_segments = None  # the lane driver's ocreach_propagate (None: scalar driver)
         self.maps: dict = {}
         self._sx: ca.Function | None = None
         self.lane_width = 1  # samples per SIMD step of the native driver (1: scalar driver)
@@ -67,6 +74,12 @@ class _Stepper:
             try:
                 fn = self._load(*self._lane_sources(lanes))
                 self.lane_width = lanes
+                seg = self._dll.ocreach_propagate
+                vp, lg = ctypes.c_void_p, ctypes.c_long
+                seg.argtypes = [lg, lg, lg, vp, vp, lg, lg, vp, lg, vp, vp, vp, vp, lg, vp, vp, vp, vp,
+                                vp]
+                seg.restype = ctypes.c_int
+                self.native_segments = seg
                 return fn
             except LaneCodegenError:
                 pass  # an operation without a lane form: the scalar driver below
@@ -97,8 +110,9 @@ class _Stepper:
         return self._sx.n_instructions()
 
     def _lane_sources(self, width: int) -> tuple[dict[str, bytes], tuple[str, ...]]:
-        lane = lane_source(self._sx, "ocr_lstep", width)
+        lane = lane_sources([(self._sx, "ocr_lstep"), (self.rhs, "ocr_lrhs")], width)
         main = (f"#define RHS {self.rhs.name()}\n#define OCR_W {width}\n#define LSTEP ocr_lstep\n"
+                "#define LRHS ocr_lrhs\n"
                 "#include \"gen.c\"\n#include \"lanes.c\"\n#include \"driver.c\"\n").encode()
         flags = LANE_FLAGS if len(lane) <= LANE_O1_BYTES else ("-O1",) + LANE_FLAGS[1:]
         return ({"gen.c": generate_c([self.rhs]), "lanes.c": lane.encode(),
@@ -110,7 +124,7 @@ class _Stepper:
         fn = dll.ocreach_integrate
         vp = ctypes.c_void_p  # addresses passed as ints: cheaper than ctypes pointer casts
         fn.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_long, vp, vp, vp, vp, vp, vp,
-                       ctypes.c_long, vp, vp, vp, vp]
+                       ctypes.c_long, vp, vp, vp, vp, vp]
         fn.restype = ctypes.c_int
         self._dll = dll  # keep the library loaded
         return fn
@@ -275,15 +289,12 @@ class Batch:
         self.status = np.zeros(n, dtype=np.intc)
         self.t_reached = np.zeros(n)
         self.n_steps = np.zeros(n, dtype=np.int_)
-        parts = min(int(threads), max(1, n // max(2, THREAD_WORK // n_y)))
-        cuts = [n * i // parts for i in range(parts + 1)]
-        arrays = (Y, self.t0, self.t1, self.A, self.status, self.t_reached, self.n_steps, self.H)
-        base = [(arr.ctypes.data, arr.strides[0]) for arr in arrays]
-        tol = (rtol_v.ctypes.data, atol_v.ctypes.data)
-        self._calls = []
-        for a, b in zip(cuts[:-1], cuts[1:]):
-            y, ta, tb, aa, stt, tr, ns, hh = (adr + a * stride for adr, stride in base)
-            self._calls.append((b - a, n_y, n_a, y, ta, tb, aa, *tol, max_steps, stt, tr, ns, hh))
+        arrays = (Y, self.t0, self.t1, self.A)
+        self._queue = np.zeros(1, dtype=np.int64)
+        self._calls = _parts(_parts_count(n, n_y, threads), self._queue,
+                             (n, n_y, n_a, *(arr.ctypes.data for arr in arrays), rtol_v.ctypes.data,
+                              atol_v.ctypes.data, max_steps, self.status.ctypes.data,
+                              self.t_reached.ctypes.data, self.n_steps.ctypes.data, self.H.ctypes.data))
 
     def run(self) -> None:
         """Integrate every sample from ``t0`` to ``t1`` (raises :class:`SolverError` naming the
@@ -293,23 +304,101 @@ class Batch:
             self.Y[:] = _integrate_numpy(st, self.Y, self.t0, self.t1, self.A, self.rtol_v,
                                          self.atol_v, self.max_steps, self.H)
             return
-        fn = st.native
-        if len(self._calls) == 1:
-            rcs = [fn(*self._calls[0])]
-        else:  # the C loop runs without the GIL (ctypes releases it): one part per thread
-            pool = _pool(len(self._calls))
-            rcs = [f.result() for f in [pool.submit(fn, *c) for c in self._calls]]
-        if min(rcs) < 0:
-            raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
-        if max(rcs) > 0:
-            msgs = []
-            for code, kind in _STATUS.items():
-                bad = np.flatnonzero(self.status == code)
-                if bad.size:
-                    if code == 1:
-                        kind = f"max_steps = {self.max_steps} exceeded"
-                    msgs.append(_fail_message(kind, bad, self.Y.shape[0], self.t_reached, self.t1))
-            raise SolverError("; ".join(msgs))
+        self._queue[0] = 0
+        _check(_run_parts(st.native, self._calls), self.status, self.max_steps, self.t_reached,
+               self.t1)
+
+
+def _parts_count(n: int, n_y: int, threads: int, segments: int = 1) -> int:
+    """Threads for a batch: at most ``threads``, each with at least ``max(2, THREAD_WORK //
+    n_y)`` sample segments on average."""
+    return max(1, min(int(threads), n, n * segments // max(2, THREAD_WORK // n_y)))
+
+
+def _parts(parts: int, queue: np.ndarray, args: tuple) -> list[tuple]:
+    """The driver calls of a batch run by ``parts`` threads: all on the whole batch, taking
+    samples from the shared counter ``queue`` (reset to 0 before each run), so a thread that gets
+    less CPU (another process on its core) takes fewer samples; one part gets its own counter.
+    Each sample's arithmetic does not depend on the thread or lane it ran in."""
+    if parts == 1:
+        return [(*args, None)]
+    return [(*args, queue.ctypes.data)] * parts
+
+
+def _run_parts(fn, calls: list[tuple]) -> list[int]:
+    """``fn(*c)`` for every part ``c``: the first in this thread, the others in the thread pool
+    (the C loop runs without the GIL: ctypes releases it; no wake-up of a pool thread for the
+    first part, which on a loaded machine can cost a scheduler time slice)."""
+    if len(calls) == 1:
+        return [fn(*calls[0])]
+    futures = [_pool(len(calls) - 1).submit(fn, *c) for c in calls[1:]]
+    first = fn(*calls[0])
+    return [first] + [f.result() for f in futures]
+
+
+def _check(rcs: list[int], status: np.ndarray, max_steps: int, t_reached: np.ndarray,
+           t1: np.ndarray) -> None:
+    """Raise :class:`SolverError` naming the failed samples if a driver part reported any."""
+    if min(rcs) < 0:
+        raise SolverError("integrate_batch: the native DOP853 driver could not allocate memory")
+    if max(rcs) > 0:
+        msgs = []
+        for code, kind in _STATUS.items():
+            bad = np.flatnonzero(status == code)
+            if bad.size:
+                if code == 1:
+                    kind = f"max_steps = {max_steps} exceeded"
+                msgs.append(_fail_message(kind, bad, status.size, t_reached, t1))
+        raise SolverError("; ".join(msgs))
+
+
+def propagate_segments(st: _Stepper, X0: np.ndarray, U: np.ndarray, P: np.ndarray,
+                       times: np.ndarray, m: int, rtol_v: np.ndarray, atol_v: np.ndarray,
+                       max_steps: int, threads: int = 1) -> np.ndarray:
+    """States ``(N, len(times), n_y)`` of ``dy/dt = rhs(y, t, [U[:, j // m]; P])`` on each
+    segment ``[times[j], times[j+1]]`` from ``X0`` (N, n_y); ``U`` (N, (len(times)-1) / m, n_u),
+    ``P`` (N, n_p).  Inputs are the caller's validated values.
+
+    Each sample's last step size carries over to the next segment instead of restarting from
+    Hairer's starting-step rule.  The lane driver runs all segments of a sample in one C call
+    (no per-segment return to Python; a lane that ends a segment starts the next at once); the
+    scalar driver and the NumPy fallback take one :class:`Batch` run per segment, with the same
+    arithmetic per sample.  Raises :class:`SolverError` naming failed samples.
+    """
+    n, n_y = X0.shape
+    k = times.size - 1
+    nu, n_p = U.shape[2], P.shape[1]
+    if st.native_segments is None:
+        batch = Batch(st, np.array(X0, dtype=float, order="C"), nu + n_p, rtol_v, atol_v,
+                      max_steps, threads)
+        batch.A[:, nu:] = P
+        Ut = np.ascontiguousarray(np.moveaxis(U, 1, 0))  # (K/m, N, n_u): one block per control
+        out = np.empty((times.size,) + batch.Y.shape)  # time-major while filling
+        out[0] = batch.Y
+        for j in range(k):
+            batch.A[:, :nu] = Ut[j // m]
+            batch.t0.fill(times[j])
+            batch.t1.fill(times[j + 1])
+            batch.run()
+            out[j + 1] = batch.Y
+        return np.ascontiguousarray(np.moveaxis(out, 0, 1))
+    X0 = np.ascontiguousarray(X0, dtype=float)
+    U = np.ascontiguousarray(U, dtype=float)
+    P = np.ascontiguousarray(P, dtype=float)
+    G = np.ascontiguousarray(times, dtype=float)
+    out = np.empty((n, k + 1, n_y))
+    out[:, 0] = X0
+    status, t_reached = np.zeros(n, dtype=np.intc), np.zeros(n)
+    n_steps, H = np.zeros(n, dtype=np.int_), np.zeros(n)
+    queue = np.zeros(1, dtype=np.int64)
+    calls = _parts(_parts_count(n, n_y, threads, k), queue,
+                   (n, n_y, k, G.ctypes.data, U.ctypes.data, nu, m, P.ctypes.data, n_p,
+                    X0.ctypes.data, out.ctypes.data, rtol_v.ctypes.data, atol_v.ctypes.data,
+                    max_steps, status.ctypes.data, t_reached.ctypes.data, n_steps.ctypes.data,
+                    H.ctypes.data))
+    _check(_run_parts(st.native_segments, calls), status, max_steps, t_reached,
+           np.full(n, times[-1]))
+    return out
 
 
 def _integrate_numpy(st: _Stepper, y0, t0, t1, args, rtol_v, atol_v, max_steps,
