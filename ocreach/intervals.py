@@ -504,6 +504,67 @@ _OP_MULC = -1
 _KERNELS[_OP_MULC] = (2, _mulc)
 _OP_NAMES[_OP_MULC] = "mul"
 
+# ---------------------------------------------------------------------------- stacked kernels
+# The four most frequent ops once more, on the stacked bounds A = V[:, a], B = V[:, b] of shape
+# (2, g, nb) (row 0 lower, row 1 upper bounds), writing into ``out`` = V[:, start:stop]: the same
+# roundings as the kernels above (bit for bit, up to the sign of a zero bound) in about a third
+# of the numpy calls, which dominate for the few boxes of a reachability step.
+_DIRS = np.array([-_INF, _INF]).reshape(2, 1, 1)    # row 0 rounds down, row 1 up
+_SIGNS = np.array([-1.0, 1.0]).reshape(2, 1, 1)
+
+
+def _round_pair(S, out):
+    """``out[0] = _dn(S[0])``, ``out[1] = _up(S[1])`` (``S`` is not modified)."""
+    if _ROUNDING["nextafter"]:
+        return np.nextafter(S, _DIRS, out=out)
+    np.minimum(S[0], _FMAX, out=out[0])
+    np.maximum(S[1], -_FMAX, out=out[1])
+    t = np.abs(out)
+    t *= _ULP_REL
+    t += _ETA
+    t *= _SIGNS          # x - y == x + (-y) exactly
+    return np.add(out, t, out=out)
+
+
+def _add2(A, B, out):
+    S = A + B
+    keep = (A == 0) | (B == 0) | (S == 0)   # exact: an addend 0, or an exact 0 sum (see _sum_dn)
+    _round_pair(S, out)
+    np.copyto(out, S, where=keep)
+
+
+def _sub2(A, B, out):
+    Bs = B[::-1]                            # lo = alo - bhi, hi = ahi - blo
+    S = A - Bs
+    keep = (A == 0) | (Bs == 0) | (S == 0)
+    _round_pair(S, out)
+    np.copyto(out, S, where=keep)
+
+
+def _corners2(P, out_shape):
+    """Hull (``fmin``/``fmax``, see :func:`_corners`) of the four corners ``P`` (2, 2, g, nb)."""
+    P = P.reshape(4, *out_shape)
+    S = np.empty((2, *out_shape))
+    np.fmin.reduce(P, axis=0, out=S[0])
+    np.fmax.reduce(P, axis=0, out=S[1])
+    return S
+
+
+def _mul2(A, B, out):
+    S = _corners2(A[:, None] * B[None, :], A.shape[1:])
+    _round_pair(S, out)
+    exact0 = (A == 0).all(axis=0) | (B == 0).all(axis=0)   # a factor is exactly 0
+    np.copyto(out, 0.0, where=exact0)
+
+
+def _div2(A, B, out):
+    _require((B[0] <= 0) & (B[1] >= 0), "division by an interval containing 0")
+    _round_pair(_corners2(A[:, None] / B[None, :], A.shape[1:]), out)
+
+
+_STACKED: dict[int, Callable] = {ca.OP_ADD: _add2, ca.OP_SUB: _sub2, ca.OP_MUL: _mul2,
+                                 ca.OP_DIV: _div2}
+
 #: CasADi operation codes the evaluator bounds (besides OP_INPUT, OP_OUTPUT, OP_CONST).
 SUPPORTED_OPS = tuple(sorted({_OP_NAMES[k] for k in _KERNELS}))
 UNDECIDED = ("error", "hull")
@@ -706,7 +767,9 @@ class IntervalFunction:
             self._groups.append(_Group(op, start, start + len(batch), a, b,
                                        np.asarray([node_instr[i] for i in batch], dtype=np.int64)))
         self._starts = np.asarray([g.start for g in self._groups], dtype=np.int64)
-        self._plan = [(g, _KERNELS[g.op][1], isinstance(g.a, slice), isinstance(g.b, slice))
+        self._plan = [(g, _KERNELS[g.op][1], isinstance(g.a, slice), isinstance(g.b, slice),
+                       _STACKED.get(g.op) if not (kinks == "error" and g.op in _KINK_TESTS)
+                       else None)
                       for g in self._groups]
         self._max_group = max((g.stop - g.start for g in self._groups), default=1)
         # input gathers: per Function input, the value rows and the dense entries they read
@@ -813,10 +876,14 @@ class IntervalFunction:
         und = self.undecided
         kink_check = self.kinks == "error"
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            for g, fn, a_slice, b_slice in self._plan:
+            for g, fn, a_slice, b_slice, fn2 in self._plan:
                 try:
                     # ndarray.take is several times faster than fancy indexing on small arrays
                     A = V[:, g.a] if a_slice else V.take(g.a, axis=1)
+                    if fn2 is not None:
+                        fn2(A, V[:, g.b] if b_slice else V.take(g.b, axis=1),
+                            V[:, g.start:g.stop])
+                        continue
                     if g.b is None:
                         args = (A[0], A[1], None, None)
                     else:

@@ -305,8 +305,13 @@ def test_unary_op(name):
     _check_op(F, fn, [lo[None]], [hi[None]], cands, name)
 
 
+@pytest.mark.parametrize("rounding", ["nextafter", "ulp-scaled"])
 @pytest.mark.parametrize("name", list(BINARY_OPS))
-def test_binary_op(name):
+def test_binary_op(name, rounding, monkeypatch):
+    """Both outward roundings (``np.nextafter`` for small evaluations, the scaled-ulp step of
+    ``_dn``/``_up`` above NEXTAFTER_MAX values), through the stacked add/sub/mul/div kernels."""
+    if rounding != "nextafter":
+        monkeypatch.setattr(iv, "NEXTAFTER_MAX", 0)
     expr, fn, lx, ly = BINARY_OPS[name]
     F = IntervalFunction(ca.Function(name, [_X, _Y], [expr]))
     rng = np.random.default_rng(sum(map(ord, name)))
