@@ -29,6 +29,7 @@ Soundness (``docs/intervals.md`` has the argument)
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -562,11 +563,22 @@ def _div2(A, B, out):
     _round_pair(_corners2(A[:, None] / B[None, :], A.shape[1:]), out)
 
 
+def _addsub2(A, B, out, neg):
+    """Additions and subtractions (``neg`` (g, 1): the subtractions) in one group."""
+    Bp = np.where(neg, -B[::-1], B)
+    _add2(A, Bp, out)
+
+
 _STACKED: dict[int, Callable] = {ca.OP_ADD: _add2, ca.OP_SUB: _sub2, ca.OP_MUL: _mul2,
                                  ca.OP_DIV: _div2}
 
 #: CasADi operation codes the evaluator bounds (besides OP_INPUT, OP_OUTPUT, OP_CONST).
 SUPPORTED_OPS = tuple(sorted({_OP_NAMES[k] for k in _KERNELS}))
+#: Pseudo op code: a group of additions and subtractions (scheduled as one class; a subtraction
+#: ``a - b`` is the addition ``a + (-b)``, the same IEEE result, so the same rounding).
+_OP_ADDSUB = -2
+_OP_NAMES[_OP_ADDSUB] = "add/sub"
+_KERNELS[_OP_ADDSUB] = (2, None)   # stacked kernel only (add and sub have no kink test)
 UNDECIDED = ("error", "hull")
 KINKS = ("bound", "error")
 
@@ -744,7 +756,8 @@ class IntervalFunction:
 
         # --- pass 2: schedule the nodes into groups, lay out the value rows (inputs, constants,
         # then the groups in order, each a contiguous slice)
-        batches = _schedule(node_op, [tuple(j for kind, j in a if kind == "op") for a in node_args])
+        op_class = [ca.OP_ADD if op == ca.OP_SUB else op for op in node_op]
+        batches = _schedule(op_class, [tuple(j for kind, j in a if kind == "op") for a in node_args])
         n_in_vals, n_const = len(inputs), len(consts)
         op_row = np.empty(len(node_op), dtype=np.int64)
         pos = n_in_vals + n_const
@@ -758,8 +771,13 @@ class IntervalFunction:
             return j if kind == "in" else n_in_vals + j if kind == "const" else int(op_row[j])
 
         self._groups = []
+        group_neg = []
         for batch in batches:
             op = node_op[batch[0]]
+            neg = np.asarray([node_op[i] == ca.OP_SUB for i in batch])[:, None]
+            if op in (ca.OP_ADD, ca.OP_SUB) and neg.any() and not neg.all():
+                op = _OP_ADDSUB
+            group_neg.append(neg)
             a = _rows_or_slice([row(node_args[i][0]) for i in batch])
             b = (_rows_or_slice([row(node_args[i][1]) for i in batch])
                  if _KERNELS[op][0] == 2 else None)
@@ -768,9 +786,10 @@ class IntervalFunction:
                                        np.asarray([node_instr[i] for i in batch], dtype=np.int64)))
         self._starts = np.asarray([g.start for g in self._groups], dtype=np.int64)
         self._plan = [(g, _KERNELS[g.op][1], isinstance(g.a, slice), isinstance(g.b, slice),
-                       _STACKED.get(g.op) if not (kinks == "error" and g.op in _KINK_TESTS)
+                       functools.partial(_addsub2, neg=neg) if g.op == _OP_ADDSUB
+                       else _STACKED.get(g.op) if not (kinks == "error" and g.op in _KINK_TESTS)
                        else None)
-                      for g in self._groups]
+                      for g, neg in zip(self._groups, group_neg)]
         self._max_group = max((g.stop - g.start for g in self._groups), default=1)
         # input gathers: per Function input, the value rows and the dense entries they read
         keys = sorted(inputs, key=inputs.get)

@@ -665,3 +665,30 @@ def test_sine_of_an_overflowed_argument_is_a_domain_error():
         f = IntervalFunction(ca.Function("f", [x, y], [ca.sin(ca.sin(x + inf))]))
         with pytest.raises(IntervalDomainError, match="overflowed"):
             f([np.ones(1), np.zeros(1)], [np.ones(1), np.zeros(1)])
+
+
+@pytest.mark.parametrize("rounding", ["nextafter", "ulp-scaled"])
+def test_mixed_add_sub_group_matches_exact_ranges(rounding, monkeypatch):
+    """Additions and subtractions of one depth run as one group (a - b as a + (-b)); every bound
+    must enclose the exact range (rational arithmetic) and be within 2 ulps of it."""
+    from fractions import Fraction
+    if rounding != "nextafter":
+        monkeypatch.setattr(iv, "NEXTAFTER_MAX", 0)
+    F = IntervalFunction(ca.Function("addsub", [_X, _Y], [_X + _Y, _X - _Y, _Y - _X]))
+    assert F.n_groups == 1
+    rng = np.random.default_rng(7)
+    B = 400
+    xlo = rng.uniform(-3, 3, B) * 10.0 ** rng.integers(-8, 8, B)
+    ylo = rng.uniform(-3, 3, B) * 10.0 ** rng.integers(-8, 8, B)
+    xlo[:20], ylo[20:40] = 0.0, 0.0                      # exact zeros keep their exactness
+    xhi = xlo + rng.uniform(0, 1, B) * np.abs(xlo)
+    yhi = ylo + rng.uniform(0, 1, B) * np.abs(ylo)
+    out = F([xlo, ylo], [xhi, yhi])
+    q = Fraction
+    for b in range(B):
+        xl, xh, yl, yh = q(xlo[b]), q(xhi[b]), q(ylo[b]), q(yhi[b])
+        for (lo, hi), (el, eh) in zip(out, ((xl + yl, xh + yh), (xl - yh, xh - yl),
+                                            (yl - xh, yh - xl))):
+            assert q(lo[0, b]) <= el and eh <= q(hi[0, b])
+            assert float(el) - lo[0, b] <= 2 * np.spacing(abs(float(el)))
+            assert hi[0, b] - float(eh) <= 2 * np.spacing(abs(float(eh)))
