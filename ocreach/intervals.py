@@ -569,6 +569,18 @@ def _addsub2(A, B, out, neg):
     _add2(A, Bp, out)
 
 
+def _muldiv2(A, B, out, isdiv, ismul):
+    """Products and quotients (``isdiv`` (g, 1): the divisions) in one group: the corners of
+    each entry's own op, the exact-zero rule of :func:`_mul` only for ``mul`` entries (``ismul``,
+    not the constant products of :func:`_mulc`), the zero-divisor check only for divisions."""
+    _require(isdiv & (B[0] <= 0) & (B[1] >= 0), "division by an interval containing 0")
+    Aa, Bb = A[:, None], B[None, :]
+    S = _corners2(np.where(isdiv, Aa / Bb, Aa * Bb), A.shape[1:])
+    _round_pair(S, out)
+    exact0 = ismul & ((A == 0).all(axis=0) | (B == 0).all(axis=0))
+    np.copyto(out, 0.0, where=exact0)
+
+
 _STACKED: dict[int, Callable] = {ca.OP_ADD: _add2, ca.OP_SUB: _sub2, ca.OP_MUL: _mul2,
                                  ca.OP_DIV: _div2}
 
@@ -579,6 +591,13 @@ SUPPORTED_OPS = tuple(sorted({_OP_NAMES[k] for k in _KERNELS}))
 _OP_ADDSUB = -2
 _OP_NAMES[_OP_ADDSUB] = "add/sub"
 _KERNELS[_OP_ADDSUB] = (2, None)   # stacked kernel only (add and sub have no kink test)
+#: Pseudo op code: a group of multiplications (``mul``, ``mul`` by a constant) and divisions,
+#: scheduled as one class: each entry keeps its own op's products or quotients and rounding.
+_OP_MULDIV = -3
+_OP_NAMES[_OP_MULDIV] = "mul/div"
+_KERNELS[_OP_MULDIV] = (2, None)
+#: op code -> scheduling class (ops of one class may share a group)
+_CLASS = {ca.OP_SUB: ca.OP_ADD, _OP_MULC: ca.OP_MUL, ca.OP_DIV: ca.OP_MUL}
 UNDECIDED = ("error", "hull")
 KINKS = ("bound", "error")
 
@@ -756,7 +775,9 @@ class IntervalFunction:
 
         # --- pass 2: schedule the nodes into groups, lay out the value rows (inputs, constants,
         # then the groups in order, each a contiguous slice)
-        op_class = [ca.OP_ADD if op == ca.OP_SUB else op for op in node_op]
+        op_class = [_CLASS.get(op, op) for op in node_op]
+        self._instr_op = {k: (ca.OP_MUL if op == _OP_MULC else op)
+                          for k, op in zip(node_instr, node_op)}
         batches = _schedule(op_class, [tuple(j for kind, j in a if kind == "op") for a in node_args])
         n_in_vals, n_const = len(inputs), len(consts)
         op_row = np.empty(len(node_op), dtype=np.int64)
@@ -777,6 +798,10 @@ class IntervalFunction:
             neg = np.asarray([node_op[i] == ca.OP_SUB for i in batch])[:, None]
             if op in (ca.OP_ADD, ca.OP_SUB) and neg.any() and not neg.all():
                 op = _OP_ADDSUB
+            elif _CLASS.get(op, op) == ca.OP_MUL and len({node_op[i] for i in batch}) > 1:
+                op = _OP_MULDIV
+                neg = (np.asarray([node_op[i] == ca.OP_DIV for i in batch])[:, None],
+                       np.asarray([node_op[i] == ca.OP_MUL for i in batch])[:, None])
             group_neg.append(neg)
             a = _rows_or_slice([row(node_args[i][0]) for i in batch])
             b = (_rows_or_slice([row(node_args[i][1]) for i in batch])
@@ -787,6 +812,8 @@ class IntervalFunction:
         self._starts = np.asarray([g.start for g in self._groups], dtype=np.int64)
         self._plan = [(g, _KERNELS[g.op][1], isinstance(g.a, slice), isinstance(g.b, slice),
                        functools.partial(_addsub2, neg=neg) if g.op == _OP_ADDSUB
+                       else functools.partial(_muldiv2, isdiv=neg[0], ismul=neg[1])
+                       if g.op == _OP_MULDIV
                        else _STACKED.get(g.op) if not (kinks == "error" and g.op in _KINK_TESTS)
                        else None)
                       for g, neg in zip(self._groups, group_neg)]
@@ -936,7 +963,8 @@ class IntervalFunction:
         box = int(offset + c)
         inputs = [(l[:, 0 if l.shape[1] == 1 else box].copy(), h[:, 0 if h.shape[1] == 1 else box].copy())
                   for l, h in zip(los, his)]
-        op = _OP_NAMES.get(g.op, str(g.op))
+        real = self._instr_op.get(int(g.instr[r]), g.op)   # a mixed group: the entry's op
+        op = _OP_NAMES.get(real, str(real))
 
         def fmt(a):   # repr of each float (exact, round-trips); cheap, unlike array2string
             items = [repr(float(v)) for v in a[:24]]
@@ -946,7 +974,7 @@ class IntervalFunction:
                          for i, (l, h) in enumerate(inputs))
         extra = (" A primary (a singularity of the dynamics, e.g. the centre of a body) may lie "
                  "inside the box: shrink or split the box, or move it away from the singularity."
-                 if g.op in (ca.OP_DIV, ca.OP_INV, ca.OP_POW, ca.OP_CONSTPOW, ca.OP_LOG, ca.OP_TAN)
+                 if real in (ca.OP_DIV, ca.OP_INV, ca.OP_POW, ca.OP_CONSTPOW, ca.OP_LOG, ca.OP_TAN)
                  else "")
         raise IntervalDomainError(
             f"interval evaluation of {self.name!r} failed at instruction {int(g.instr[r])} "
