@@ -663,7 +663,9 @@ def _schedule(ops: list[int], args: list[tuple[int, ...]]) -> list[list[int]]:
     List scheduling on the DAG (``args[i]``: the operation nodes node ``i`` reads): at every step
     the op code of the ready node with the longest path still below it is run, for *all* ready
     nodes of that code.  This gives far fewer groups than grouping by (depth, op) (e.g. 27 instead
-    of 53 for the spatial CR3BP Hessian), and so fewer numpy calls per evaluation.
+    of 53 for the spatial CR3BP Hessian), and so fewer numpy calls per evaluation.  ``ops`` may be
+    scheduling classes (:data:`_CLASS`: add with sub, mul with div), whose mixed groups run as
+    one stacked kernel.
     """
     n = len(ops)
     users: list[list[int]] = [[] for _ in range(n)]
