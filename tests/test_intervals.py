@@ -305,8 +305,13 @@ def test_unary_op(name):
     _check_op(F, fn, [lo[None]], [hi[None]], cands, name)
 
 
+@pytest.mark.parametrize("rounding", ["nextafter", "ulp-scaled"])
 @pytest.mark.parametrize("name", list(BINARY_OPS))
-def test_binary_op(name):
+def test_binary_op(name, rounding, monkeypatch):
+    """Both outward roundings (``np.nextafter`` for small evaluations, the scaled-ulp step of
+    ``_dn``/``_up`` above NEXTAFTER_MAX values), through the stacked add/sub/mul/div kernels."""
+    if rounding != "nextafter":
+        monkeypatch.setattr(iv, "NEXTAFTER_MAX", 0)
     expr, fn, lx, ly = BINARY_OPS[name]
     F = IntervalFunction(ca.Function(name, [_X, _Y], [expr]))
     rng = np.random.default_rng(sum(map(ord, name)))
@@ -660,3 +665,65 @@ def test_sine_of_an_overflowed_argument_is_a_domain_error():
         f = IntervalFunction(ca.Function("f", [x, y], [ca.sin(ca.sin(x + inf))]))
         with pytest.raises(IntervalDomainError, match="overflowed"):
             f([np.ones(1), np.zeros(1)], [np.ones(1), np.zeros(1)])
+
+
+@pytest.mark.parametrize("rounding", ["nextafter", "ulp-scaled"])
+def test_mixed_add_sub_group_matches_exact_ranges(rounding, monkeypatch):
+    """Additions and subtractions of one depth run as one group (a - b as a + (-b)); every bound
+    must enclose the exact range (rational arithmetic) and be within 2 ulps of it."""
+    from fractions import Fraction
+    if rounding != "nextafter":
+        monkeypatch.setattr(iv, "NEXTAFTER_MAX", 0)
+    F = IntervalFunction(ca.Function("addsub", [_X, _Y], [_X + _Y, _X - _Y, _Y - _X]))
+    assert F.n_groups == 1
+    rng = np.random.default_rng(7)
+    B = 400
+    xlo = rng.uniform(-3, 3, B) * 10.0 ** rng.integers(-8, 8, B)
+    ylo = rng.uniform(-3, 3, B) * 10.0 ** rng.integers(-8, 8, B)
+    xlo[:20], ylo[20:40] = 0.0, 0.0                      # exact zeros keep their exactness
+    xhi = xlo + rng.uniform(0, 1, B) * np.abs(xlo)
+    yhi = ylo + rng.uniform(0, 1, B) * np.abs(ylo)
+    out = F([xlo, ylo], [xhi, yhi])
+    q = Fraction
+    for b in range(B):
+        xl, xh, yl, yh = q(xlo[b]), q(xhi[b]), q(ylo[b]), q(yhi[b])
+        for (lo, hi), (el, eh) in zip(out, ((xl + yl, xh + yh), (xl - yh, xh - yl),
+                                            (yl - xh, yh - xl))):
+            assert q(lo[0, b]) <= el and eh <= q(hi[0, b])
+            assert float(el) - lo[0, b] <= 2 * np.spacing(abs(float(el)))
+            assert hi[0, b] - float(eh) <= 2 * np.spacing(abs(float(eh)))
+
+
+@pytest.mark.parametrize("rounding", ["nextafter", "ulp-scaled"])
+def test_mixed_mul_div_group_matches_exact_ranges(rounding, monkeypatch):
+    """Products, constant products and quotients of one depth run as one group; every bound must
+    enclose the exact range (rational arithmetic, corners) and be within 2 ulps of it; a divisor
+    box containing 0 is still a domain error of the division."""
+    from fractions import Fraction as q
+    if rounding != "nextafter":
+        monkeypatch.setattr(iv, "NEXTAFTER_MAX", 0)
+    F = IntervalFunction(ca.Function("muldiv", [_X, _Y], [_X * _Y, _X / _Y, 3.0 * _X]))
+    assert F.n_groups == 1
+    rng = np.random.default_rng(11)
+    B = 400
+    xlo = rng.uniform(-3, 3, B) * 10.0 ** rng.integers(-8, 8, B)
+    ylo = rng.uniform(0.1, 3, B) * 10.0 ** rng.integers(-8, 8, B) * rng.choice([-1, 1], B)
+    xlo[:20] = 0.0
+    xhi = xlo + rng.uniform(0, 1, B) * np.abs(xlo)
+    xhi[:10] = 0.0                                       # x exactly 0: x y is exactly 0
+    yhi = ylo + rng.uniform(0, 0.5, B) * np.abs(ylo)
+    out = F([xlo, ylo], [xhi, yhi])
+    for b in range(B):
+        xs, ys = (q(xlo[b]), q(xhi[b])), (q(ylo[b]), q(yhi[b]))
+        prods = [u * v for u in xs for v in ys]
+        quots = [u / v for u in xs for v in ys]
+        for (lo, hi), vals in zip(out, (prods, quots, [3 * u for u in xs])):
+            el, eh = min(vals), max(vals)
+            assert q(lo[0, b]) <= el and eh <= q(hi[0, b])
+            assert float(el) - lo[0, b] <= 2 * np.spacing(abs(float(el)))
+            assert hi[0, b] - float(eh) <= 2 * np.spacing(abs(float(eh)))
+        if b < 10:
+            assert out[0][0][0, b] == 0.0 and out[0][1][0, b] == 0.0
+    with pytest.raises(IntervalDomainError) as e:
+        F([np.array([1.0, 1.0]), np.array([1.0, -1.0])], [np.array([2.0, 2.0]), np.array([2.0, 1.0])])
+    assert e.value.op == "div" and e.value.box == 1
