@@ -96,6 +96,11 @@ def test_zonotope_ball_input_is_linear_in_fresh_factors_and_contains_the_ball(n,
         ocreach.reach(get_problem("vdp"), "stt", ball_input="disk")
 
 
+@pytest.mark.parametrize("n, k", [(2, 8), (3, 10)])
+def test_auto_ball_input_per_dimension(n, k):
+    assert input_pz("ball", n, 0, ball="auto").n_factors == k
+
+
 def test_nd_ball_zonotope_contains_the_ball():
     """n >= 4: axes plus pseudo-random directions, contains the ball (no tightness target)."""
     Z = unit_ball_zonotope(4, 8)
