@@ -5,7 +5,7 @@
 upper half of a 60-point Fibonacci set; computed once, stored rounded to 1e-9 and re-normalised
 on use).  The exact support range of the resulting zonotope (facet and vertex enumeration,
 :func:`ocreach.sets.convert.zonotope_support_range`) scaled to contain the ball is
-[1, 1.0267]; tests/test_stt_ball_input.py checks it and a dense grid.
+[1, 1.0269]; tests/test_stt_ball_input.py checks it and a dense grid.
 """
 from __future__ import annotations
 
