@@ -2,7 +2,7 @@
 
     python examples/stt_tightness.py [--problem dro|vdp] [--input ball|box] [--order 2] [--h-max 400]
                                      [--reduction pca|girard]
-                                     [--ball-input zonotope|pz] [--dirs 64] [--mc 20000]
+                                     [--ball-input auto|zonotope|zonotope-coarse|pz] [--dirs 64] [--mc 20000]
                                      [--out docs/figures]
 
 Truth: the support function of the true reachable set by direct multiple shooting
@@ -68,7 +68,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--order", type=int, default=2)
     ap.add_argument("--h-max", type=int, default=400)
     ap.add_argument("--reduction", default="pca")
-    ap.add_argument("--ball-input", default="zonotope")
+    ap.add_argument("--ball-input", default="auto")
     ap.add_argument("--dirs", type=int, default=64)
     ap.add_argument("--mc", type=int, default=20000)
     ap.add_argument("--out", default="docs/figures")

@@ -49,12 +49,20 @@ if TYPE_CHECKING:
     from ocreach.sets import Interval, PolyZonotope
 
 INPUT_SETS = ("box", "ball")
-BALL_INPUTS = ("zonotope", "pz")
-#: generators of the zonotope ball input per input dimension (2-D: regular 12-gon, support
-#: <= 1.035; 3-D: dodecahedral axes, <= 1.096; else 2 n), see ocreach.sets.unit_ball_zonotope;
-#: measured on dro (docs/validation.md): 6 generators as tight as 8 to 0.3 % of the width, and
-#: as fast as Foss Eq. 16
-BALL_ZONOTOPE_GENERATORS = {2: 6, 3: 10}
+BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz")
+#: generators of the zonotope ball input per input dimension, ``ball_input="zonotope"``: support
+#: over the unit sphere in [1, 1.03] (exact, :func:`ocreach.sets.zonotope_support_range`):
+#: 2-D a regular 16-gon (<= 1.0196), 3-D 30 spread directions (<= 1.0269); other dimensions 2 n
+#: (looser, docs/stt.md "Ball input").  Measured on dro and nrho-flyby in docs/validation.md.
+BALL_ZONOTOPE_GENERATORS = {2: 8, 3: 30}
+#: ``ball_input="zonotope-coarse"`` (the default before issue 12's 3 % target): 2-D regular
+#: 12-gon (<= 1.0353), 3-D dodecahedral axes (<= 1.0954)
+BALL_ZONOTOPE_GENERATORS_COARSE = {2: 6, 3: 10}
+#: ``ball_input="auto"`` (default) per input dimension, chosen by measurement (docs/validation.md,
+#: "Zonotope ball input"): 2-D the 3 % zonotope (tighter dro sets, ~1.2x runtime); 3-D the coarse
+#: one, because 30 generators per step make the reduction start 3x earlier and the reachable set
+#: looser from then on (nrho-flyby: +23 % against +6 % of the width after 10 steps, h_max 200)
+BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse"}
 REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
@@ -140,7 +148,9 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
     ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"`` with ``ball="pz"``:
     the unit ball by Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer
     approximation); with ``ball="zonotope"``: the outer zonotope
-    :func:`ocreach.sets.unit_ball_zonotope` with :data:`BALL_ZONOTOPE_GENERATORS` generators, one
+    :func:`ocreach.sets.unit_ball_zonotope` with :data:`BALL_ZONOTOPE_GENERATORS` generators
+    (``ball="zonotope-coarse"``: :data:`BALL_ZONOTOPE_GENERATORS_COARSE`; ``ball="auto"``: per
+    dimension :data:`BALL_INPUT_AUTO`), one
     linear factor each (looser as a set, but its zonotope enclosure is itself, so a reduction that
     boxes it loses nothing more; docs/stt.md, "Ball input").
     ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
@@ -153,8 +163,11 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
 
     if kind == "box":
         U = box(n_u)
-    elif kind == "ball" and ball == "zonotope" and n_u > 1:
-        Z = unit_ball_zonotope(n_u, BALL_ZONOTOPE_GENERATORS.get(n_u, 2 * n_u))
+    elif kind == "ball" and ball == "auto":
+        return input_pz(kind, n_u, n_throttle, BALL_INPUT_AUTO.get(n_u, "zonotope"))
+    elif kind == "ball" and ball in ("zonotope", "zonotope-coarse") and n_u > 1:
+        table = BALL_ZONOTOPE_GENERATORS if ball == "zonotope" else BALL_ZONOTOPE_GENERATORS_COARSE
+        Z = unit_ball_zonotope(n_u, table.get(n_u, 2 * n_u))
         U = PolyZonotope.from_zonotope(Z, new_ids(Z.G.shape[1]))
     elif kind == "ball":
         if ball not in BALL_INPUTS:
@@ -447,9 +460,13 @@ class STTReach(Method):
         ``order`` [2]: STT order n in {1, 2, 3}.
         ``h_max`` [200]: maximum number of generators (dependent + independent) per part.
         ``input_set`` [None]: ``"box"`` or ``"ball"``; None = the problem's control set.
-        ``ball_input`` ["zonotope"]: representation of a ball input: ``"zonotope"`` (outer
-        zonotope, 6 generators in 2-D, 10 in 3-D; tighter reachable sets after reductions, see
-        docs/stt.md) or ``"pz"`` (Foss Eq. 16 in 2-D, the cube-to-ball polynomial in 3-D).
+        ``ball_input`` ["auto"]: representation of a ball input: ``"auto"`` (per input
+        dimension :data:`BALL_INPUT_AUTO`: ``"zonotope"`` in 2-D, ``"zonotope-coarse"`` in
+        3-D, chosen by measurement), ``"zonotope"`` (outer
+        zonotope within 3 % of the ball: 8 generators in 2-D, 30 in 3-D; tighter reachable sets
+        after reductions, see docs/stt.md), ``"zonotope-coarse"`` (6 / 10 generators, within
+        3.5 % / 9.6 %; the default before issue 12's 3 % target) or ``"pz"`` (Foss Eq. 16 in
+        2-D, the cube-to-ball polynomial in 3-D).
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
         ``split`` [None]: ``(max_parts, threshold)``; split a part while its nonlinearity index
         exceeds ``threshold`` and fewer than ``max_parts`` parts exist (None = Algorithm 1 as is).
@@ -472,7 +489,7 @@ class STTReach(Method):
         order: int = 2
         h_max: int = 200
         input_set: str | None = None
-        ball_input: str = "zonotope"
+        ball_input: str = "auto"
         reduction: str = "pca"
         split: tuple | None = None
         tube_substeps: int = 0

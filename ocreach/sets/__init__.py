@@ -22,6 +22,7 @@ from ocreach.sets.convert import (
                                    to_zonotope,
                                    unit_ball_pz,
                                    unit_ball_zonotope,
+                                   zonotope_support_range,
 )
 from ocreach.sets.ellipsoid import Ellipsoid
 from ocreach.sets.interval import Interval
@@ -36,6 +37,6 @@ __all__ = [
     "cartesian_product", "casadi_containment", "containment_constraints", "interval_to_zonotope",
     "matzonotope_times_zonotope", "merge_monomials", "new_ids", "plot_set", "points_in_ellipsoid",
     "points_in_zonotope", "polygon_area", "reduce", "reduce_pz", "reduce_zonotope", "tensor_map",
-    "to_polyzonotope", "to_zonotope", "unit_ball_pz", "unit_ball_zonotope", "zonotope_halfspaces",
+    "to_polyzonotope", "to_zonotope", "unit_ball_pz", "unit_ball_zonotope", "zonotope_halfspaces", "zonotope_support_range",
     "zonotope_in_halfspaces", "zonotope_in_interval", "zonotope_in_zonotope", "zonotope_polygon",
 ]

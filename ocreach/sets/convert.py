@@ -41,11 +41,17 @@ def to_polyzonotope(S: SetBase, ids: Any = None) -> PolyZonotope:
 def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     """Outer zonotope of the unit Euclidean ball with ``k >= n`` generators (default 2n, 8 in 2-D).
 
-    Directions: the n axes plus quasi-uniform directions (2-D: angles pi j / k, a regular 2k-gon;
-    3-D with k = 10: the 10 axes through opposite vertices of the regular dodecahedron, support
-    between 1 and 1.096); all generators get the common length ``1 / r_in``, where ``r_in`` is the inradius of the
-    zonotope of unit directions (minimum facet offset), so the ball touches the facets from inside.
+    Directions: 2-D: angles pi j / k (a regular 2k-gon, support in [1, 1 / cos(pi / 2k)]: 1.035 at
+    k = 6, 1.026 at 7, 1.020 at 8); 3-D with k = 10: the axes through opposite vertices of the
+    regular dodecahedron (support in [1, 1.096]); 3-D with k = 30: the spread directions of
+    :data:`ocreach.sets.ball_directions.SPREAD_3D_30` (support in [1, 1.027]); otherwise the n
+    axes plus pseudo-random unit directions (seeded; no tightness guarantee: 2n generators in
+    4-D and up are looser than 3 %).  All generators get the common length ``1 / r_in``, where
+    ``r_in`` is the inradius of the zonotope of unit directions (minimum facet offset), so the
+    ball touches the facets from inside.  :func:`zonotope_support_range` gives the exact support
+    range over the unit sphere.
     """
+    from ocreach.sets.ball_directions import SPREAD_3D_30
     from ocreach.sets.contains import zonotope_halfspaces
     from ocreach.sets.zonotope import Zonotope
 
@@ -64,6 +70,8 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
         D = np.vstack([np.cos(t), np.sin(t)])
     elif n == 3 and k == 10:
         D = _dodecahedron_axes()
+    elif n == 3 and k == SPREAD_3D_30.shape[0]:
+        D = (SPREAD_3D_30 / np.linalg.norm(SPREAD_3D_30, axis=1, keepdims=True)).T
     else:
         extra = k - n
         rng = np.random.default_rng(11)
@@ -75,6 +83,43 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
         raise SetError(f"unit_ball_zonotope: too many generators k={k} for facet enumeration in n={n}")
     r_in = float(np.min(hs[1]))
     return Zonotope(np.zeros(n), D / r_in)
+
+
+def zonotope_support_range(Z: Zonotope, max_ties: int = 16) -> tuple[float, float]:
+    """Exact minimum and maximum of the support function ``h(d) = c.d + sum_i |g_i . d|`` of a
+    zonotope over the unit sphere ``||d|| = 1`` (for a zonotope centred at the origin: its
+    inradius and circumradius).
+
+    The minimum of ``h`` over the sphere is the smallest facet offset (a polytope containing
+    the origin: the nearest boundary point lies on a facet, Althoff et al. 2010 facet
+    enumeration, :func:`ocreach.sets.contains.zonotope_halfspaces`).  The maximum is
+    ``max_{z in Z} ||z||``, attained at a vertex; every vertex lies on a facet with unit normal
+    ``m``, whose vertices are ``c + sum_{m.g_i != 0} sign(m.g_i) g_i + sum_{m.g_j = 0} +-g_j``,
+    so the facets' sign patterns enumerate all vertices (up to ``2**max_ties`` per facet).
+    """
+    from ocreach.sets.contains import zonotope_halfspaces
+
+    hs = zonotope_halfspaces(Z, max_subsets=2_000_000)
+    if hs is None:
+        raise SetError("zonotope_support_range: zonotope not full-dimensional or too many generators "
+                       f"(dim {Z.dim}, {Z.G.shape[1]} generators)")
+    H, b = hs
+    c, G = np.asarray(Z.c, float), np.asarray(Z.G, float)
+    G = G[:, np.any(G != 0, axis=0)]
+    P = H @ G                                             # (facets, generators)
+    tol = 1e-10 * np.abs(P).max()
+    r_max = 0.0
+    for row in range(H.shape[0]):
+        p = P[row]
+        tie = np.abs(p) <= tol
+        if tie.sum() > max_ties:
+            raise SetError(f"zonotope_support_range: {int(tie.sum())} generators in one facet "
+                           f"(max_ties = {max_ties})")
+        base = c + G[:, ~tie] @ np.sign(p[~tie])
+        T = G[:, tie]
+        S = np.array(list(itertools.product((1.0, -1.0), repeat=T.shape[1]))).T
+        r_max = max(r_max, float(np.linalg.norm(base[:, None] + T @ S, axis=0).max()))
+    return float(b.min()), r_max
 
 
 def _dodecahedron_axes() -> np.ndarray:
