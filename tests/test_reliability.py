@@ -131,6 +131,31 @@ def test_memory_estimate_refuses_before_work():
         ocreach.reach("vdp", "mc", samples=10_000, max_memory_gb=1e-3)
 
 
+def test_stochastic_mc_memory_estimate_counts_what_is_kept():
+    """The stochastic Monte Carlo keeps states at a few report times (and ~200 grid times with
+    histories), so 100,000 shuttle samples (Jain et al.) pass the default 4 GB check; the estimate
+    is computed independently here from what the result holds."""
+    shuttle = get_problem("shuttle-reentry")
+    n_x, n_u = shuttle.model.n_x, shuttle.model.n_u
+    mc = method_class("mc")(samples=100_000)
+    mc.check_before(shuttle)  # refused as 51 GB before
+    kept = mc._stochastic_times(shuttle).size
+    assert 2 <= kept < 20
+    assert mc.memory_estimate(shuttle) == pytest.approx(
+        100_000 * (kept * n_x + 16 * (n_x + n_u)) * 8 * 4)
+    hist = method_class("mc")(samples=100_000, histories=True)
+    kept_h = hist._stochastic_times(shuttle).size
+    assert 200 <= kept_h <= 220
+    assert hist.memory_estimate(shuttle) == pytest.approx(
+        100_000 * (kept_h * n_x + 16 * (n_x + n_u) + (shuttle.grid.size - 1) * n_u) * 8 * 4)
+    with pytest.raises(ProblemError, match=r"samples = 100000 of method 'mc' on problem "
+                                           r"'shuttle-reentry' .* max_memory_gb = 1"):
+        method_class("mc")(samples=100_000, histories=True, max_memory_gb=1).check_before(shuttle)
+    # a small stochastic run holds what the estimate counts
+    res = ocreach.reach("shuttle-reentry", "mc", samples=50, seed=1)
+    assert res.times.size == mc._stochastic_times(shuttle).size
+
+
 def test_implausible_thrust_refused_with_rule():
     with pytest.raises(ProblemError, match=r"thrust acceleration of 1000 m/s\^2 \(thrust 1e\+06 N\), "
                                           r"above the limit 9.80665 m/s\^2 \(1 g0\)"):

@@ -154,8 +154,9 @@ class Method:
         if need > self.max_memory_gb:
             samples = getattr(self.options, "samples", "?")
             raise ProblemError(
-                f"samples = {samples} on {problem.grid.size} times x {problem.model.n_x + problem.model.n_u} "
-                f"values needs about {need:.3g} GB, more than max_memory_gb = {self.max_memory_gb:g}; "
+                f"samples = {samples} of method {self.name!r} on problem {problem.id!r} "
+                f"({problem.grid.size} grid times, {problem.model.n_x + problem.model.n_u} values per "
+                f"time) needs about {need:.3g} GB, more than max_memory_gb = {self.max_memory_gb:g}; "
                 f"use fewer samples or a shorter horizon, or raise max_memory_gb (--set max_memory_gb=...)")
 
     def base_meta(self, problem: Problem, runtime: dict[str, float]) -> dict[str, Any]:

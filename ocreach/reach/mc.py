@@ -19,7 +19,7 @@ import numpy as np
 
 from ocreach.errors import ProblemError
 from ocreach.problem import Problem
-from ocreach.reach.base import Method, SamplingOptions, Timer, requirements
+from ocreach.reach.base import _BYTES, _COPIES, Method, SamplingOptions, Timer, requirements
 from ocreach.reach.result import ReachResult
 
 LAWS = ("random", "constant", "bang")
@@ -109,6 +109,32 @@ class MonteCarlo(Method):
         meta["control_laws"] = list(LAWS)
         return ReachResult.from_trajectories(problem.grid, traj, controls=u, meta=meta)
 
+    def _stochastic_times(self, problem: Problem) -> np.ndarray:
+        """Grid times at which the stochastic Monte Carlo keeps every sample's state: the start,
+        the problem's ``extra["report_times"]``, the final time and, with ``histories``, ~200
+        evenly spaced grid times."""
+        grid = problem.grid
+        keep = {0, grid.size - 1}
+        if self.options.histories:
+            keep |= set(range(0, grid.size, max(1, int(np.ceil((grid.size - 1) / 200)))))
+        for t in problem.extra.get("report_times", ()):
+            keep.add(int(np.argmin(np.abs(grid - t))))
+        return grid[sorted(keep)]
+
+    def memory_estimate(self, problem: Problem) -> float:
+        """Deterministic problems: the base estimate (full histories).  Stochastic problems:
+        what :meth:`_solve_stochastic` keeps (states at :meth:`_stochastic_times`, controls on
+        every segment with ``histories``) plus the working states and controls of one step,
+        ``x 8 B x 4 copies``; it used to charge full histories, refusing 100,000 shuttle samples
+        (~0.2 GB in use) as 51 GB."""
+        if problem.stochastic is None:
+            return super().memory_estimate(problem)
+        m = problem.model
+        per_sample = self._stochastic_times(problem).size * m.n_x + 16 * (m.n_x + m.n_u)
+        if self.options.histories:
+            per_sample += (problem.grid.size - 1) * m.n_u
+        return float(self.options.samples) * per_sample * _BYTES * _COPIES
+
     def _solve_stochastic(self, problem: Problem) -> ReachResult:
         """Jain et al.'s Monte Carlo: Gaussian x0 and fresh Gaussian controls at every step.
 
@@ -127,13 +153,7 @@ class MonteCarlo(Method):
             raise ProblemError(f"option(s) {ignored} do not apply to the stochastic problem "
                                f"{problem.id!r} (Gaussian x0 and controls, the problem's own step "
                                "map); allowed: samples, seed, histories")
-        grid = problem.grid
-        keep = {0, grid.size - 1}
-        if self.options.histories:
-            keep |= set(range(0, grid.size, max(1, int(np.ceil((grid.size - 1) / 200)))))
-        for t in problem.extra.get("report_times", ()):
-            keep.add(int(np.argmin(np.abs(grid - t))))
-        times = grid[sorted(keep)]
+        times = self._stochastic_times(problem)
         timer = Timer()
         with timer("propagation"):
             out = stochastic_monte_carlo(problem, samples=self.options.samples,
