@@ -44,7 +44,8 @@ COMMON_OPTIONS: dict[str, tuple[float, str]] = {
                           "problem scale max(1, ||x0||_inf, ||initial set||_inf) (ocreach.reach.guard); "
                           "> 1, inf disables the size check"),
     "max_memory_gb": (4.0, "refuse, before any work, a run whose estimated memory (samples x "
-                      "times x (n_x + n_u) x 8 B x 4 copies) exceeds this many GB; > 0"),
+                      "times kept x values x 8 B x 4 copies, Method.memory_estimate) exceeds "
+                      "this many GB; > 0"),
 }
 
 #: Bytes per stored number and working copies in :meth:`Method.memory_estimate`.
