@@ -239,11 +239,11 @@ def markdown(env: dict, s: dict, m: dict, v: dict | None) -> str:
 
 `python benchmarks/bench_speed.py` (issue #16; the batch integrator has its own section below).
 Environment of this run: {env['cpu']},
-{env['cores']} cores shared with other developers' jobs (load average {env['load'][0]:.1f} /
-{env['load'][1]:.1f} / {env['load'][2]:.1f} when it started), BLAS: {blas}; ocreach's default
+{env['cores']} cores (load average {env['load'][0]:.1f} /
+{env['load'][1]:.1f} / {env['load'][2]:.1f} when it started; the machine is shared), BLAS: {blas}; ocreach's default
 kernel threads {env['threads']} (`OCREACH_THREADS`), BLAS limit inside `reach()` 1
-(`OCREACH_BLAS_THREADS`).  The machine was loaded by other work: absolute times move by tens of
-percent between runs; runs are interleaved and the ratios are the stable part.
+(`OCREACH_BLAS_THREADS`).  Absolute times move by tens of percent between runs; runs are
+interleaved and the ratios are the more stable part.
 
 **BLAS threads under contention**: `stt` on `dro` (order 2, h_max 400, warm) while another process
 spins on a core; median of {3 * 3} runs per setting, each setting in its own process, interleaved.
@@ -261,13 +261,12 @@ spins on a core; median of {3 * 3} runs per setting, each setting in its own pro
 | `reach("shuttle-reentry", "mc", samples=100000)` (2000 steps; samples kept at {m['times']} times, moments at every grid time) | {m['peak_mb']:.0f} MB ({m['base_mb']:.0f} MB after imports), {m['time']:.1f} s | target < 1 GB | was 8.1 GB |
 {vrow} |
 
-Reading.  The "limit lifted" row
-did not reproduce the 2-5x slowdown issue #16 reports for 2-thread OpenBLAS under contention
-(the machine was already oversubscribed by other work).  Default environment / single-threaded
-BLAS over three runs of this benchmark: 0.76 (load 16), 1.58 (load 15) and 0.98 (load 2.4);
-at load 15-16 a single `stt` run took 5-8 s instead of 0.6 s and the spread swamps the ratio.
-In one process at load 2, threadpoolctl reported 1 BLAS thread inside `reach()` and the default
-environment ran `stt` on `dro` in 0.58-0.64 s against 0.76-0.79 s with `OPENBLAS_NUM_THREADS=1`.
+Reading.  Default environment / single-threaded BLAS in this run: {s['ratio']:.2f}
+({'within' if s['ratio'] <= 1.3 else 'above'} the 1.3 target); limit lifted / single-threaded:
+{s['ratio_unlimited']:.2f}.  The ratio is noisy from run to run: earlier runs of this benchmark gave
+0.76 (load 16), 1.58 (load 15) and 0.98 (load 2.4), and two runs minutes apart on 2026-12-02 at
+load 0.2 gave 0.88 and 1.34.  So the target is not shown to hold robustly, and the 2-5x slowdown
+issue #16 reports for unlimited 2-thread OpenBLAS under contention did not reproduce either.
 """
 
 
@@ -283,7 +282,7 @@ trajectories, grid 0:0.1:3 (30 piecewise-constant control segments), random disk
 `propagate` call; heyoka `taylor_adaptive_batch` one `propagate_until` per segment.  All runs in
 one process, interleaved round by round ({d['repeat']} rounds), medians; endpoint error = max |x(3) -
 reference| with heyoka at tol 1e-16 as reference (accuracy matched: ocreach rtol 1e-12, heyoka tol
-1e-10).  Environment: {env['cpu']}, {env['cores']} cores shared with other developers' jobs, load
+1e-10).  Environment: {env['cpu']}, {env['cores']} cores (shared machine), load
 average {lb[0]:.1f} / {lb[1]:.1f} / {lb[2]:.1f} before and {la[0]:.1f} / {la[1]:.1f} / {la[2]:.1f}
 after the timed rounds; BLAS {blas} (not used by these runs); CPU times are this process's (all
 threads).
@@ -299,8 +298,8 @@ threads).
 CPU time single-threaded ocreach / heyoka batch 64 = **{d['cpu_ratio_hy64']:.2f}**, / batch 8 =
 {d['cpu_ratio_hy8']:.2f} (target <= 1.0 against heyoka's best); wall time ocreach's best / heyoka's
 best = **{d['ratio_best']:.2f}**.  Second thread: wall time 1 thread / 2 threads per round
-{gains} (median {d['thread_gain']:.2f}); it only pays when a core is free, and the other
-developers' jobs held the cores at the load above.  1-, 2-thread results bit-identical:
+{gains} (median {d['thread_gain']:.2f}); it only pays when a core is free (see the load
+average above).  1-, 2-thread results bit-identical:
 {d['identical_threads']}.  One-off build on an empty cache: ocreach {d['t_build']:.1f} s (CasADi
 code generation + `cc`, then cached on disk); heyoka's JIT {d['t_build_hy8']:.2f} s (batch 8) and
 {d['t_build_hy64']:.2f} s (batch 64), per process (heyoka caches compiled systems within a process).
