@@ -150,6 +150,16 @@ def dask_local(workers: int, processes: bool = True) -> ExecutorHandle:
                           f"Dask LocalCluster ({workers} {kind})", [cluster.close, client.close])
 
 
+def serial_executor() -> ExecutorHandle:
+    """Tasks in the calling process with one BLAS/OpenMP thread, as each pool worker has (with
+    OpenBLAS's default 2 threads a serial catalog ran 16% slower, docs/benchmarks.md "Sweep");
+    the caller's thread limits are restored when the handle is closed."""
+    from threadpoolctl import threadpool_limits
+
+    limits = threadpool_limits(1)
+    return ExecutorHandle(SerialExecutor(), 1, "serial", [limits.restore_original_limits])
+
+
 def make_executor(workers: int | None = None, *, scheduler: str | None = None,
                   dask_local_workers: int | None = None, serial: bool = False,
                   executor: Executor | None = None) -> ExecutorHandle:
@@ -164,7 +174,7 @@ def make_executor(workers: int | None = None, *, scheduler: str | None = None,
                              f"{type(executor).__name__}")
         return ExecutorHandle(executor, workers or os.cpu_count() or 1, type(executor).__name__)
     if serial:
-        return ExecutorHandle(SerialExecutor(), 1, "serial")
+        return serial_executor()
     if scheduler is not None:
         return dask_client(scheduler)
     for name, n in (("workers", workers), ("dask_local", dask_local_workers)):
