@@ -277,14 +277,6 @@ def _bitmask(B: np.ndarray) -> np.ndarray:
     return np.packbits(pad, axis=1, bitorder="little").view(np.uint64).reshape(H, W)
 
 
-def _sym(T: np.ndarray) -> np.ndarray:
-    import itertools
-
-    N = T.ndim - 1
-    perms = list(itertools.permutations(range(1, N + 1)))
-    return sum(np.transpose(T, (0, *p)) for p in perms) / len(perms)
-
-
 def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str = "pca",
                timer: Timer | None = None, counts: dict[str, int] | None = None,
                prune: float = 1e-3, chunk: int = 0) -> PolyZonotope:
@@ -338,7 +330,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     tiny ones.
     """
     from ocreach.reach.stt_products import PRUNE_MIN_PRODUCTS, Order3Products, default_chunk, n_products
-    from ocreach.sets.polyzonotope import merge_monomials, monomial_keys
+    from ocreach.sets.polyzonotope import merge_monomials, monomial_keys, sym_tensor
 
     n_ord = len(phi)
     p, h, q = dZ.n_factors, dZ.n_dependent, dZ.n_independent
@@ -356,7 +348,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     zero = np.zeros(H, dtype=np.int64)
     cols, tris = [phi[0] @ Ga], [np.vstack([np.arange(H), zero, zero])]
     if n_ord >= 2:
-        T2 = _sym(phi[1]) / 2.0
+        T2 = sym_tensor(phi[1]) / 2.0
         i, j, mult = _combos(H, 2)
         B = np.matmul(Ga.T[None], T2 @ Ga)                     # (n, H, H)
         cols.append(B.reshape(n, -1)[:, i * H + j] * mult)
@@ -367,7 +359,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
         if prune > 0 and n_products(H) > PRUNE_MIN_PRODUCTS and h_max > 0:
             small = np.concatenate([np.linalg.norm(c, axis=0) for c in cols])
             thr = prune * np.partition(small, -min(h_max, small.size))[-min(h_max, small.size)]
-        prod = Order3Products(_sym(phi[2]) / 6.0, Ga, thr, chunk)
+        prod = Order3Products(sym_tensor(phi[2]) / 6.0, Ga, thr, chunk)
         merged, waiting = 0, sum(t.shape[1] for t in tris)
         for vals, tri in prod.kept(absum):
             cols.append(vals)

@@ -545,7 +545,7 @@ def cartesian_product(a, b) -> PolyZonotope:
     return PolyZonotope(np.concatenate([a.c, b.c]), G, GI, E, ids)
 
 
-def _sym_tensor(T: np.ndarray) -> np.ndarray:
+def sym_tensor(T: np.ndarray) -> np.ndarray:
     """Average of T over all permutations of its input indices (same multilinear form on x..x)."""
     N = T.ndim - 1
     perms = list(itertools.permutations(range(1, N + 1)))
@@ -590,7 +590,7 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
     if not exact:
         keys_aug = monomial_keys(Eaug)
     H = Gaug.shape[1]
-    Ts = _sym_tensor(T)
+    Ts = sym_tensor(T)
     if N == 2:
         A = Ts @ Gaug  # (m, n, H): A[i, a, k] = Ts[i, a, b] Gaug[b, k]
         B = np.matmul(Gaug.T[None], A)  # (m, H, H)
