@@ -29,7 +29,14 @@ from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, simulate
-from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube, reach_drift_tube
+from ocreach.control.tube import (
+    Tube,
+    TubeSchedule,
+    apolune_phase,
+    linear_drift_tube,
+    reach_drift_tube,
+    sound_drift_partition,
+)
 from ocreach.control.tube_mpc import MPCWrapper
 from ocreach.errors import ProblemError, SolverError, check_count
 
@@ -40,6 +47,13 @@ PAPER_W = 1e-7
 PAPER_DELTA_V_MPS = 0.0061
 PAPER_TF_HOURS = 157.0
 MEMBERSHIPS = ("zonotope", "box")
+#: Sound-method options of the adaptive tubes (``tube_interval="adaptive"``), measured on nrho-9-2
+#: with the paper's sets: 16 sub-steps per 1-h step keep the tube from perilune to the next
+#: apolune within 1.32x of the linearised tube's box (4 sub-steps: 3.7x; 1: fails after 24
+#: steps); the sub-step may be halved 10 times (at perilune ||A h||_inf of the unscaled CR3BP
+#: exceeds what 40 Taylor terms of e^{Ah} bound at 6 halvings); no splitting (a union's zonotope
+#: enclosure is looser than restarting the tube).
+ADAPTIVE_TUBE_OPTIONS = {"substeps": 16, "max_halvings": 10, "split": False}
 #: Tube sources: the linearised tube, a sound method, or a sound method with the linear tube
 #: wherever it fails (each tube's source and guarantee are logged per refresh).
 FALLBACK_SOURCES = ("taylor-or-linear", "sdc-or-linear")
@@ -116,7 +130,7 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
                    disturbance: Any = PAPER_W, membership: str = "box", phase: int | str = "apolune",
                    every: int = 1, lookahead: int = PAPER_N, source: str = "linear",
                    order: float = 5.0, tube_options: dict | None = None,
-                   interval: int | None = None) -> TubeSchedule:
+                   interval: int | str | None = None) -> TubeSchedule:
     """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
     revolutions; each covers its interval plus ``lookahead`` steps.
 
@@ -126,6 +140,10 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     method that cannot enclose the interval raises), or ``"taylor-or-linear"`` /
     ``"sdc-or-linear"`` (the sound tube where the method succeeds, else the linear one, its
     ``meta["fallback_reason"]`` the method's error).  :func:`tube_log` lists which was used.
+    ``interval="adaptive"`` (with ``"taylor"`` / ``"sdc"``): guaranteed tubes over every whole
+    revolution, each restarted from the initial set where the previous one stops
+    (:func:`~ocreach.control.tube.sound_drift_partition`: on the NRHO a short tube across
+    perilune); computed once for one period from ``phase`` and re-used, shifted, every period.
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
     """
@@ -134,6 +152,13 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     G0 = paper_initial_set(problem) if isinstance(initial, str) and initial == "paper" else initial
     if isinstance(G0, str):
         raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
+    if isinstance(interval, str):
+        if interval != "adaptive" or source not in ("taylor", "sdc"):
+            raise ProblemError(f"interval must be a number of steps, None (every revolution) or "
+                               f"'adaptive' (with tube source 'taylor' or 'sdc'); got "
+                               f"{interval!r} with source {source!r}")
+        return _adaptive_schedule(problem, reference, G0, disturbance, source, membership, phase,
+                                  tube_options or {})
     length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
 
     def linear(k: int) -> Tube:
@@ -166,6 +191,29 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     wrap = as_box if membership == "box" else (lambda t: t)
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
                         lookahead=lookahead, reuse=True, interval=interval)
+
+
+def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
+                       method: str, membership: str, phase: int | str,
+                       options: dict) -> TubeSchedule:
+    """Guaranteed tubes over one period from ``phase``, refreshed where the sound method stops
+    (:func:`~ocreach.control.tube.sound_drift_partition`), re-used every period.  MPC windows that
+    cross a refresh take the next tube's sets, so no tube needs a lookahead."""
+    M = reference.n_steps
+    p0 = apolune_phase(reference) if phase == "apolune" else phase
+    if isinstance(p0, str) or isinstance(p0, bool) or int(p0) != p0 or not 0 <= int(p0) < M:
+        raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
+    tubes = sound_drift_partition(problem, reference, int(p0), int(p0) + M, G0, disturbance,
+                                  method, **{**ADAPTIVE_TUBE_OPTIONS, **options})
+    wrap = as_box if membership == "box" else (lambda t: t)
+    by_phase = {t.k0 % M: wrap(t) for t in tubes}
+
+    def build(k: int) -> Tube:
+        t = by_phase[k % M]
+        return Tube(t.centers, t.generators, k0=k, guaranteed=t.guaranteed, source=t.source,
+                    meta=t.meta)
+
+    return TubeSchedule(build, reference, phases=sorted(by_phase), reuse=True)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -272,15 +320,13 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
     linear tube stood in)."""
     M = schedule.reference.n_steps
     out = []
-    r = schedule.refresh_step(0)
-    while r < n_steps:
+    for r in schedule.refresh_steps(n_steps):
         t = schedule.tube(r)
-        a, b = max(r, 0), min(r + schedule.interval, n_steps)
+        a, b = max(r, 0), min(schedule.next_refresh(r), n_steps)
         out.append({"refresh_step": int(r), "steps": [int(a), int(b)],
                     "revolutions": [a / M, b / M], "source": t.source,
                     "guaranteed": bool(t.guaranteed),
                     "fallback_reason": (t.meta or {}).get("fallback_reason")})
-        r += schedule.interval
     return out
 
 
@@ -323,7 +369,7 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedu
         on = un > 0
         activations = _edges(on)
     ks = np.arange(K + 1)
-    refresh = schedule.phase + ((ks - schedule.phase) // schedule.interval) * schedule.interval
+    refresh = np.array([schedule.refresh_step(int(k)) for k in ks])
     gam = np.empty(K + 1)
     for r in np.unique(refresh):  # one batched gauge call per tube
         sel = refresh == r
@@ -381,7 +427,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         revolutions: float = 10, dt: float | None = None, n_p: int = PAPER_N,
                         Q: Any = None, R: Any = None, beta: float = 0.7, m: int = 3,
                         membership: str = "box", tube_source: str = "linear",
-                        tube_options: dict | None = None, tube_interval: int | None = None,
+                        tube_options: dict | None = None, tube_interval: int | str | None = None,
                         phase: int | str = "apolune",
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
                         navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
@@ -402,7 +448,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
     (``None``: ``n_sub``, no correction).  ``tube_source``: see :func:`drift_schedule`
     (``"taylor-or-linear"``: the sound tube where taylor encloses the interval, the linear one
-    elsewhere); ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
+    elsewhere); ``tube_interval="adaptive"`` with ``"taylor"``/``"sdc"``: guaranteed tubes over
+    whole revolutions, refreshed where the sound method stops (:func:`drift_schedule`);
+    ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
 
     ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.tube_mpc`).
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
@@ -496,6 +544,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
         "membership": membership, "tube_source": tube0.source,
         "tube_interval_steps": schedule.interval,
+        "refresh_steps_per_rev": ([schedule.phase + int(o) for o in schedule.offsets]
+                                  if schedule.offsets is not None else None),
         "tube_guaranteed": all(t["guaranteed"] for t in tubes), "tubes": tubes,
         "tube_sources_used": sorted({t["source"] for t in tubes}),
         "refresh_phase_step": schedule.phase,

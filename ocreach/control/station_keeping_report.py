@@ -91,10 +91,15 @@ def summary_lines(data: dict) -> list[str]:
     s = data["settings"]
     names = [n for n in CONTROLLERS if n in data]
     lines = []
-    every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
-             else f"every {s['tube_interval_steps']} steps")
+    per_rev = s.get("refresh_steps_per_rev")
+    if per_rev:
+        every = (f"at reference steps {', '.join(str(r) for r in per_rev)} of every revolution "
+                 "(restarted from the initial set where the sound method stops)")
+    else:
+        every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
+                 else f"every {s['tube_interval_steps']} steps")
     lines.append(f"Tube: membership {s['membership']}, refreshed at reference step "
-                 f"{s['refresh_phase_step']} (apolune) and then {every}; "
+                 f"{s['refresh_phase_step']} and then {every}; "
                  + ("every tube a guaranteed enclosure." if s["tube_guaranteed"] else
                     "NOT a guaranteed enclosure where a tube is linearised (no remainder term: "
                     "gauges near perilune carry its linearisation error)."))
@@ -282,13 +287,13 @@ def _figures(problem, run: StationKeepingRun, out: Path) -> list[str]:
                         label="event-mpc thrust on")
     ax.axhline(1.0, color="k", ls="--", lw=0.9, label="trigger (gauge = 1)")
     ax.axhline(s["beta"], color="g", ls=":", lw=0.9, label=f"release (gauge = beta = {s['beta']})")
-    for r in range(int(np.ceil(K / ref.n_steps)) + 1):
-        ax.axvline((sched.phase + r * sched.interval) * ref.dt * th, color="0.7", lw=0.5)
+    for r in sched.refresh_steps(K + 1):
+        ax.axvline(max(r, 0) * ref.dt * th, color="0.7", lw=0.5)
     top = max(float(np.nanmax(run.gauges[n])) for n in names)
     ax.set_ylim(1e-3, max(10.0, 2 * top))
     ax.set_xlabel("time (h)")
     ax.set_ylabel("tube gauge of the true state")
-    ax.set_title("gauge (grey lines: tube refresh at apolune)")
+    ax.set_title("gauge (grey lines: tube refreshes)")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3, which="both")
     save_figure(fig, out / "gauge.png", bbox_inches="tight")
