@@ -376,6 +376,25 @@ def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_
     assert min(worst) > 0.3  # not trivially large
 
 
+def test_nrho_station_keeping_uses_guaranteed_tubes_and_says_so_per_refresh(nrho):
+    """nrho-9-2's default station-keeping tube (``problem.extra``): taylor, refreshed where it
+    stops; over 0.6 revolutions every refresh interval is logged as guaranteed, in the settings
+    and in each controller's metrics, and the intervals tile the run."""
+    assert nrho.extra["station_keeping_tube"] == {"tube_source": "taylor",
+                                                  "tube_interval": "adaptive"}
+    run = run_station_keeping(nrho, controllers=("lqr",), revolutions=0.6)
+    s = run.settings
+    tubes = s["tubes"]
+    assert s["refresh_steps_per_rev"] == [t["refresh_step"] for t in tubes]
+    assert len(tubes) >= 3 and tubes[0]["steps"][0] == 0 and tubes[-1]["steps"][1] == s["n_steps"]
+    assert all(a["steps"][1] == b["steps"][0] for a, b in zip(tubes, tubes[1:]))
+    assert all(t["guaranteed"] and t["source"].startswith("interval hull of taylor")
+               for t in tubes)
+    assert s["tube_guaranteed"] is True and run.metrics["lqr"]["tube_guaranteed"] is True
+    # the LQR from the paper's offset stays in the (large) guaranteed tubes
+    assert run.metrics["lqr"]["max_gauge"] <= 1.0
+
+
 # ----------------------------------------------------------------------------- Delta-V
 def test_delta_v_in_si_from_thrust_mass_and_time_unit(halo):
     """Paper: T_max = 0.1 N, m0 = 1000 kg -> 1e-4 m/s^2; t* = 375200 s.  Full thrust for 10 steps

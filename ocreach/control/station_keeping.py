@@ -193,6 +193,27 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
                         lookahead=lookahead, reuse=True, interval=interval)
 
 
+#: adaptive tube partitions of this process, by :func:`_partition_key` (they are deterministic:
+#: several runs on the same reference, e.g. one per plant, compute them once)
+_PARTITIONS: dict[str, list[Tube]] = {}
+
+
+def _partition_key(problem, reference: TrackingReference, phase: int, G0: Any, disturbance: Any,
+                   method: str, options: dict) -> str:
+    """Everything :func:`~ocreach.control.tube.sound_drift_partition` depends on, hashed: the
+    model, its parameters, the reference states and times, the sets, the method and options."""
+    import hashlib
+
+    h = hashlib.sha256()
+    h.update(repr((problem.model.name, problem.model.n_x, problem.id, problem.control_set.kind,
+                   phase, method,
+                   sorted((k, repr(v)) for k, v in options.items()), repr(disturbance))).encode())
+    for a in (reference.X, reference.time(np.arange(reference.n_steps + 1)), reference.params,
+              problem.params, np.asarray(G0, float)):
+        h.update(np.ascontiguousarray(np.asarray(a, float)).tobytes())
+    return h.hexdigest()
+
+
 def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
                        method: str, membership: str, phase: int | str,
                        options: dict) -> TubeSchedule:
@@ -203,8 +224,15 @@ def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturban
     p0 = apolune_phase(reference) if phase == "apolune" else phase
     if isinstance(p0, str) or isinstance(p0, bool) or int(p0) != p0 or not 0 <= int(p0) < M:
         raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
-    tubes = sound_drift_partition(problem, reference, int(p0), int(p0) + M, G0, disturbance,
-                                  method, **{**ADAPTIVE_TUBE_OPTIONS, **options})
+    opts = {**ADAPTIVE_TUBE_OPTIONS, **options}
+    key = _partition_key(problem, reference, int(p0), G0, disturbance, method, opts)
+    tubes = _PARTITIONS.get(key)
+    if tubes is None:
+        tubes = sound_drift_partition(problem, reference, int(p0), int(p0) + M, G0, disturbance,
+                                      method, **opts)
+        if len(_PARTITIONS) >= 8:
+            _PARTITIONS.pop(next(iter(_PARTITIONS)))
+        _PARTITIONS[key] = tubes
     wrap = as_box if membership == "box" else (lambda t: t)
     by_phase = {t.k0 % M: wrap(t) for t in tubes}
 
@@ -426,7 +454,7 @@ CONTROLLERS = ("event-mpc", "tube-mpc", "mpc", "lqr")
 def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         revolutions: float = 10, dt: float | None = None, n_p: int = PAPER_N,
                         Q: Any = None, R: Any = None, beta: float = 0.7, m: int = 3,
-                        membership: str = "box", tube_source: str = "linear",
+                        membership: str = "box", tube_source: str | None = None,
                         tube_options: dict | None = None, tube_interval: int | str | None = None,
                         phase: int | str = "apolune",
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
@@ -451,6 +479,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     elsewhere); ``tube_interval="adaptive"`` with ``"taylor"``/``"sdc"``: guaranteed tubes over
     whole revolutions, refreshed where the sound method stops (:func:`drift_schedule`);
     ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
+    ``tube_source=None`` (default): the problem's ``extra["station_keeping_tube"]`` (source and
+    interval; nrho-9-2: ``"taylor"``, ``"adaptive"``), else ``"linear"`` once per revolution.
 
     ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.tube_mpc`).
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
@@ -470,6 +500,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                            f"{list(controllers)!r}")
     if isinstance(revolutions, bool) or not np.isfinite(revolutions) or revolutions <= 0:
         raise ProblemError(f"revolutions must be a number > 0; got {revolutions!r}")
+    EventTrigger(beta, m)  # beta and m checked before the tubes are built
     if plant not in PLANTS:
         raise ProblemError(f"plant must be one of {list(PLANTS)}; got {plant!r}")
     if isinstance(ephemeris_bodies, str):
@@ -477,6 +508,11 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
     Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
     R = np.ones(problem.model.n_u) if R is None else R
+    if tube_source is None:
+        default = problem.extra.get("station_keeping_tube") or {}
+        tube_source = default.get("tube_source", "linear")
+        if tube_interval is None:
+            tube_interval = default.get("tube_interval")
     ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
     K = int(round(revolutions * ref.n_steps))
     schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,

@@ -93,13 +93,13 @@ def summary_lines(data: dict) -> list[str]:
     lines = []
     per_rev = s.get("refresh_steps_per_rev")
     if per_rev:
-        every = (f"at reference steps {', '.join(str(r) for r in per_rev)} of every revolution "
-                 "(restarted from the initial set where the sound method stops)")
+        when = (f"refreshed at reference steps {', '.join(str(r) for r in per_rev)} of every "
+                "revolution (restarted from the initial set where the sound method stops)")
     else:
         every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
                  else f"every {s['tube_interval_steps']} steps")
-    lines.append(f"Tube: membership {s['membership']}, refreshed at reference step "
-                 f"{s['refresh_phase_step']} and then {every}; "
+        when = f"refreshed at reference step {s['refresh_phase_step']} and then {every}"
+    lines.append(f"Tube: membership {s['membership']}, {when}; "
                  + ("every tube a guaranteed enclosure." if s["tube_guaranteed"] else
                     "NOT a guaranteed enclosure where a tube is linearised (no remainder term: "
                     "gauges near perilune carry its linearisation error)."))
