@@ -237,9 +237,7 @@ def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturban
     by_phase = {t.k0 % M: wrap(t) for t in tubes}
 
     def build(k: int) -> Tube:
-        t = by_phase[k % M]
-        return Tube(t.centers, t.generators, k0=k, guaranteed=t.guaranteed, source=t.source,
-                    meta=t.meta)
+        return by_phase[k % M].shifted(k)
 
     return TubeSchedule(build, reference, phases=sorted(by_phase), reuse=True)
 

@@ -245,6 +245,12 @@ class Tube:
         j = self._j(k)
         return gauge(self.centers[j], self.generators[j], x)
 
+    def shifted(self, k0: int) -> Tube:
+        """The same sets from reference step ``k0`` (a tube about a periodic reference, whole
+        periods later)."""
+        return Tube(self.centers, self.generators, k0=k0, guaranteed=self.guaranteed,
+                    source=self.source, meta=self.meta)
+
     def scaled(self, beta: float) -> Tube:
         """The tube shrunk (``beta < 1``) or grown about its centres: generators times ``beta``."""
         if not np.isfinite(beta) or beta <= 0:
@@ -376,8 +382,7 @@ class TubeSchedule:
             base = next((b for b in self._tubes.values() if (b.k0 - r) % M == 0), None) \
                 if self.reuse else None
             if base is not None:
-                t = Tube(base.centers, base.generators, k0=r, guaranteed=base.guaranteed,
-                         source=base.source, meta=base.meta)
+                t = base.shifted(r)
             else:
                 t = self.builder(r)
                 if not isinstance(t, Tube):
