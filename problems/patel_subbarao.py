@@ -134,8 +134,10 @@ def nrho_9_2_problem(t_final: float = 76.0 * HOUR_TU, dt: float = HOUR_TU,
         citation=f"{CITATION}, L2 9:2 NRHO method comparison (76 h) and station-keeping",
         initial_set=initial_set)
     # station keeping: guaranteed drift tubes over whole revolutions (taylor restarted from the
-    # initial set where it stops near perilune; docs/validation.md "Station keeping ...")
-    prob.extra["station_keeping_tube"] = {"tube_source": "taylor", "tube_interval": "adaptive"}
+    # initial set where it stops near perilune), and the event trigger that anticipates those
+    # restarts (docs/validation.md "Station keeping on the 9:2 NRHO")
+    prob.extra["station_keeping"] = {"tube_source": "taylor", "tube_interval": "adaptive",
+                                     "anticipate": True}
     return prob
 
 

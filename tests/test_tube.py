@@ -380,8 +380,8 @@ def test_nrho_station_keeping_uses_guaranteed_tubes_and_says_so_per_refresh(nrho
     """nrho-9-2's default station-keeping tube (``problem.extra``): taylor, refreshed where it
     stops; over 0.6 revolutions every refresh interval is logged as guaranteed, in the settings
     and in each controller's metrics, and the intervals tile the run."""
-    assert nrho.extra["station_keeping_tube"] == {"tube_source": "taylor",
-                                                  "tube_interval": "adaptive"}
+    assert nrho.extra["station_keeping"] == {"tube_source": "taylor", "tube_interval": "adaptive",
+                                             "anticipate": True}
     run = run_station_keeping(nrho, controllers=("lqr",), revolutions=0.6)
     s = run.settings
     tubes = s["tubes"]
@@ -393,6 +393,41 @@ def test_nrho_station_keeping_uses_guaranteed_tubes_and_says_so_per_refresh(nrho
     assert s["tube_guaranteed"] is True and run.metrics["lqr"]["tube_guaranteed"] is True
     # the LQR from the paper's offset stays in the (large) guaranteed tubes
     assert run.metrics["lqr"]["max_gauge"] <= 1.0
+
+
+def test_anticipating_trigger_fires_before_the_gate_on_the_predicted_drift(nrho, nrho_ref):
+    """``anticipate=True``: at step 40 (deep inside the large apolune tube) a state whose drift
+    misses the initial box of the next refresh (step 76 of the guaranteed schedule) by 1.5x
+    triggers the MPC; without anticipation it does not.  The predicted gauge is checked against the drift
+    integrated independently (SciPy DOP853, the CR3BP written out here): the linear prediction is
+    an estimate, within 2 % here."""
+    sched = drift_schedule(nrho, nrho_ref, source="taylor", interval="adaptive",
+                           tube_options=None)
+    k, r = 40, sched.next_refresh(sched.refresh_step(40))
+    assert r == 76 and sched.refresh_step(k) == 0
+    box = sched.tube(r).half_widths()[0]
+    nrho_ref.linearize()
+    Phi = np.eye(6)
+    for i in range(k, r):  # the reference's one-step STMs (RK4 variational, 32 substeps)
+        Phi = nrho_ref.A[i] @ Phi
+    v = np.linalg.svd(Phi)[2][0]  # the most amplified direction, scaled to land at 1.5x the box
+    x = nrho_ref.state(k) + 1.5 * v / np.abs(Phi @ v / box).max()
+    assert sched.gauge(k, x) < 0.1  # deep inside the current (apolune) tube
+    sol = solve_ivp(_batch_cr3bp_rhs(nrho.param("mu"), np.zeros((1, 3))),
+                    (nrho_ref.time(k), nrho_ref.time(r)), x, method="DOP853", rtol=1e-12,
+                    atol=1e-14)
+    g_true = sched.gauge(r, sol.y[:, -1])
+    ctl = {a: EventTriggeredMPC(Q_PAPER, R_PAPER, sched, n_p=4, anticipate=a).setup(nrho_ref,
+                                                                                      "ball")
+           for a in (False, True)}
+    assert ctl[True].predicted_gauge(k, x) == pytest.approx(1.5, rel=1e-9)
+    assert g_true == pytest.approx(1.5, rel=2e-2)
+    u_plain, u_ant = ctl[False].control(k, x), ctl[True].control(k, x)
+    assert not ctl[False].active[-1] and np.all(u_plain == 0)
+    assert ctl[True].active[-1] and np.linalg.norm(u_ant) > 0
+    assert ctl[True].gauges[-1] == ctl[False].gauges[-1]  # the logged gauge is the tube's
+    with pytest.raises(ProblemError, match="anticipate"):
+        EventTriggeredMPC(Q_PAPER, R_PAPER, sched, anticipate="yes")
 
 
 # ----------------------------------------------------------------------------- Delta-V

@@ -254,6 +254,13 @@ class EventTriggeredMPC(MPCWrapper):
     trigger's ``beta``, so the MPC aims for the release region).  Logs per step: ``gauges``,
     ``active``, ``slacks`` (largest predicted slack, 0 when off), ``excursions`` (steps where the
     gauge exceeds 1, with the thrust flag).
+
+    ``anticipate=True`` (not in the paper): the trigger sees ``max(gamma_now, gamma_next)``,
+    ``gamma_next`` the gauge, in the next refresh's tube, of the state's drift predicted to the
+    next refresh step by the reference's STMs (:meth:`predicted_gauge`).  A guaranteed tube that
+    must restart from the initial set before perilune (``tube_interval="adaptive"``) is a gate the
+    state has to pass; this fires while the correction is still cheap, not at the gate.  The
+    prediction is linear (an estimate): it decides when to thrust, the tubes stay what they are.
     """
 
     name = "event-mpc"
@@ -261,7 +268,11 @@ class EventTriggeredMPC(MPCWrapper):
     def __init__(self, Q, R, schedule: TubeSchedule, *, trigger: EventTrigger | None = None,
                  n_p: int = PAPER_N, n_c: int | None = None, tube_slack: float = 100.0,
                  target: float | None = None, fallback: LQR | None = None,
-                 **mpc_options: Any) -> None:
+                 anticipate: bool = False, **mpc_options: Any) -> None:
+        if not isinstance(anticipate, (bool, np.bool_)):
+            raise ProblemError(f"anticipate must be True or False; got {anticipate!r}")
+        self.anticipate = bool(anticipate)
+        self._to_refresh: dict[int, np.ndarray] = {}
         self.schedule = schedule
         self.trigger = trigger or EventTrigger()
         self.target = self.trigger.beta if target is None else float(target)
@@ -286,14 +297,34 @@ class EventTriggeredMPC(MPCWrapper):
         if getattr(self.mpc, "reference", None) is not None:
             self.mpc.reset()
         self.gauges: list[float] = []
+        self.predicted_gauges: list[float] = []  # anticipate: gauge at the next refresh
         self.active: list[bool] = []
         self.slacks: list[float] = []
         self.solve_times: list[float] = []
 
+    def predicted_gauge(self, k: int, x: np.ndarray) -> float:
+        """Gauge in the next refresh's tube of ``x_ref(r) + Phi(r, k) (x - x_ref(k))``, ``r`` the
+        next refresh step after ``k`` and ``Phi`` the product of the reference's one-step STMs."""
+        sched, ref = self.schedule, self.schedule.reference
+        r = sched.next_refresh(sched.refresh_step(k))
+        M = ref.n_steps
+        key = k % M
+        if key not in self._to_refresh:
+            ref.linearize()
+            idx = ref.gains_index(np.arange(k, r))
+            Phi = np.eye(ref.model.n_x)
+            for i in idx:
+                Phi = ref.A[i] @ Phi
+            self._to_refresh[key] = Phi
+        d = self._to_refresh[key] @ (np.asarray(x, float) - ref.state(k))
+        return sched.gauge(r, ref.state(r) + d)
+
     def control(self, k: int, x: np.ndarray) -> np.ndarray:
         g = self.schedule.gauge(k, x)
-        on = self.trigger.update(g)
+        g_next = self.predicted_gauge(k, x) if self.anticipate else 0.0
+        on = self.trigger.update(max(g, g_next))
         self.gauges.append(g)
+        self.predicted_gauges.append(g_next)
         self.active.append(on)
         if not on:
             self.slacks.append(0.0)
@@ -461,6 +492,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         prediction_substeps: int | None = 4, terminal_set: bool = True,
                         plant: str = "cr3bp",
                         epoch: Any = DEFAULT_EPOCH, ephemeris_bodies: Any = DEFAULT_BODIES,
+                        anticipate: bool | None = None,
                         progress: bool = False) -> StationKeepingRun:
     """Closed loop of each controller over ``revolutions`` of the problem's periodic reference.
 
@@ -477,8 +509,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     elsewhere); ``tube_interval="adaptive"`` with ``"taylor"``/``"sdc"``: guaranteed tubes over
     whole revolutions, refreshed where the sound method stops (:func:`drift_schedule`);
     ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
-    ``tube_source=None`` (default): the problem's ``extra["station_keeping_tube"]`` (source and
+    ``tube_source=None`` (default): the problem's ``extra["station_keeping"]`` (source and
     interval; nrho-9-2: ``"taylor"``, ``"adaptive"``), else ``"linear"`` once per revolution.
+    ``anticipate``: the event-triggered MPC also fires on the predicted gauge at the next refresh
+    (:class:`EventTriggeredMPC`); ``None``: from the same ``extra`` entry, else False.
 
     ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.tube_mpc`).
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
@@ -507,10 +541,13 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
     R = np.ones(problem.model.n_u) if R is None else R
     if tube_source is None:
-        default = problem.extra.get("station_keeping_tube") or {}
+        default = problem.extra.get("station_keeping") or {}
         tube_source = default.get("tube_source", "linear")
         if tube_interval is None:
             tube_interval = default.get("tube_interval")
+        if anticipate is None:
+            anticipate = default.get("anticipate")
+    anticipate = bool(anticipate)
     ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
     K = int(round(revolutions * ref.n_steps))
     schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,
@@ -530,7 +567,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     build = {
         "event-mpc": lambda: EventTriggeredMPC(Q, R, schedule, trigger=EventTrigger(beta, m),
                                                n_p=n_p, tube_slack=tube_slack, fallback=lqr,
-                                               **mpc_kw),
+                                               anticipate=anticipate, **mpc_kw),
         "tube-mpc": lambda: TubeMPC(Q, R, schedule, disturbance=disturbance,
                                     velocity_dims=problem.velocity_dims, n_p=n_p,
                                     tube_slack=tube_slack, terminal_set=terminal_set,
@@ -576,7 +613,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "steps_per_rev": ref.n_steps, "dt_TU": ref.dt,
         "dt_hours": ref.dt * problem.units.time / 3600.0, "period_hours": ref.n_steps * ref.dt
         * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
-        "membership": membership, "tube_source": tube0.source,
+        "membership": membership, "tube_source": tube0.source, "anticipate": anticipate,
         "tube_interval_steps": schedule.interval,
         "refresh_steps_per_rev": ([schedule.phase + int(o) for o in schedule.offsets]
                                   if schedule.offsets is not None else None),
