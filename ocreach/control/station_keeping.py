@@ -475,6 +475,8 @@ class StationKeepingRun:
     reference: TrackingReference
     schedule: TubeSchedule
     settings: dict = field(default_factory=dict)
+    #: per controller with an anticipating trigger: the predicted gauge at the next refresh
+    predicted_gauges: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 CONTROLLERS = ("event-mpc", "tube-mpc", "mpc", "lqr")
@@ -585,7 +587,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         true_plant = EphemerisPlant(ref, kind, problem.velocity_dims,
                                     span_days=K * ref.dt * problem.units.time / 86400.0,
                                     epoch=epoch, bodies=ephemeris_bodies)
-    results, metrics, gauges, active = {}, {}, {}, {}
+    results, metrics, gauges, active, predicted = {}, {}, {}, {}, {}
     for name in controllers:
         ctl = build[name]()
         if ctl is not lqr:
@@ -600,6 +602,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                                    "disturbance_term": ctl.terminal_disturbance,
                                    "robustly_invariant": ctl.terminal_robust}
         results[name], metrics[name], gauges[name] = res, met, gam
+        if getattr(ctl, "anticipate", False):
+            predicted[name] = np.asarray(ctl.predicted_gauges, float)
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
     tube0 = schedule.tube(schedule.phase)
@@ -639,7 +643,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "paper": {"delta_v_mps": PAPER_DELTA_V_MPS, "t_f_hours": PAPER_TF_HOURS, "N": PAPER_N,
                   "G_pos": PAPER_G_POS, "G_vel": PAPER_G_VEL, "W": PAPER_W},
     }
-    return StationKeepingRun(results, metrics, gauges, active, ref, schedule, settings)
+    return StationKeepingRun(results, metrics, gauges, active, ref, schedule, settings, predicted)
 
 
 __all__ = ["CONTROLLERS", "EventTrigger", "EventTriggeredMPC", "NavigationError",
