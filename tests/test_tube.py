@@ -376,6 +376,27 @@ def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_
     assert min(worst) > 0.3  # not trivially large
 
 
+def test_sound_drift_partition_bad_input_and_budget(nrho, nrho_ref):
+    """A range that is empty, a tube budget too small for perilune (taylor from step 72 stops at
+    79, so one tube cannot cover 72..84), and the partial tube: its steps, its failure message."""
+    from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS, paper_initial_set
+    from ocreach.control.tube import sound_drift_partition
+    from ocreach.errors import SolverError
+
+    G0 = paper_initial_set(nrho)
+    with pytest.raises(ProblemError, match="stop"):
+        sound_drift_partition(nrho, nrho_ref, 10, 10, G0, 1e-7)
+    with pytest.raises(SolverError, match="max_tubes = 1"):
+        sound_drift_partition(nrho, nrho_ref, 72, 85, G0, 1e-7, max_tubes=1,
+                              **ADAPTIVE_TUBE_OPTIONS)
+    part = reach_drift_tube(nrho, nrho_ref, 72, 14, G0, 1e-7, "taylor", partial=True,
+                            **ADAPTIVE_TUBE_OPTIONS)
+    assert part.k0 == 72 and part.k_end == 79 and part.guaranteed
+    assert "cannot be enclosed" in part.meta["failure"]
+    with pytest.raises(SolverError, match="cannot be enclosed"):
+        reach_drift_tube(nrho, nrho_ref, 72, 14, G0, 1e-7, "taylor", **ADAPTIVE_TUBE_OPTIONS)
+
+
 def test_nrho_station_keeping_uses_guaranteed_tubes_and_says_so_per_refresh(nrho):
     """nrho-9-2's default station-keeping tube (``problem.extra``): taylor, refreshed where it
     stops; over 0.6 revolutions every refresh interval is logged as guaranteed, in the settings
