@@ -449,6 +449,21 @@ def test_anticipating_trigger_fires_before_the_gate_on_the_predicted_drift(nrho,
     assert ctl[True].gauges[-1] == ctl[False].gauges[-1]  # the logged gauge is the tube's
     with pytest.raises(ProblemError, match="anticipate"):
         EventTriggeredMPC(Q_PAPER, R_PAPER, sched, anticipate="yes")
+    # refreshes every 24 steps (not a divisor of the period): the same phase, another distance to
+    # the next refresh, so another transition matrix
+    every24 = drift_schedule(nrho, nrho_ref, source="linear", interval=24, lookahead=0)
+    ant = EventTriggeredMPC(Q_PAPER, R_PAPER, every24, n_p=4, anticipate=True)
+    M = nrho_ref.n_steps
+    for kk in (10, 10 + M):
+        rr = every24.next_refresh(every24.refresh_step(kk))
+        P = np.eye(6)
+        for i in range(kk, rr):
+            P = nrho_ref.A[i % M] @ P
+        xx = nrho_ref.state(kk) + 1e-6
+        want = every24.gauge(rr, nrho_ref.state(rr) + P @ (xx - nrho_ref.state(kk)))
+        assert ant.predicted_gauge(kk, xx) == pytest.approx(want, rel=1e-12)
+    steps_to_go = [every24.next_refresh(every24.refresh_step(kk)) - kk for kk in (10, 10 + M)]
+    assert steps_to_go[0] != steps_to_go[1]
 
 
 # ----------------------------------------------------------------------------- Delta-V

@@ -272,7 +272,7 @@ class EventTriggeredMPC(MPCWrapper):
         if not isinstance(anticipate, (bool, np.bool_)):
             raise ProblemError(f"anticipate must be True or False; got {anticipate!r}")
         self.anticipate = bool(anticipate)
-        self._to_refresh: dict[int, np.ndarray] = {}
+        self._to_refresh: dict[tuple[int, int], np.ndarray] = {}
         self.schedule = schedule
         self.trigger = trigger or EventTrigger()
         self.target = self.trigger.beta if target is None else float(target)
@@ -307,8 +307,7 @@ class EventTriggeredMPC(MPCWrapper):
         next refresh step after ``k`` and ``Phi`` the product of the reference's one-step STMs."""
         sched, ref = self.schedule, self.schedule.reference
         r = sched.next_refresh(sched.refresh_step(k))
-        M = ref.n_steps
-        key = k % M
+        key = (k % ref.n_steps, r - k)  # Phi depends on the phase and the steps to go
         if key not in self._to_refresh:
             ref.linearize()
             idx = ref.gains_index(np.arange(k, r))
