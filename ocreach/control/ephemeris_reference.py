@@ -349,9 +349,25 @@ def ephemeris_reference(problem, revolutions: float, *, epoch: Any = DEFAULT_EPO
     else:
         ref = ref.with_substeps(check_count("n_sub", n_sub, 1))
     ref.n_track = int(round(revolutions * M))
-    ref.cache["steps_per_rev"] = M
+    ref.steps_per_rev = M
     return ref, orbit
 
 
+def reference_settings(orbit: EphemerisOrbit, reference: TrackingReference) -> dict[str, Any]:
+    """What metrics.json says about an ephemeris-corrected reference."""
+    m = orbit.meta
+    return {"reference": "ephemeris", "periodic": False, "epoch": m["epoch"],
+            "revolutions_corrected": m["settings"]["revolutions"],
+            "patch_points": int(orbit.states.shape[0]),
+            "arcs_per_rev": m["settings"]["arcs_per_rev"],
+            "patch_phase": m["settings"]["patch_phase"], "tol": m["settings"]["tol"],
+            "iterations": m["iterations"], "max_defect": orbit.max_defect,
+            "seed_to_corrected_max_position_km": m["seed_to_corrected_max_position_km"],
+            "seed_to_corrected_max_velocity_mps": m["seed_to_corrected_max_velocity_mps"],
+            "prediction_model": reference.model.name, "rk4_substeps": reference.n_sub,
+            "algorithm": m["algorithm"]}
+
+
 __all__ = ["DEFECT_TOL", "EphemerisOrbit", "correct_orbit", "ephemeris_reference",
-           "min_norm_update", "multiple_shooting", "patch_defects"]
+           "min_norm_update", "multiple_shooting", "patch_defects", "patch_steps",
+           "reference_settings"]
