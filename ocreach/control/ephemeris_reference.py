@@ -22,11 +22,13 @@ trajectory of the plant's own equations, over many revolutions from a given epoc
    ``6 (n + 1)`` patch states and the constraints the ``6 n`` arc-end defects
    ``F_j = phi(X_j; t_j, t_{j+1}) - X_{j+1}``.  The Jacobian has the blocks ``[Phi_j, -I]``
    (``Phi_j`` the arc's STM from the model's variational equations, :func:`ocreach.flow.stm_batch`),
-   and the update is the minimum-norm Newton step ``dX = -DF^T (DF DF^T)^{-1} F`` (Pavlak & Howell,
-   "Strategy for optimal, long-term stationkeeping of libration point orbits in the Earth-Moon
-   system", AIAA 2012-4665, Sec. II; Zimovan-Spreen, Howell & Davis 2020, "Near rectilinear halo
-   orbits and nearby higher-period dynamical structures", Celest. Mech. Dyn. Astr. 132:28, the
-   ephemeris transition of NRHOs), halved while it does not reduce ``|F|``, until the largest defect
+   and the update is the minimum-norm Newton step ``dX = -DF^T (DF DF^T)^{-1} F`` (the multiple
+   shooting of T. A. Pavlak, "Mission design applications in the Earth-Moon system: transfer
+   trajectories and stationkeeping", M.S. thesis, Purdue University, 2010, Ch. 3, used for
+   long-horizon ephemeris references by Pavlak & Howell, "Strategy for optimal, long-term
+   stationkeeping of libration point orbits in the Earth-Moon system", AIAA 2012-4665; not
+   checked against the texts here, which are not in the repository), halved while it does not
+   reduce ``|F|``, until the largest defect
    component is below ``tol`` (default 1e-9 DU and DU/TU: 0.4 m and 1e-6 m/s).
 3. **Sampling.** Each arc is re-integrated from its corrected patch state onto the control grid,
    giving a non-periodic :class:`~ocreach.control.reference.TrackingReference` whose model is the
@@ -312,7 +314,7 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
             "seed_to_corrected_max_velocity_mps": float(
                 np.max(np.linalg.norm(shift[:, 3:], axis=1)) * problem.units.velocity),
             "algorithm": "multiple shooting, fixed epoch and patch times, minimum-norm Newton "
-                         "updates (Pavlak & Howell 2012)"}
+                         "updates (Pavlak 2010; Pavlak & Howell 2012)"}
     if use_cache:
         _cache_store(name, {"times": times, "states": X, "defects": F, "steps": steps}, meta)
     return EphemerisOrbit(times, X, F, steps, cr.dt, meta, plant)
