@@ -18,7 +18,7 @@ from ocreach.control.reference import reference_from_problem
 from ocreach.control.report import PAPER_Q, paper_pattern
 from ocreach.control.simulate import SimOptions, simulate
 from ocreach.control.station_keeping import delta_v_si
-from ocreach.errors import ProblemError
+from ocreach.errors import ProblemError, SolverError
 from ocreach.problem import get_problem
 
 
@@ -90,6 +90,14 @@ def test_disk_cache_round_trip(nrho, tmp_path, monkeypatch):
     b = correct_orbit(nrho, 1)  # from the cache
     np.testing.assert_array_equal(a.states, b.states)
     assert b.meta["iterations"] == a.meta["iterations"]
+    (tmp_path / files[1]).write_bytes(b"damaged")  # a damaged cache entry is recomputed
+    c = correct_orbit(nrho, 1)
+    np.testing.assert_allclose(c.states, a.states, rtol=0, atol=1e-12)
+
+
+def test_non_convergence_is_reported(nrho):
+    with pytest.raises(SolverError, match="did not converge in 1 iterations"):
+        correct_orbit(nrho, 1, max_iter=1, use_cache=False)
 
 
 def _lqr_delta_v(problem, ref, plant, n_steps):

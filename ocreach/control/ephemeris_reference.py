@@ -46,6 +46,7 @@ import hashlib
 import io
 import json
 import logging
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -158,7 +159,7 @@ def _cache_load(name: str, settings: dict, n_patch: int) -> dict | None:
         meta = json.loads(js.read_text())
         with np.load(npz, allow_pickle=False) as data:
             arrays = {k: np.asarray(data[k]) for k in ("times", "states", "defects", "steps")}
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # absent or damaged: recompute
         return None
     ok = (meta.get("settings") == settings and arrays["states"].shape == (n_patch, 6)
           and arrays["defects"].shape == (n_patch - 1, 6)
