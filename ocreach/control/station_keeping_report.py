@@ -40,7 +40,8 @@ DESCRIPTIONS = {
                 "tube of the LQR-stabilised error dynamics, thrust tightened likewise, LQR "
                 "terminal set (level set of the Riccati cost in the tightened sets)",
     "mpc": "continuous nonlinear MPC (Eq. 27 without the tube), every step",
-    "lqr": "periodic time-varying LQR, every step (radially saturated)",
+    "lqr": "time-varying LQR (periodic Riccati solution; finite-horizon on the non-periodic "
+           "ephemeris-corrected reference), every step (radially saturated)",
 }
 TABLE_KEYS = ["revolutions", "delta_v_mps", "delta_v_per_rev_mps", "activations", "duty_cycle",
               "max_gauge", "max_gauge_off", "excursions_off", "max_deviation_km",
@@ -171,8 +172,8 @@ def ephemeris_reference_lines(data: dict, names: list[str]) -> list[str]:
     """Summary sentences of a run on the DE421-corrected reference (no tube, no gauge)."""
     s = data["settings"]
     rf, pl = s["reference"], s["plant"]
-    lines = [f"Reference: the CR3BP orbit corrected into a {rf['revolutions_corrected']}-revolution "
-             f"orbit of the DE421 plant (point masses {', '.join(pl['bodies'])}, epoch "
+    lines = [f"Reference: the CR3BP orbit corrected over {rf['revolutions_corrected']} "
+             f"revolutions into an orbit of the DE421 plant (point masses {', '.join(pl['bodies'])}, epoch "
              f"{pl['epoch']} TDB = reference time 0) by multiple shooting on "
              f"{rf['patch_points']} patch points ({rf['iterations']} iterations, largest defect "
              f"{rf['max_defect']:.2g}; patch points moved up to "
