@@ -133,3 +133,13 @@ def test_bad_input(nrho):
         correct_orbit(nrho, 1, epoch="1850-01-01 00:00:00", use_cache=False)
     with pytest.raises(ProblemError, match="arcs_per_rev"):
         correct_orbit(nrho, 1, arcs_per_rev=0, use_cache=False)
+
+
+def test_a_trajectory_that_left_the_orbit_is_refused():
+    """l2-halo over 11 revolutions with 2 patch points per revolution converges to a continuous
+    trajectory that passes 3718 km from the Moon's centre (the halo: >= 46,358 km): refused."""
+    halo = get_problem("l2-halo")
+    with pytest.raises(SolverError, match="not the seed orbit"):
+        correct_orbit(halo, 11, arcs_per_rev=2, use_cache=False)
+    with pytest.raises(ProblemError, match="max_distance_ratio"):
+        correct_orbit(halo, 1, max_distance_ratio=1.0, use_cache=False)

@@ -7,13 +7,15 @@ trajectory of the plant's own equations, over many revolutions from a given epoc
 
 1. **Seed.** Patch points ``X_j`` at times ``t_j`` on the CR3BP reference's grid, ``arcs_per_rev``
    per revolution at the phases ``(j + patch_phase) / arcs_per_rev`` of a revolution from apolune,
-   plus the first and last apolune.  The default (2 arcs, phase 0.5) puts them a quarter period
-   either side of every perilune, so each perilune passage lies inside an arc.  Patch points *at*
-   perilune were tried first: the arc-end velocity defect there is 1.3 DU/TU (a small timing
-   error at 1.3 DU/TU perilune speed), and the correction took 24 iterations to an orbit 80,000 km
-   from the seed, no longer the NRHO; with the default it takes 3-4 iterations and the patch points
-   move 900-3300 km (docs/ephemeris.md).  The seed states come from the periodic CR3BP reference,
-   read in the coordinates of the plant's rotating frame fixed at the epoch
+   plus the first and last apolune.  The default (4 arcs, phase 0.5: 1/8, 3/8, 5/8, 7/8 of a
+   revolution) keeps every perilune passage inside an arc.  Patch points *at* perilune were
+   tried first: the arc-end velocity defect there is 1.3 DU/TU (a small timing error at the
+   perilune speed), and the correction took 24 iterations to an orbit 80,000 km from the seed, no
+   longer the NRHO.  Two patch points per revolution (1/4, 3/4) do for the NRHO but not for
+   l2-halo over 11 revolutions, which wandered off (epoch 2026-01-01) or did not converge (two of
+   four epochs); four converge in 5 iterations for both problems at the four epochs tried
+   (docs/ephemeris.md).  The seed states come from the periodic CR3BP reference, read in the
+   coordinates of the plant's rotating frame fixed at the epoch
    (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: the same map the plant uses, so the
    seed is the mapped CR3BP orbit).
 2. **Multiple shooting** in the plant's dynamics expressed in those coordinates
@@ -28,8 +30,10 @@ trajectory of the plant's own equations, over many revolutions from a given epoc
    long-horizon ephemeris references by Pavlak & Howell, "Strategy for optimal, long-term
    stationkeeping of libration point orbits in the Earth-Moon system", AIAA 2012-4665; not
    checked against the texts here, which are not in the repository), halved while it does not
-   reduce ``|F|``, until the largest defect
-   component is below ``tol`` (default 1e-9 DU and DU/TU: 0.4 m and 1e-6 m/s).
+   reduce ``|F|``, until the largest defect component is below ``tol`` (default 1e-9 DU and
+   DU/TU: 0.4 m and 1e-6 m/s).  A converged trajectory whose closest or farthest distance from
+   the Moon differs from the CR3BP orbit's by more than a factor ``max_distance_ratio`` (2) is
+   refused (:func:`check_same_orbit`): it is no longer the orbit asked for.
 3. **Sampling.** Each arc is re-integrated from its corrected patch state onto the control grid,
    giving a non-periodic :class:`~ocreach.control.reference.TrackingReference` whose model is the
    frame model (so LQR and MPC linearise and predict with the ephemeris dynamics themselves) and
@@ -83,6 +87,7 @@ class EphemerisOrbit:
     dt: float
     meta: dict
     plant: EphemerisPlant = field(repr=False)
+    _grid_states: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def max_defect(self) -> float:
@@ -97,18 +102,51 @@ class EphemerisOrbit:
         n = last if n_steps is None else int(n_steps)
         if not 1 <= n <= last:
             raise ProblemError(f"n_steps must be in 1..{last} for this orbit; got {n_steps!r}")
-        model = self.plant.frame_model()
-        out = np.empty((n + 1, 6))
-        for j in range(len(self.steps) - 1):
-            a, b = int(self.steps[j]), int(self.steps[j + 1])
-            if a >= n:
-                break
-            b_use = min(b, n)
-            grid = self.dt * np.arange(a, b_use + 1)
-            out[a:b_use + 1] = propagate(model, self.states[j], np.zeros((b_use - a, 3)), grid,
+        if self._grid_states is None:
+            model = self.plant.frame_model()
+            out = np.empty((last + 1, 6))
+            for j in range(len(self.steps) - 1):
+                a, b = int(self.steps[j]), int(self.steps[j + 1])
+                grid = self.dt * np.arange(a, b + 1)
+                out[a:b + 1] = propagate(model, self.states[j], np.zeros((b - a, 3)), grid,
                                          rtol=ARC_RTOL, atol=ARC_ATOL)
-        out[0] = self.states[0]
-        return out
+            out[0] = self.states[0]
+            self._grid_states = out
+        return self._grid_states[:n + 1].copy()
+
+    def moon_distance_range(self) -> tuple[float, float]:
+        """Smallest and largest distance from the Moon on the grid (model units)."""
+        return _moon_distance_range(self.sample(), self.plant.mu)
+
+
+def _moon_distance_range(X: np.ndarray, mu: float) -> tuple[float, float]:
+    d = np.linalg.norm(X[:, :3] - np.array([1.0 - mu, 0.0, 0.0]), axis=1)
+    return float(d.min()), float(d.max())
+
+
+def check_same_orbit(orbit: EphemerisOrbit, seed_states: np.ndarray, ratio: float,
+                     length_km: float) -> dict[str, float]:
+    """Refuse a converged correction that is no longer the seed orbit: its smallest and largest
+    distance from the Moon must be within a factor ``ratio`` of the seed orbit's.
+
+    Why: multiple shooting with too few patch points can converge to a continuous trajectory
+    that leaves the orbit (l2-halo, 11 revolutions, 2 patch points per revolution, epoch
+    2026-01-01: 3718 km from the Moon's centre in revolution 10, the CR3BP halo never closer than
+    46,358 km).  Returns the distances (km) for the metadata; raises :class:`SolverError`.
+    """
+    lo, hi = orbit.moon_distance_range()
+    lo0, hi0 = _moon_distance_range(seed_states, orbit.plant.mu)
+    out = {"moon_distance_min_km": lo * length_km, "moon_distance_max_km": hi * length_km,
+           "seed_moon_distance_min_km": lo0 * length_km,
+           "seed_moon_distance_max_km": hi0 * length_km}
+    if not (lo0 / ratio <= lo <= lo0 * ratio and hi0 / ratio <= hi <= hi0 * ratio):
+        raise SolverError(
+            f"ephemeris multiple shooting converged to a trajectory that is not the seed orbit: "
+            f"distance from the Moon {lo * length_km:.0f}..{hi * length_km:.0f} km against "
+            f"{lo0 * length_km:.0f}..{hi0 * length_km:.0f} km for the CR3BP orbit (allowed "
+            f"factor max_distance_ratio = {ratio:g}); use more patch points (arcs_per_rev) or "
+            f"fewer revolutions")
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -124,7 +162,7 @@ def _check_revolutions(revolutions) -> int:
 
 def _cache_key(problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, float],
                revolutions: int, arcs: int, phase: float, bodies: tuple[str, ...], tol: float,
-               frame_acceleration: str) -> tuple[str, dict]:
+               frame_acceleration: str, distance_ratio: float) -> tuple[str, dict]:
     settings = {
         "version": _CACHE_VERSION, "problem": problem.id,
         "orbit_x0": np.asarray(problem.reference.x0, float).tolist(),
@@ -133,7 +171,7 @@ def _cache_key(problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, flo
         "dt": float(cr3bp_ref.dt), "steps_per_rev": int(cr3bp_ref.n_steps),
         "epoch_jd": [float(epoch_jd[0]), float(epoch_jd[1])], "revolutions": revolutions,
         "arcs_per_rev": arcs, "patch_phase": float(phase), "bodies": list(bodies),
-        "tol": float(tol),
+        "tol": float(tol), "max_distance_ratio": float(distance_ratio),
         "frame_acceleration": frame_acceleration,
     }
     digest = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:20]
@@ -264,22 +302,26 @@ def patch_steps(steps_per_rev: int, revolutions: int, arcs_per_rev: int,
 
 
 def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
-                  bodies: Sequence[str] = DEFAULT_BODIES, arcs_per_rev: int = 2,
+                  bodies: Sequence[str] = DEFAULT_BODIES, arcs_per_rev: int = 4,
                   tol: float = DEFECT_TOL, max_iter: int = 30, dt: float | None = None,
                   frame_acceleration: str = "modelled", patch_phase: float = 0.5,
-                  use_cache: bool = True) -> EphemerisOrbit:
+                  max_distance_ratio: float = 2.0, use_cache: bool = True) -> EphemerisOrbit:
     """The problem's CR3BP periodic orbit corrected into a ``revolutions``-revolution orbit of the
     DE421 plant from ``epoch`` (module doc).  ``arcs_per_rev`` patch points per revolution at the
     phases ``(j + patch_phase) / arcs_per_rev`` (module doc, step 1); ``dt`` the control step
     (default the problem's, rounded to divide the period as in
-    :func:`~ocreach.control.reference.reference_from_problem`); ``use_cache``: read and write the
-    disk cache.  Raises :class:`ProblemError` on bad input (an epoch outside DE421 included) and
+    :func:`~ocreach.control.reference.reference_from_problem`); ``max_distance_ratio``: the
+    corrected orbit's closest and farthest distance from the Moon must be within this factor of
+    the CR3BP orbit's (:func:`check_same_orbit`); ``use_cache``: read and write the disk cache.  Raises :class:`ProblemError` on bad input (an epoch outside DE421 included) and
     :class:`SolverError` if the correction does not converge."""
     from ocreach.ephemeris import parse_epoch
 
     revolutions = _check_revolutions(revolutions)
     arcs = check_count("arcs_per_rev", arcs_per_rev, 1)
     check_positive("tol (defect tolerance)", tol)
+    if isinstance(max_distance_ratio, bool) or not np.isfinite(max_distance_ratio) \
+            or max_distance_ratio <= 1:
+        raise ProblemError(f"max_distance_ratio must be a number > 1; got {max_distance_ratio!r}")
     if isinstance(patch_phase, bool) or not np.isfinite(patch_phase) or not 0 <= patch_phase < 1:
         raise ProblemError(f"patch_phase (fraction of a patch interval) must be in [0, 1); got "
                            f"{patch_phase!r}")
@@ -300,7 +342,7 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
     steps = patch_steps(M, revolutions, arcs, patch_phase)
     times = cr.dt * steps
     name, settings = _cache_key(problem, cr, epoch_jd, revolutions, arcs, patch_phase,
-                                tuple(plant.bodies), tol, frame_acceleration)
+                                tuple(plant.bodies), tol, frame_acceleration, max_distance_ratio)
     cached = _cache_load(name, settings, steps.size) if use_cache else None
     if cached is not None:
         return EphemerisOrbit(cached["times"], cached["states"], cached["defects"],
@@ -316,9 +358,11 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
                 np.max(np.linalg.norm(shift[:, 3:], axis=1)) * problem.units.velocity),
             "algorithm": "multiple shooting, fixed epoch and patch times, minimum-norm Newton "
                          "updates (Pavlak 2010; Pavlak & Howell 2012)"}
+    orbit = EphemerisOrbit(times, X, F, steps, cr.dt, meta, plant)
+    meta.update(check_same_orbit(orbit, cr.X, max_distance_ratio, problem.units.length / 1e3))
     if use_cache:
         _cache_store(name, {"times": times, "states": X, "defects": F, "steps": steps}, meta)
-    return EphemerisOrbit(times, X, F, steps, cr.dt, meta, plant)
+    return orbit
 
 
 def ephemeris_reference(problem, revolutions: float, *, epoch: Any = DEFAULT_EPOCH,
