@@ -7,12 +7,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from ocreach.control.ephemeris_reference import (
-    DEFECT_TOL,
-    correct_orbit,
-    ephemeris_reference,
-    min_norm_update,
-)
+from ocreach.control.ephemeris_reference import DEFECT_TOL, correct_orbit, ephemeris_reference
 from ocreach.control.lqr import LQR
 from ocreach.control.reference import reference_from_problem
 from ocreach.control.report import PAPER_Q, paper_pattern
@@ -20,6 +15,7 @@ from ocreach.control.simulate import SimOptions, simulate
 from ocreach.control.station_keeping import delta_v_si
 from ocreach.errors import ProblemError, SolverError
 from ocreach.problem import get_problem
+from ocreach.shooting import min_norm_update
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ trajectory of the plant's own equations, over many revolutions from a given epoc
    coordinates of the plant's rotating frame fixed at the epoch
    (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: the same map the plant uses, so the
    seed is the mapped CR3BP orbit).
-2. **Multiple shooting** in the plant's dynamics expressed in those coordinates
+2. **Multiple shooting** (:mod:`ocreach.shooting`) in the plant's dynamics in those coordinates
    (:meth:`EphemerisPlant.frame_model`, Moon, Earth, Sun point masses, DE421 refit, Patel &
    Scheeres Eq. 11): with the epoch and all patch times fixed, the free variables are the
    ``6 (n + 1)`` patch states and the constraints the ``6 n`` arc-end defects
@@ -60,13 +60,10 @@ import numpy as np
 from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, EphemerisPlant
 from ocreach.control.reference import TrackingReference, reference_from_problem, verified_substeps
 from ocreach.errors import ProblemError, SolverError, check_count, check_positive
+from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting
 
 log = logging.getLogger("ocreach.control.ephemeris_reference")
 
-#: Default bound on every patch-point defect component (DU and DU/TU).
-DEFECT_TOL = 1e-9
-#: Integrator tolerances of the arcs (DOP853).
-ARC_RTOL, ARC_ATOL = 1e-12, 1e-14
 _CACHE_VERSION = 1
 
 
@@ -219,76 +216,6 @@ def _cache_store(name: str, arrays: dict, meta: dict) -> None:
         log.warning("could not cache the ephemeris reference in %s: %s", npz.parent, exc)
 
 
-# ------------------------------------------------------------------------------------------------
-# multiple shooting
-# ------------------------------------------------------------------------------------------------
-def patch_defects(model, times: np.ndarray, states: np.ndarray, params: np.ndarray, *,
-                  stms: bool = True):
-    """Arc-end defects ``F_j = phi(X_j; t_j, t_{j+1}) - X_{j+1}`` (n, 6) and, with ``stms``, the
-    arcs' STMs (n, 6, 6) (:func:`ocreach.flow.stm_batch`)."""
-    from ocreach.flow import propagate, stm_batch
-
-    if stms:
-        X1, Phi = stm_batch(model, states[:-1], times[:-1], times[1:], p=params, rtol=ARC_RTOL,
-                            atol=ARC_ATOL)
-    else:
-        X1 = np.stack([propagate(model, states[j], np.zeros((1, 3)), times[j:j + 2], p=params,
-                                 rtol=ARC_RTOL, atol=ARC_ATOL)[-1] for j in range(len(times) - 1)])
-        Phi = None
-    return X1 - states[1:], Phi
-
-
-def min_norm_update(F: np.ndarray, Phi: np.ndarray) -> np.ndarray:
-    """Minimum-norm solution ``dX`` (n + 1, 6) of ``DF dX = -F`` with ``DF`` of blocks
-    ``[Phi_j, -I]`` (row block ``j``, column blocks ``j`` and ``j + 1``): Pavlak & Howell's
-    ``dX = -DF^T (DF DF^T)^{-1} F``."""
-    n, nx = F.shape
-    DF = np.zeros((n * nx, (n + 1) * nx))
-    for j in range(n):
-        DF[j * nx:(j + 1) * nx, j * nx:(j + 1) * nx] = Phi[j]
-        DF[j * nx:(j + 1) * nx, (j + 1) * nx:(j + 2) * nx] = -np.eye(nx)
-    y = np.linalg.solve(DF @ DF.T, F.ravel())
-    return -(DF.T @ y).reshape(n + 1, nx)
-
-
-def multiple_shooting(model, times: np.ndarray, seed: np.ndarray, params: np.ndarray, *,
-                      tol: float = DEFECT_TOL, max_iter: int = 30) -> tuple[np.ndarray, np.ndarray,
-                                                                          list[float]]:
-    """Correct the patch states ``seed`` (n + 1, n_x) at fixed ``times`` until every defect
-    component is ``<= tol`` (module doc, step 2).  Returns ``(states, defects, history)``, the
-    history the largest defect per iteration.  Raises :class:`SolverError` if it does not converge
-    in ``max_iter`` Newton iterations."""
-    X = np.array(seed, float)
-    F, Phi = patch_defects(model, times, X, params)
-    history = [float(np.max(np.abs(F)))]
-    for _ in range(max_iter):
-        if history[-1] <= tol:
-            return X, F, history
-        dX = min_norm_update(F, Phi)
-        norm0, lam = np.linalg.norm(F), 1.0
-        while True:  # halve the step while it does not reduce |F| (keeps a far seed in hand)
-            X_try = X + lam * dX
-            try:
-                F_try, Phi_try = patch_defects(model, times, X_try, params)
-                better = np.linalg.norm(F_try) < norm0
-            except SolverError:
-                better = False
-            if better or lam < 1e-3:
-                break
-            lam *= 0.5
-        if not better:
-            raise SolverError(f"ephemeris multiple shooting stalled at a largest defect of "
-                              f"{history[-1]:.3g} (tol {tol:g}): no step of the minimum-norm "
-                              f"Newton direction down to 1/1024 reduces the defects")
-        X, F, Phi = X_try, F_try, Phi_try
-        history.append(float(np.max(np.abs(F))))
-    if history[-1] <= tol:
-        return X, F, history
-    raise SolverError(f"ephemeris multiple shooting did not converge in {max_iter} iterations: "
-                      f"largest defect {history[-1]:.3g} > tol {tol:g} (history "
-                      f"{[f'{h:.2g}' for h in history]})")
-
-
 def patch_steps(steps_per_rev: int, revolutions: int, arcs_per_rev: int,
                 phase: float = 0.0) -> np.ndarray:
     """Grid indices of the patch points: ``arcs_per_rev`` per revolution at the fractions
@@ -415,6 +342,5 @@ def reference_settings(orbit: EphemerisOrbit, reference: TrackingReference) -> d
             "algorithm": m["algorithm"]}
 
 
-__all__ = ["DEFECT_TOL", "EphemerisOrbit", "correct_orbit", "ephemeris_reference",
-           "min_norm_update", "multiple_shooting", "patch_defects", "patch_steps",
-           "reference_settings"]
+__all__ = ["DEFECT_TOL", "EphemerisOrbit", "check_same_orbit", "correct_orbit",
+           "ephemeris_reference", "patch_steps", "reference_settings"]

@@ -400,10 +400,10 @@ class StationKeepingRun:
 
     results: dict[str, SimResult]
     metrics: dict[str, dict]
-    gauges: dict[str, np.ndarray]
+    gauges: dict[str, np.ndarray | None]
     active: dict[str, np.ndarray]
     reference: TrackingReference
-    schedule: TubeSchedule
+    schedule: TubeSchedule | None  # None: no tube (the ephemeris-corrected reference)
     settings: dict = field(default_factory=dict)
 
 
