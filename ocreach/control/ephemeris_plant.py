@@ -25,6 +25,10 @@ rotated by ``C(t)``: the controller's command means the same thrust in both plan
 not depleted (as in the CR3BP plant).  With :class:`ocreach.ephemeris.CircularEarthMoon`
 (``circular=True``) the plant is the CR3BP with ``mu = GM_M/(GM_E + GM_M)`` and
 ``t* = sqrt(l*^3/(GM_E + GM_M))`` (the test of the transform).
+
+:meth:`EphemerisPlant.frame_model` is the same dynamics as a CasADi model in the CR3BP
+coordinates: the model of the ephemeris-corrected reference
+(:mod:`ocreach.control.ephemeris_reference`) and of the controllers that track it.
 """
 from __future__ import annotations
 
