@@ -335,6 +335,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         opts["revolutions"] = args.revolutions
     if getattr(args, "plant", None):
         opts["plant"] = args.plant
+    if getattr(args, "reference", None):
+        opts["reference"] = args.reference
     if args.kind == "station-keeping":
         opts.setdefault("progress", True)
     metrics = report_fn(problem, out, **opts)
@@ -414,6 +416,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--plant", choices=["cr3bp", "ephemeris"],
                     help="station-keeping: true plant (default cr3bp; ephemeris: DE421 point "
                          "masses, the CR3BP as prediction model)")
+    rp.add_argument("--reference", choices=["cr3bp", "ephemeris"],
+                    help="station-keeping: reference orbit (default cr3bp; ephemeris: the orbit "
+                         "corrected in the DE421 plant, needs --plant ephemeris, controllers mpc,lqr)")
     rp.set_defaults(func=cmd_report)
 
     b = sub.add_parser("bench", help="run the benchmarks in benchmarks/")

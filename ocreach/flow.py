@@ -349,6 +349,30 @@ def stt(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike, order
     return STTResult(times=g, states=states, controls=U, phi=tuple(phi))
 
 
+def stm_batch(model: Model, X0: ArrayLike, t0: ArrayLike, t1: ArrayLike, u: ArrayLike | None = None,
+              *, p: ArrayLike | None = None, rtol: float = 1e-10, atol: float = 1e-12,
+              max_steps: int = 100000) -> tuple[np.ndarray, np.ndarray]:
+    """States and state-transition matrices of ``N`` independent arcs, integrated as one batch.
+
+    Arc ``i`` starts from ``X0[i]`` at ``t0[i]`` and ends at ``t1[i]`` (scalars broadcast) under a
+    constant control ``u`` (default 0).  The STM comes from the model's variational equation
+    ``dPhi/dt = f_x Phi`` (:func:`stt_rhs` order 1).  Returns ``(X1 (N, n_x), Phi (N, n_x, n_x))``.
+    The arcs of a multiple-shooting correction, for instance.
+    """
+    X = model.validate_state(X0, "X0")
+    if X.ndim != 2:
+        raise ProblemError(f"X0 must have shape (N, {model.n_x}); got {X.shape}")
+    n = X.shape[0]
+    u = np.zeros(model.n_u) if u is None else np.asarray(u, dtype=float).reshape(model.n_u)
+    P = np.broadcast_to(_params(model, p, None), (n, model.n_p))
+    args = np.concatenate([np.broadcast_to(u, (n, model.n_u)), P], axis=1)
+    Y1 = integrate_batch(stt_rhs(model, 1), _stt_initial(model, 1, X),
+                         np.broadcast_to(np.asarray(t0, float), (n,)).copy(),
+                         np.broadcast_to(np.asarray(t1, float), (n,)).copy(), args,
+                         rtol=rtol, atol=atol, max_steps=max_steps)
+    return Y1[:, :model.n_x], _stt_unpack(model, 1, Y1)[0][:, :, :model.n_x]
+
+
 def stm(model: Model, x0: ArrayLike, t0: float, t1: float, u: ArrayLike | None = None, *,
         p: ArrayLike | None = None, rtol: float = 1e-10,
         atol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:

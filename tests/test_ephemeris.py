@@ -303,3 +303,23 @@ def test_inertial_acceleration_vs_jplephem(jpl):
         acc_model = f[3:6] * m.units.acceleration / 1e3
         np.testing.assert_allclose(acc_model, acc, rtol=1e-9, atol=1e-16)
         assert f[6] == pytest.approx(m.p_default[0] / m.p_default[1], rel=1e-12)
+
+
+def test_inertial_takes_gms_from_the_ephemeris_it_is_given():
+    """A stand-in with its own GMs: the accelerations (and the default TU) use them, not DE421's."""
+    from ocreach.ephemeris import CircularEarthMoon
+
+    gme, gmm = 1.1 * gm("earth"), 0.7 * gm("moon")
+    eph = CircularEarthMoon(384400.0, gm_earth=gme, gm_moon=gmm)
+    m = ephemeris_inertial(["earth", "moon"], "earth", FOSS_EPOCH, 1.0, 1.0, 1.0, 1.0,
+                           ephemeris=eph)
+    du, tu = m.units.length / 1e3, m.units.time
+    assert tu == pytest.approx(np.sqrt(du**3 / gme), rel=1e-14)  # mu_earth = 1 with its own GM
+    x = np.array([0.3, -0.8, 0.2, 0.1, 0.4, -0.2, 1.0])
+    t = 0.37
+    rm = np.asarray(eph.position("moon", t * tu, "earth"), float).ravel() / du
+    r = x[:3]
+    mu_e, mu_m = gme * tu**2 / du**3, gmm * tu**2 / du**3
+    acc = (-mu_e * r / np.linalg.norm(r) ** 3
+           - mu_m * ((r - rm) / np.linalg.norm(r - rm) ** 3 + rm / np.linalg.norm(rm) ** 3))
+    np.testing.assert_allclose(m(x, np.zeros(3), t)[3:6], acc, rtol=1e-12, atol=1e-15)

@@ -136,3 +136,61 @@ def test_report_plant_option_on_the_command_line(tmp_path):
     assert tubes and all(t["source"].startswith("interval hull of linear") for t in tubes)
     assert not any(t["guaranteed"] for t in tubes) and data["lqr"]["tube_guaranteed"] is False
     assert "LINEARISED, not guaranteed" in md
+
+
+def test_frame_model_is_the_plant_in_cr3bp_coordinates(nrho, nrho_ref):
+    """The CasADi model the ephemeris reference and its controllers use, integrated with SciPy,
+    equals the plant's step (Moon-centred ICRF integration and the frame map), thrust and
+    disturbance included."""
+    from scipy.integrate import solve_ivp
+
+    plant = EphemerisPlant(nrho_ref, "ball", nrho.velocity_dims, span_days=3.0)
+    model = plant.frame_model()
+    assert list(model.param_names) == ["mu", "a_max"] and model.n_x == 6
+    f, p = model.f_fun, nrho_ref.params
+    rng = np.random.default_rng(5)
+    for k in (0, 40, 78):  # apolune, in between, near perilune
+        x = nrho_ref.state(k) + rng.uniform(-1e-4, 1e-4, 6)
+        u, w = np.array([0.3, -0.2, 0.5]), np.array([1e-7, 2e-7, -1e-7])
+        t0 = float(nrho_ref.time(k))
+
+        def rhs(t, y, u=u, w=w):
+            d = np.asarray(f(y, u, t, p)).ravel()
+            d[3:] += w
+            return d
+
+        sol = solve_ivp(rhs, (t0, t0 + 5 * nrho_ref.dt), x, method="DOP853", rtol=1e-12,
+                        atol=1e-13)
+        b = plant.step(x, u, w, t0, 5 * nrho_ref.dt)
+        np.testing.assert_allclose(sol.y[:, -1], b, rtol=0, atol=1e-9)
+
+
+def test_reference_option_bad_combinations(nrho):
+    with pytest.raises(ProblemError, match="reference must be one of"):
+        run_station_keeping(nrho, controllers=("lqr",), revolutions=1, plant="ephemeris",
+                            reference="de440")
+    with pytest.raises(ProblemError, match="needs plant='ephemeris'"):
+        run_station_keeping(nrho, controllers=("lqr",), revolutions=1, reference="ephemeris")
+    with pytest.raises(ProblemError, match=r"\['event-mpc'\] need the periodic"):
+        run_station_keeping(nrho, controllers=("event-mpc", "lqr"), revolutions=1,
+                            plant="ephemeris", reference="ephemeris")
+
+
+def test_report_reference_option_on_the_command_line(tmp_path):
+    import json
+
+    from ocreach.cli import main
+
+    rc = main(["report", "station-keeping", "--problem", "nrho-9-2", "--controllers", "lqr",
+               "--revolutions", "0.3", "--plant", "ephemeris", "--reference", "ephemeris",
+               "--out", str(tmp_path), "--set", "progress=False"])
+    assert rc == 0
+    data = json.loads((tmp_path / "metrics.json").read_text())
+    rf = data["settings"]["reference"]
+    assert rf["reference"] == "ephemeris" and rf["max_defect"] <= 1e-9
+    assert data["lqr"]["max_gauge"] is None and data["settings"]["tubes"] == []
+    md = (tmp_path / "report.md").read_text()
+    assert "orbit of the DE421 plant" in md and f"{data['lqr']['delta_v_mps']:.4g} m/s" in md
+    assert not (tmp_path / "gauge.png").exists()
+    # corrected reference, paper offset: the offset's cost only (CR3BP reference: ~30 m/s/rev)
+    assert data["lqr"]["delta_v_per_rev_mps"] < 3.0

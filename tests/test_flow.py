@@ -241,6 +241,20 @@ def test_stm_helper(dro_model):
     np.testing.assert_allclose(x1, propagate(dro_model, X_DRO, U[0], [0, 0.7])[-1], atol=1e-10)
 
 
+def test_stm_batch_arcs_match_the_single_arc_helper(dro_model):
+    """Independent arcs with their own start and end times, in one batch, against :func:`stm`."""
+    X0 = X_DRO + np.array([[0.0, 0.0, 0.0, 0.0], [0.01, -0.02, 0.0, 0.01], [-0.01, 0.0, 0.02, 0.0]])
+    t0, t1 = np.array([0.0, 0.3, 1.1]), np.array([0.7, 0.2, 1.9])  # one arc backward
+    X1, Phi = flow.stm_batch(dro_model, X0, t0, t1, u=[0.3, -0.2], **TIGHT)
+    assert X1.shape == (3, 4) and Phi.shape == (3, 4, 4)
+    for i in range(3):
+        x1, P = stm(dro_model, X0[i], t0[i], t1[i], u=[0.3, -0.2], **TIGHT)
+        np.testing.assert_allclose(X1[i], x1, atol=1e-12)
+        np.testing.assert_allclose(Phi[i], P, atol=1e-10)
+    with pytest.raises(ProblemError, match="X0 must have shape"):
+        flow.stm_batch(dro_model, X_DRO, 0.0, 1.0)
+
+
 # ----------------------------------------------------------------------------- heyoka
 def test_stt2_matches_heyoka_var_ode_sys(dro_model):
     hy = pytest.importorskip("heyoka")

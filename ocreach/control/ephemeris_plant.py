@@ -25,6 +25,10 @@ rotated by ``C(t)``: the controller's command means the same thrust in both plan
 not depleted (as in the CR3BP plant).  With :class:`ocreach.ephemeris.CircularEarthMoon`
 (``circular=True``) the plant is the CR3BP with ``mu = GM_M/(GM_E + GM_M)`` and
 ``t* = sqrt(l*^3/(GM_E + GM_M))`` (the test of the transform).
+
+:meth:`EphemerisPlant.frame_model` is the same dynamics as a CasADi model in the CR3BP
+coordinates: the model of the ephemeris-corrected reference
+(:mod:`ocreach.control.ephemeris_reference`) and of the controllers that track it.
 """
 from __future__ import annotations
 
@@ -132,6 +136,51 @@ class EphemerisPlant:
         rho = C.T @ y[:3]
         om = np.array([-rho[1], rho[0], 0.0])
         return np.concatenate([rho + np.array([1.0 - self.mu, 0.0, 0.0]), C.T @ y[3:6] - om])
+
+    def frame_model(self):
+        """The plant's dynamics in the CR3BP coordinates of the frame fixed at the epoch: a
+        :class:`~ocreach.model.Model` with the CR3BP's interface (states ``[r, v]``, control ``u``
+        in ``||u|| <= 1`` along the CR3BP axes, parameters ``[mu, a_max]``, time = reference time).
+
+        With ``s = r - (1 - mu) e_x`` (Moon-relative, rotating axes) and the frame's uniform rate
+        ``omega = e_z`` (1 rad/TU): ``ds/dt = v``,
+        ``dv/dt = C(t)^T a(C(t) s, C(t)(v + omega x s), t - t_0) - 2 omega x v - omega x (omega x s)
+        + a_max u``, with ``a`` the acceleration of the Moon-centred ICRF model (Patel & Scheeres
+        Eq. 11), called symbolically, so every derivative (STM, MPC) comes from the one CasADi
+        model.  It is the plant of :meth:`step` expressed in the controllers' coordinates (the
+        dynamics of :mod:`ocreach.control.ephemeris_reference`).  Cached on the plant's model.
+        """
+        return self.model.cached(("cr3bp_frame_model", self.t0, self.mu), self._build_frame_model)
+
+    def _build_frame_model(self):
+        import casadi as ca
+
+        from ocreach.model import Model
+
+        x = ca.SX.sym("x", 6)
+        u = ca.SX.sym("u", 3)
+        t = ca.SX.sym("t")
+        mu, a_max = ca.SX.sym("mu"), ca.SX.sym("a_max")
+        s = x[:3] - ca.vertcat(1 - mu, 0, 0)
+        v = x[3:6]
+        c, sn = ca.cos(t - self.t0), ca.sin(t - self.t0)
+        Rz = ca.vertcat(ca.horzcat(c, -sn, 0), ca.horzcat(sn, c, 0), ca.horzcat(0, 0, 1))
+        C = ca.mtimes(ca.DM(self.C0), Rz)
+        om_s = ca.vertcat(-s[1], s[0], 0)  # e_z x s
+        y = ca.vertcat(ca.mtimes(C, s), ca.mtimes(C, v + om_s), 1)
+        a_in = self.model.f_fun(y, ca.DM.zeros(3), t - self.t0, ca.DM(self._p))[3:6]
+        acc = (ca.mtimes(C.T, a_in) + ca.vertcat(2 * v[1] + s[0], -2 * v[0] + s[1], 0)
+               + a_max * u)
+        f = ca.cse(ca.vertcat(v, acc))
+        units = self.units
+        return Model.build(
+            "ephemeris-cr3bp-frame", x, u, f, t=t, p=ca.vertcat(mu, a_max),
+            p_default=[self.mu, self.a_max], state_names=["x", "y", "z", "vx", "vy", "vz"],
+            control_names=["ux", "uy", "uz"], param_names=["mu", "a_max"], thrust_param="a_max",
+            control_set=self.kind if self.kind in ("ball", "box") else "ball", units=units,
+            state_units=units.state_labels(3),
+            description=(f"DE421 point masses {list(self.bodies)} (Moon-centred, Patel & Scheeres "
+                         f"Eq. 11) in the CR3BP rotating frame fixed at epoch {self.epoch} TDB"))
 
     def step(self, x: np.ndarray, u: np.ndarray, w: np.ndarray, t0: float, dt: float) -> np.ndarray:
         f = self.model.f_fun

@@ -53,6 +53,7 @@ class TrackingReference:
     (``X[M]`` equals ``X[0]`` up to the orbit's correction accuracy); otherwise indices beyond ``M``
     are an error.  ``A``, ``B`` (``(M, n_x, n_x)``, ``(M, n_x, n_u)``) are the discrete
     linearisation of the prediction model about the reference, filled by :meth:`linearize`.
+    ``steps_per_rev``: steps per revolution of a non-periodic multi-revolution orbit.
     """
 
     model: Model
@@ -67,6 +68,7 @@ class TrackingReference:
     A: np.ndarray | None = None
     B: np.ndarray | None = None
     n_track: int | None = None
+    steps_per_rev: int | None = None
     cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -89,6 +91,14 @@ class TrackingReference:
     def n_default(self) -> int:
         """Steps a closed loop runs by default (the problem's horizon, without look-ahead padding)."""
         return self.n_steps if self.n_track is None else int(self.n_track)
+
+    @property
+    def revolution_steps(self) -> int:
+        """Grid steps per revolution of the orbit: ``M`` for a periodic reference, else
+        ``steps_per_rev`` (e.g. an ephemeris-corrected multi-revolution orbit) or ``M``."""
+        if self.periodic or self.steps_per_rev is None:
+            return self.n_steps
+        return int(self.steps_per_rev)
 
     @property
     def discretization(self) -> Discretization:

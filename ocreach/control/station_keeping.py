@@ -25,6 +25,7 @@ import numpy as np
 
 from ocreach.control.common import control_scale
 from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, PLANTS, EphemerisPlant
+from ocreach.control.ephemeris_reference import ephemeris_reference, reference_settings
 from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
@@ -386,6 +387,22 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
     return out
 
 
+def _check_reference_kind(reference: str, plant: str, controllers) -> None:
+    """``reference`` of :func:`run_station_keeping`: a name in ``REFERENCES`` that fits the plant
+    and the controllers."""
+    if reference not in REFERENCES:
+        raise ProblemError(f"reference must be one of {list(REFERENCES)}; got {reference!r}")
+    if reference == "ephemeris":
+        if plant != "ephemeris":
+            raise ProblemError(f"reference='ephemeris' (the DE421-corrected orbit) needs "
+                               f"plant='ephemeris'; got plant={plant!r}")
+        tubed = [c for c in controllers if c in TUBE_CONTROLLERS]
+        if tubed:
+            raise ProblemError(f"controllers {tubed} need the periodic CR3BP reference (tubes "
+                               f"refreshed every period); with reference='ephemeris' use "
+                               f"{[c for c in CONTROLLERS if c not in TUBE_CONTROLLERS]}")
+
+
 # ------------------------------------------------------------------------------------------------
 # metrics and runs
 # ------------------------------------------------------------------------------------------------
@@ -399,9 +416,11 @@ def _edges(on: np.ndarray) -> int:
     return int(on[0]) + int(np.sum(on[1:] & ~on[:-1])) if on.size else 0
 
 
-def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedule: TubeSchedule,
-                            problem, controller=None) -> tuple[dict[str, Any], np.ndarray]:
-    """Metrics of one closed-loop run (units: m/s, km, ms) and the gauge of every state (K+1,).
+def station_keeping_metrics(res: SimResult, reference: TrackingReference,
+                            schedule: TubeSchedule | None, problem,
+                            controller=None) -> tuple[dict[str, Any], np.ndarray | None]:
+    """Metrics of one closed-loop run (units: m/s, km, ms) and the gauge of every state (K+1,)
+    (``schedule=None``: no tube, the gauge metrics and the gauges are ``None``).
 
     ``delta_v_mps`` = sum_k ||a_max u_k|| dt (applied thrust) in m/s, ``delta_v_per_rev_mps`` the
     same over the revolutions flown; ``activations`` off->on switches of the thrust (event-MPC:
@@ -416,7 +435,6 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedu
     K = res.U.shape[0]
     a = control_scale(model, reference.params, "auto")
     dv = delta_v_si(res.U_applied, a, reference.dt, units)
-    revs = K / reference.n_steps
     un = np.linalg.norm(res.U_applied, axis=1)
     if controller is not None and hasattr(controller, "active") and len(controller.active) == K:
         on = np.asarray(controller.active, bool)
@@ -425,17 +443,32 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedu
         on = un > 0
         activations = _edges(on)
     ks = np.arange(K + 1)
+    if schedule is None:  # no tube (the ephemeris-corrected reference): no gauge metrics
+        return _deviation_metrics(res, reference, problem, controller, dv, on, activations,
+                                  None, None), None
     refresh = np.array([schedule.refresh_step(int(k)) for k in ks])
     gam = np.empty(K + 1)
     for r in np.unique(refresh):  # one batched gauge call per tube
         sel = refresh == r
         gam[sel] = schedule.tube(int(r)).gauge(ks[sel], res.X[sel])
-    off = np.r_[~on, True]  # the final state has no control: counted as off
+    return _deviation_metrics(res, reference, problem, controller, dv, on, activations, gam,
+                              np.r_[~on, True]), gam  # the final state has no control: off
+
+
+def _deviation_metrics(res: SimResult, reference: TrackingReference, problem, controller,
+                       dv: np.ndarray, on: np.ndarray, activations: int, gam: np.ndarray | None,
+                       off: np.ndarray | None) -> dict[str, Any]:
+    """The metrics of :func:`station_keeping_metrics` from the per-step Delta-V ``dv``, thrust
+    flags ``on`` and gauges ``gam`` (``None``: no tube, gauge metrics ``None``)."""
+    units = problem.units
+    K = res.U.shape[0]
+    revs = K / reference.revolution_steps
+    un = np.linalg.norm(res.U_applied, axis=1)
     pos, vel = list(problem.position_dims), list(problem.velocity_dims)
     d = res.X - res.X_ref
     dp = np.linalg.norm(d[:, pos], axis=1) * units.length / 1e3
     dvv = np.linalg.norm(d[:, vel], axis=1) * units.velocity
-    exc = np.flatnonzero(off & (gam > 1.0))
+    exc = np.flatnonzero(off & (gam > 1.0)) if gam is not None else None
     solves = getattr(controller, "solve_times", None) or []
     return {
         "revolutions": float(revs),
@@ -444,10 +477,10 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedu
         "delta_v_per_rev_mps": float(dv.sum() / revs),
         "activations": activations,
         "duty_cycle": float(on.mean()),
-        "max_gauge": float(gam.max()),
-        "max_gauge_off": float(gam[off].max()) if off.any() else None,
-        "excursions_off": int(exc.size),
-        "excursion_steps": exc.tolist()[:200],
+        "max_gauge": float(gam.max()) if gam is not None else None,
+        "max_gauge_off": float(gam[off].max()) if gam is not None and off.any() else None,
+        "excursions_off": int(exc.size) if exc is not None else None,
+        "excursion_steps": exc.tolist()[:200] if exc is not None else [],
         "max_deviation_km": float(dp.max()),
         "rms_deviation_km": float(np.sqrt(np.mean(dp**2))),
         "max_deviation_mps": float(dvv.max()),
@@ -459,7 +492,7 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference, schedu
         "solves": int(len(solves)),
         "solver_failures": int(res.fallbacks),
         "total_time_s": float(res.total_time),
-    }, gam
+    }
 
 
 @dataclass
@@ -469,16 +502,21 @@ class StationKeepingRun:
 
     results: dict[str, SimResult]
     metrics: dict[str, dict]
-    gauges: dict[str, np.ndarray]
+    gauges: dict[str, np.ndarray | None]
     active: dict[str, np.ndarray]
     reference: TrackingReference
-    schedule: TubeSchedule
+    schedule: TubeSchedule | None  # None: no tube (the ephemeris-corrected reference)
     settings: dict = field(default_factory=dict)
     #: per controller with an anticipating trigger: the predicted gauge at the next refresh
     predicted_gauges: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 CONTROLLERS = ("event-mpc", "tube-mpc", "mpc", "lqr")
+#: Controllers that need a tube schedule (a periodic reference).
+TUBE_CONTROLLERS = ("event-mpc", "tube-mpc")
+#: References of :func:`run_station_keeping`: the problem's periodic CR3BP orbit, or its
+#: DE421-corrected multi-revolution orbit (:mod:`ocreach.control.ephemeris_reference`).
+REFERENCES = ("cr3bp", "ephemeris")
 
 
 def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
@@ -491,7 +529,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
                         max_cpu_time: float = 2.0, n_sub: int | str = "auto",
                         prediction_substeps: int | None = 4, terminal_set: bool = True,
-                        plant: str = "cr3bp",
+                        plant: str = "cr3bp", reference: str = "cr3bp",
                         epoch: Any = DEFAULT_EPOCH, ephemeris_bodies: Any = DEFAULT_BODIES,
                         anticipate: bool | None = None,
                         progress: bool = False) -> StationKeepingRun:
@@ -519,7 +557,12 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
     (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
     ``ephemeris_bodies`` from ``epoch`` = reference time 0, the CR3BP rotating frame fixed at the
-    epoch); the controllers, tubes and reference stay CR3BP (the prediction model) either way.
+    epoch); with ``reference="cr3bp"`` (default) the controllers, tubes and reference stay CR3BP
+    (the prediction model) either way.  ``reference="ephemeris"`` (with ``plant="ephemeris"``;
+    controllers ``mpc`` and ``lqr``): the DE421-corrected orbit of
+    :mod:`ocreach.control.ephemeris_reference` from ``epoch``, a natural orbit of the plant; the
+    LQR (finite-horizon, the reference is not periodic) and the MPC then linearise and predict
+    with the plant's own dynamics in the CR3BP frame fixed at the epoch, and there is no tube.
     """
     from ocreach.control.report import PAPER_Q, paper_pattern
     from ocreach.control.tube_mpc import TubeMPC
@@ -536,6 +579,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     EventTrigger(beta, m)  # beta and m checked before the tubes are built
     if plant not in PLANTS:
         raise ProblemError(f"plant must be one of {list(PLANTS)}; got {plant!r}")
+    _check_reference_kind(reference, plant, controllers)
     if isinstance(ephemeris_bodies, str):
         ephemeris_bodies = tuple(b.strip() for b in ephemeris_bodies.split(",") if b.strip())
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
@@ -549,12 +593,17 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         if anticipate is None:
             anticipate = default.get("anticipate")
     anticipate = bool(anticipate)
-    ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
-    K = int(round(revolutions * ref.n_steps))
-    schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,
-                              membership=membership, phase=phase, lookahead=n_p,
-                              source=tube_source, tube_options=tube_options,
-                              interval=tube_interval)
+    if reference == "ephemeris":
+        ref, orbit = ephemeris_reference(problem, revolutions, epoch=epoch,
+                                         bodies=ephemeris_bodies, dt=dt, n_sub=n_sub)
+        schedule = None
+    else:
+        ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
+        schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,
+                                  membership=membership, phase=phase, lookahead=n_p,
+                                  source=tube_source, tube_options=tube_options,
+                                  interval=tube_interval)
+    K = int(round(revolutions * ref.revolution_steps))
     lqr = LQR(Q, R).setup(ref, problem.control_set.kind)
     if isinstance(offset, str):
         if offset != "paper":
@@ -582,7 +631,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     mpc_kw = {"max_cpu_time": max_cpu_time, "prediction_substeps": prediction_substeps,
               "defect_correction": prediction_substeps is not None}
     true_plant = None
-    if plant == "ephemeris":
+    if reference == "ephemeris":
+        true_plant = orbit.plant  # the plant the reference is an orbit of
+    elif plant == "ephemeris":
         true_plant = EphemerisPlant(ref, kind, problem.velocity_dims,
                                     span_days=K * ref.dt * problem.units.time / 86400.0,
                                     epoch=epoch, bodies=ephemeris_bodies)
@@ -605,24 +656,26 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
             predicted[name] = np.asarray(ctl.predicted_gauges, float)
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
-    tube0 = schedule.tube(schedule.phase)
-    tubes = tube_log(schedule, K)
+    tube0 = schedule.tube(schedule.phase) if schedule is not None else None
+    tubes = tube_log(schedule, K) if schedule is not None else []
     for met in metrics.values():  # the tubes are shared; repeated per controller for clarity
-        met["tube_guaranteed"] = all(t["guaranteed"] for t in tubes)
+        met["tube_guaranteed"] = all(t["guaranteed"] for t in tubes) if tubes else None
         met["tube_sources"] = sorted({t["source"] for t in tubes})
     off0 = results[controllers[0]].X[0] - ref.state(0)
     settings = {
-        "problem": problem.id, "revolutions": float(K / ref.n_steps), "n_steps": K,
-        "steps_per_rev": ref.n_steps, "dt_TU": ref.dt,
-        "dt_hours": ref.dt * problem.units.time / 3600.0, "period_hours": ref.n_steps * ref.dt
-        * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
-        "membership": membership, "tube_source": tube0.source, "anticipate": anticipate,
-        "tube_interval_steps": schedule.interval,
+        "problem": problem.id, "revolutions": float(K / ref.revolution_steps), "n_steps": K,
+        "steps_per_rev": ref.revolution_steps, "dt_TU": ref.dt,
+        "dt_hours": ref.dt * problem.units.time / 3600.0, "period_hours": ref.revolution_steps
+        * ref.dt * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
+        "membership": membership, "tube_source": tube0.source if tube0 is not None else None,
+        "anticipate": anticipate,
+        "tube_interval_steps": schedule.interval if schedule is not None else None,
         "refresh_steps_per_rev": ([schedule.phase + int(o) for o in schedule.offsets]
-                                  if schedule.offsets is not None else None),
-        "tube_guaranteed": all(t["guaranteed"] for t in tubes), "tubes": tubes,
-        "tube_sources_used": sorted({t["source"] for t in tubes}),
-        "refresh_phase_step": schedule.phase,
+                                  if schedule is not None and schedule.offsets is not None
+                                  else None),
+        "tube_guaranteed": all(t["guaranteed"] for t in tubes) if tubes else None,
+        "tubes": tubes, "tube_sources_used": sorted({t["source"] for t in tubes}),
+        "refresh_phase_step": schedule.phase if schedule is not None else None,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
                                   else initial, float).tolist(),
         "disturbance_W": disturbance, "navigation": navigation, "seed": seed,
@@ -639,6 +692,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "mass_kg": problem.extra.get("mass_kg"),
         "plant": ({"plant": "cr3bp", "frame": "CR3BP rotating (the prediction model)"}
                   if true_plant is None else true_plant.describe()),
+        "reference": (reference_settings(orbit, ref) if reference == "ephemeris" else
+                      {"reference": "cr3bp", "periodic": True}),
         "paper": {"delta_v_mps": PAPER_DELTA_V_MPS, "t_f_hours": PAPER_TF_HOURS, "N": PAPER_N,
                   "G_pos": PAPER_G_POS, "G_vel": PAPER_G_VEL, "W": PAPER_W},
     }

@@ -2,11 +2,13 @@
 (Patel & Subbarao, "Station-keeping in the near rectilinear halo orbit", Fig. 7-8).
 
 ``ocreach report station-keeping --problem nrho-9-2 [--controllers event-mpc,tube-mpc,mpc,lqr]
-[--revolutions N] [--plant cr3bp|ephemeris] [--out DIR] [--set key=value]`` runs :func:`~ocreach.control.station_keeping.
+[--revolutions N] [--plant cr3bp|ephemeris] [--reference cr3bp|ephemeris] [--out DIR]
+[--set key=value]`` runs :func:`~ocreach.control.station_keeping.
 run_station_keeping` and writes, atomically, ``metrics.json`` (one entry per controller and the
 settings), ``report.md``, ``report.html`` and the figures ``trajectory.png`` (3-D with the thrust
 arcs), ``projections.png`` (x-y and y-z with the tube boxes), ``gauge.png`` (with the trigger and
-release lines), ``thrust.png`` and ``delta_v.png``.  Every sentence with a number is computed from
+release lines; not with the ephemeris reference, which has no tube), ``thrust.png`` and
+``delta_v.png``.  Every sentence with a number is computed from
 the run.
 """
 from __future__ import annotations
@@ -38,7 +40,8 @@ DESCRIPTIONS = {
                 "tube of the LQR-stabilised error dynamics, thrust tightened likewise, LQR "
                 "terminal set (level set of the Riccati cost in the tightened sets)",
     "mpc": "continuous nonlinear MPC (Eq. 27 without the tube), every step",
-    "lqr": "periodic time-varying LQR, every step (radially saturated)",
+    "lqr": "time-varying LQR (periodic Riccati solution; finite-horizon on the non-periodic "
+           "ephemeris-corrected reference), every step (radially saturated)",
 }
 ANTICIPATE_TEXT = (" (event-mpc: or the predicted gauge, in the next refresh's tube, of the drift "
                    "to that refresh > 1: the anticipating trigger, not in the paper)")
@@ -93,6 +96,9 @@ def summary_lines(data: dict) -> list[str]:
     s = data["settings"]
     names = [n for n in CONTROLLERS if n in data]
     lines = []
+    rf = s.get("reference") or {"reference": "cr3bp"}
+    if rf["reference"] == "ephemeris":
+        return lines + ephemeris_reference_lines(data, names)
     per_rev = s.get("refresh_steps_per_rev")
     if per_rev:
         when = (f"refreshed at reference steps {', '.join(str(r) for r in per_rev)} of every "
@@ -169,6 +175,32 @@ def tube_lines(tubes: list[dict]) -> list[str]:
     return out
 
 
+def ephemeris_reference_lines(data: dict, names: list[str]) -> list[str]:
+    """Summary sentences of a run on the DE421-corrected reference (no tube, no gauge)."""
+    s = data["settings"]
+    rf, pl = s["reference"], s["plant"]
+    lines = [f"Reference: the CR3BP orbit corrected over {rf['revolutions_corrected']} "
+             f"revolutions into an orbit of the DE421 plant (point masses {', '.join(pl['bodies'])}, epoch "
+             f"{pl['epoch']} TDB = reference time 0) by multiple shooting on "
+             f"{rf['patch_points']} patch points ({rf['iterations']} iterations, largest defect "
+             f"{rf['max_defect']:.2g}; patch points moved up to "
+             f"{rf['seed_to_corrected_max_position_km']:.4g} km from the CR3BP seed). Not "
+             "periodic: the LQR is finite-horizon, and LQR and MPC predict with the plant's own "
+             f"dynamics ({rf['prediction_model']}). No tube, so no gauge."]
+    for n in names:
+        m = data[n]
+        lines.append(
+            f"{n}: Delta-V {m['delta_v_mps']:.4g} m/s over {m['revolutions']:.3g} revolutions "
+            f"({m['delta_v_per_rev_mps']:.4g} m/s per revolution); duty cycle "
+            f"{100 * m['duty_cycle']:.3g} %, max deviation {m['max_deviation_km']:.4g} km / "
+            f"{m['max_deviation_mps']:.4g} m/s, {m['time_per_step_ms']:.3g} ms per step, "
+            f"{m['solver_failures']} solver failure(s).")
+    lines.append(f"Initial offset (same for all): |dr| = {s['offset_position_km']:.4g} km, "
+                 f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
+                 f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")
+    return lines
+
+
 def _table(data: dict) -> tuple[list[str], list[list[str]]]:
     names = [n for n in CONTROLLERS if n in data]
     rows = [[k] + [_fmt(data[n].get(k)) for n in names] for k in TABLE_KEYS]
@@ -229,8 +261,6 @@ def _figures(problem, run: StationKeepingRun, out: Path) -> list[str]:
     pos = list(problem.position_dims)
     ref = run.reference
     names = list(run.results)
-    s = run.settings
-    a = s["a_max"]
     figs = []
     first = run.results[names[0]]
     t = (first.times - first.times[0]) * th
@@ -258,7 +288,7 @@ def _figures(problem, run: StationKeepingRun, out: Path) -> list[str]:
     K = first.U.shape[0]
     box_steps = np.arange(0, min(K, ref.n_steps), max(1, ref.n_steps // 40))
     for ax, (i, j) in zip(axs, [(pos[0], pos[1]), (pos[1], pos[2])], strict=True):
-        for k in box_steps:
+        for k in box_steps if sched is not None else ():
             z = sched.tube(int(k)).zonotope(int(k))
             hw = np.abs(z.G).sum(axis=1)
             ax.add_patch(Rectangle(((z.c[i] - hw[i]) * L, (z.c[j] - hw[j]) * L), 2 * hw[i] * L,
@@ -276,11 +306,21 @@ def _figures(problem, run: StationKeepingRun, out: Path) -> list[str]:
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
     axs[0].legend(fontsize=7)
-    axs[0].set_title("x-y, tube boxes of the first revolution")
+    axs[0].set_title("x-y, tube boxes of the first revolution" if sched is not None else "x-y")
     axs[1].set_title("y-z")
     save_figure(fig, out / "projections.png", bbox_inches="tight")
     figs.append("projections.png")
+    if sched is not None:
+        figs.append(_gauge_figure(problem, run, t, out))
+    return figs + _thrust_figures(problem, run, t, out)
 
+
+def _gauge_figure(problem, run: StationKeepingRun, t: np.ndarray, out: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    names, s, ref, sched = list(run.results), run.settings, run.reference, run.schedule
+    K = run.results[names[0]].U.shape[0]
+    th = problem.units.time / 3600.0
     fig, ax = plt.subplots(figsize=(9, 4))
     for n in names:
         ax.semilogy(t, np.maximum(run.gauges[n], 1e-6), lw=0.8, label=n)
@@ -305,8 +345,14 @@ def _figures(problem, run: StationKeepingRun, out: Path) -> list[str]:
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3, which="both")
     save_figure(fig, out / "gauge.png", bbox_inches="tight")
-    figs.append("gauge.png")
+    return "gauge.png"
 
+
+def _thrust_figures(problem, run: StationKeepingRun, t: np.ndarray, out: Path) -> list[str]:
+    import matplotlib.pyplot as plt
+
+    units, ref, s, figs = problem.units, run.reference, run.settings, []
+    a = s["a_max"]
     thrust_N = s.get("thrust_N") or 1.0
     fig, ax = plt.subplots(figsize=(9, 4))
     for n, r in run.results.items():

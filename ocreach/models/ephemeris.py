@@ -49,18 +49,30 @@ def _bodies(bodies: Iterable[str]) -> tuple[str, ...]:
     return out
 
 
-def default_inertial_units(central: str, mass0: float = 1.0) -> Units:
+def default_inertial_units(central: str, mass0: float = 1.0, gm_of=gm) -> Units:
     """DU = 384400 km (Earth, Moon, EMB origin) or 1 AU (otherwise); TU makes ``mu_central = 1``.
 
     For the SSB and EMB origins the reference GM is the Sun's and Earth+Moon's.  The mass unit is
-    ``mass0`` (so the inverse mass state starts at ``n = 1``).
+    ``mass0`` (so the inverse mass state starts at ``n = 1``).  ``gm_of(body)``: the GMs (km^3/s^2;
+    default DE421's, :func:`ocreach.ephemeris.gm`).
     """
     central = check_body(central, ORIGINS, "central")
     du_km = DU_EARTH_MOON_KM if central in ("earth", "moon", "emb") else AU_KM
-    ref = {"ssb": gm("sun"), "emb": gm("earth") + gm("moon")}.get(central)
-    ref = gm(central) if ref is None else ref
+    ref = {"ssb": lambda: gm_of("sun"), "emb": lambda: gm_of("earth") + gm_of("moon")}.get(
+        central, lambda: gm_of(central))()
     return Units(length=du_km * 1e3, time=float(np.sqrt(du_km**3 / ref)), mass=mass0,
                  name=f"{central}-centred (DU = {du_km:.10g} km, mu_{central} = 1)")
+
+
+def _gm_of(eph):
+    """``body -> GM`` of the ephemeris object ``eph``, DE421's for bodies it does not carry (the
+    Sun of a circular Earth-Moon stand-in, say)."""
+    def gm_of(body: str) -> float:
+        try:
+            return float(eph.gm(body))
+        except ProblemError:
+            return gm(body)
+    return gm_of
 
 
 def _second_derivative(expr: ca.SX, t: ca.SX) -> ca.SX:
@@ -120,13 +132,16 @@ def ephemeris_inertial(
     if frame_acceleration == "modelled" and central != "ssb" and central not in bodies:
         raise ProblemError(f"central {central!r} must be 'ssb' or one of bodies {list(bodies)} with "
                            "frame_acceleration='modelled' (use 'ephemeris' for other origins)")
-    units = default_inertial_units(central, mass0) if units is None else replace(units, mass=mass0)
-    du_km, tu = units.length / 1e3, units.time
     fit_bodies = set(bodies) | ({central} if central in BODIES else set())
     if central == "emb":
         fit_bodies |= {"earth"}
     eph = ephemeris if ephemeris is not None else ephemeris_fit(sorted(fit_bodies), epoch,
                                                                 span_days, tol_km=tol_km)
+    if units is None:
+        units = default_inertial_units(central, mass0, _gm_of(eph))
+    else:
+        units = replace(units, mass=mass0)
+    du_km, tu = units.length / 1e3, units.time
 
     t = ca.SX.sym("t")
     ts = tu * t
@@ -136,7 +151,8 @@ def ephemeris_inertial(
     u = ca.SX.sym("u", 3)
     T_s = ca.SX.sym("T_max")
     c_s = ca.SX.sym("c_ex")
-    mu = {b: gm(b) * tu**2 / du_km**3 for b in bodies}
+    # GMs from the ephemeris object in use (a stand-in may carry its own), like ephemeris_synodic
+    mu = {b: eph.gm(b) * tu**2 / du_km**3 for b in bodies}
 
     acc = ca.SX.zeros(3)
     origin_acc = ca.SX.zeros(3)

@@ -1,0 +1,141 @@
+"""Ephemeris-corrected NRHO reference (ocreach.control.ephemeris_reference)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from ocreach.control.ephemeris_reference import DEFECT_TOL, correct_orbit, ephemeris_reference
+from ocreach.control.lqr import LQR
+from ocreach.control.reference import reference_from_problem
+from ocreach.control.report import PAPER_Q, paper_pattern
+from ocreach.control.simulate import SimOptions, simulate
+from ocreach.control.station_keeping import delta_v_si
+from ocreach.errors import ProblemError, SolverError
+from ocreach.problem import get_problem
+from ocreach.shooting import min_norm_update
+
+
+@pytest.fixture(scope="module")
+def nrho():
+    return get_problem("nrho-9-2")
+
+
+@pytest.fixture(scope="module")
+def orbit(nrho):
+    return correct_orbit(nrho, 1, use_cache=False)
+
+
+def test_patch_point_defects_below_tolerance(orbit, nrho):
+    assert orbit.defects.shape == (orbit.states.shape[0] - 1, 6)
+    assert orbit.max_defect <= DEFECT_TOL
+    assert orbit.meta["max_defect_history"][0] > 1e-3  # the CR3BP seed is not an ephemeris orbit
+    # it is still the NRHO: every patch point within 5000 km of its CR3BP seed
+    cr = reference_from_problem(nrho, n_sub=2)
+    shift = np.linalg.norm((orbit.states - cr.state(orbit.steps % cr.n_steps))[:, :3], axis=1)
+    assert shift.max() * nrho.units.length / 1e3 < 5000.0
+
+
+def test_arcs_reintegrated_independently_match(orbit):
+    """Each arc re-integrated with SciPy on the plant's own right-hand side (Moon-centred ICRF
+    point masses, not the rotating-frame model the correction used) lands on the next patch
+    point."""
+    plant = orbit.plant
+    f, p = plant.model.f_fun, np.asarray(plant.model.p_default, float)
+
+    def rhs(t, y):
+        return np.asarray(f(y, np.zeros(3), t - plant.t0, p)).ravel()
+
+    for j in range(len(orbit.times) - 1):
+        t0, t1 = orbit.times[j], orbit.times[j + 1]
+        sol = solve_ivp(rhs, (t0, t1), plant.to_inertial(t0, orbit.states[j]), method="DOP853",
+                        rtol=1e-12, atol=1e-14)
+        assert sol.success
+        end = plant.from_inertial(t1, sol.y[:, -1])
+        np.testing.assert_allclose(end, orbit.states[j + 1], rtol=0, atol=1e-8)
+
+
+def test_min_norm_update_solves_the_linear_system():
+    rng = np.random.default_rng(3)
+    F = rng.normal(size=(3, 6))
+    Phi = rng.normal(size=(3, 6, 6))
+    dX = min_norm_update(F, Phi)
+    lin = np.stack([Phi[j] @ dX[j] - dX[j + 1] for j in range(3)])
+    np.testing.assert_allclose(lin, -F, atol=1e-12)
+    # minimum norm: orthogonal to the null space of DF (a solution plus a null vector is longer)
+    null = np.zeros((4, 6))
+    null[0] = rng.normal(size=6)
+    for j in range(3):
+        null[j + 1] = Phi[j] @ null[j]
+    assert abs(np.sum(dX * null)) < 1e-10 * np.linalg.norm(dX) * np.linalg.norm(null)
+
+
+def test_disk_cache_round_trip(nrho, tmp_path, monkeypatch):
+    import ocreach.control.ephemeris_reference as mod
+
+    monkeypatch.setattr(mod, "cache_folder", lambda: tmp_path)
+    a = correct_orbit(nrho, 1)
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert len(files) == 2 and files[0].endswith(".json") and files[1].endswith(".npz")
+    meta = json.loads((tmp_path / files[0]).read_text())
+    assert meta["settings"]["revolutions"] == 1 and meta["max_defect"] <= DEFECT_TOL
+    with np.load(tmp_path / files[1], allow_pickle=False) as data:
+        np.testing.assert_array_equal(data["states"], a.states)
+    b = correct_orbit(nrho, 1)  # from the cache
+    np.testing.assert_array_equal(a.states, b.states)
+    assert b.meta["iterations"] == a.meta["iterations"]
+    (tmp_path / files[1]).write_bytes(b"damaged")  # a damaged cache entry is recomputed
+    c = correct_orbit(nrho, 1)
+    np.testing.assert_allclose(c.states, a.states, rtol=0, atol=1e-12)
+
+
+def test_non_convergence_is_reported(nrho):
+    with pytest.raises(SolverError, match="did not converge in 1 iterations"):
+        correct_orbit(nrho, 1, max_iter=1, use_cache=False)
+
+
+def _lqr_delta_v(problem, ref, plant, n_steps):
+    Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3])
+    lqr = LQR(Q, np.ones(3)).setup(ref, problem.control_set.kind)
+    opt = SimOptions(n_steps=n_steps, disturbance=0.0, progress=False)
+    res = simulate(ref, lqr, control_set_kind=problem.control_set.kind,
+                   velocity_dims=problem.velocity_dims, options=opt, plant=plant)
+    return float(delta_v_si(res.U_applied, problem.param("a_max"), ref.dt, problem.units).sum())
+
+
+def test_closed_loop_far_cheaper_than_with_the_cr3bp_reference(nrho):
+    ref, orbit = ephemeris_reference(nrho, 0.5)
+    n = ref.n_track
+    dv_eph = _lqr_delta_v(nrho, ref, orbit.plant, n)
+    cr = reference_from_problem(nrho)
+    dv_cr = _lqr_delta_v(nrho, cr, orbit.plant, n)
+    print(f"LQR Delta-V over half a revolution: {dv_eph:.3g} m/s (corrected reference), "
+          f"{dv_cr:.3g} m/s (CR3BP reference)")
+    assert dv_cr > 5.0  # ~30 m/s per revolution: the CR3BP orbit is not an ephemeris orbit
+    assert dv_eph < 0.01 * dv_cr
+
+
+def test_bad_input(nrho):
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ProblemError, match="revolutions"):
+            correct_orbit(nrho, bad, use_cache=False)
+    with pytest.raises(ProblemError, match="revolutions"):
+        ephemeris_reference(nrho, 0)
+    with pytest.raises(ProblemError, match="2060"):
+        correct_orbit(nrho, 1, epoch="2060-01-01 00:00:00", use_cache=False)
+    with pytest.raises(ProblemError, match="coverage"):
+        correct_orbit(nrho, 1, epoch="1850-01-01 00:00:00", use_cache=False)
+    with pytest.raises(ProblemError, match="arcs_per_rev"):
+        correct_orbit(nrho, 1, arcs_per_rev=0, use_cache=False)
+
+
+def test_a_trajectory_that_left_the_orbit_is_refused():
+    """l2-halo over 11 revolutions with 2 patch points per revolution converges to a continuous
+    trajectory that passes 3718 km from the Moon's centre (the halo: >= 46,358 km): refused."""
+    halo = get_problem("l2-halo")
+    with pytest.raises(SolverError, match="not the seed orbit"):
+        correct_orbit(halo, 11, arcs_per_rev=2, use_cache=False)
+    with pytest.raises(ProblemError, match="max_distance_ratio"):
+        correct_orbit(halo, 1, max_distance_ratio=1.0, use_cache=False)
