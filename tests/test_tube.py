@@ -522,6 +522,8 @@ def test_station_keeping_bad_inputs(halo):
         run_station_keeping(halo, controllers=("event-mpc",), revolutions=0.05, beta=1.2)
     with pytest.raises(ProblemError, match="periodic reference"):
         run_station_keeping(ocreach.get_problem("earth-mars"), controllers=("lqr",))
+    with pytest.raises(ProblemError, match="anticipate"):
+        run_station_keeping(halo, controllers=("lqr",), revolutions=0.05, anticipate="no")
     with pytest.raises(ProblemError, match="tube_slack"):
         MPC(Q_PAPER, R_PAPER, tube=6, tube_slack=-1.0)
     with pytest.raises(ProblemError, match="tube_slack needs"):

@@ -592,6 +592,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
             tube_interval = default.get("tube_interval")
         if anticipate is None:
             anticipate = default.get("anticipate")
+    anticipate = False if anticipate is None else anticipate
+    if not isinstance(anticipate, (bool, np.bool_)):
+        raise ProblemError(f"anticipate must be True, False or None (the problem's default); got "
+                           f"{anticipate!r}")
     anticipate = bool(anticipate)
     if reference == "ephemeris":
         ref, orbit = ephemeris_reference(problem, revolutions, epoch=epoch,
