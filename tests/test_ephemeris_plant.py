@@ -124,14 +124,14 @@ def test_report_plant_option_on_the_command_line(tmp_path):
 
     rc = main(["report", "station-keeping", "--problem", "nrho-9-2", "--controllers", "lqr",
                "--revolutions", "0.3", "--plant", "ephemeris", "--out", str(tmp_path),
-               "--set", "progress=False"])
+               "--set", "progress=False", "--set", "tube_source=linear"])
     assert rc == 0
     data = json.loads((tmp_path / "metrics.json").read_text())
     assert data["settings"]["plant"]["plant"] == "ephemeris"
     md = (tmp_path / "report.md").read_text()
     assert "Plant: DE421 ephemeris, point masses moon, earth, sun" in md
     assert f"{data['lqr']['delta_v_mps']:.4g} m/s" in md
-    # which tube per revolution (here the linearised one throughout)
+    # which tube per revolution (here the linearised one throughout, chosen above)
     tubes = data["settings"]["tubes"]
     assert tubes and all(t["source"].startswith("interval hull of linear") for t in tubes)
     assert not any(t["guaranteed"] for t in tubes) and data["lqr"]["tube_guaranteed"] is False

@@ -209,6 +209,30 @@ def test_schedule_refreshes_at_the_phase_and_windows_cross_it(halo, halo_ref):
     assert short.tube(130).k0 == 105 and calls == [105]  # cached
     assert short.tube(155).k0 == 155 and calls == [105, 155]
     assert short.refresh_step(5 + 7 * 50 + 3) == 355
+    # refresh steps per period (intervals of different lengths), each tube exactly its interval
+    lengths = []
+
+    def exact(k):
+        n = multi.next_refresh(k) - k
+        lengths.append((k, n))
+        return linear_drift_tube(halo_ref, k, n, 1e-5, 1e-7, halo.velocity_dims)
+
+    multi = TubeSchedule(exact, halo_ref, phases=[100, 5, 40])
+    assert multi.phase == 5 and multi.interval == M - 95
+    assert [multi.refresh_step(k) for k in (4, 5, 39, 40, 99, 100, M + 4, M + 41)] == \
+        [100 - M, 5, 5, 40, 40, 100, 100, M + 40]
+    assert [multi.next_refresh(r) for r in (5, 40, 100, 100 - M)] == [40, 100, M + 5, 5]
+    assert multi.refresh_steps(M + 6) == [100 - M, 5, 40, 100, M + 5]
+    assert multi.tube(M + 50).k0 == M + 40 and len(multi.tube(M + 50)) == 60
+    assert multi.tube(M + 99).gauge(M + 99, multi.tube(M + 99).centers[-1]) == 0.0
+    with pytest.raises(ProblemError, match="either phases"):
+        TubeSchedule(exact, halo_ref, phases=[5], interval=10)
+    with pytest.raises(ProblemError, match="phases"):
+        TubeSchedule(exact, halo_ref, phases=[M])
+    with pytest.raises(ProblemError, match="phases"):
+        TubeSchedule(exact, halo_ref, phases=[])
+    with pytest.raises(ProblemError, match="adaptive"):
+        drift_schedule(halo, halo_ref, source="linear", interval="adaptive")
 
 
 def _cr3bp_rhs(mu):
@@ -287,6 +311,161 @@ def test_taylor_drift_tube_contains_every_sampled_drift_trajectory(halo, halo_re
     assert worst > 0.3  # not trivially large
 
 
+@pytest.fixture(scope="module")
+def nrho():
+    return ocreach.get_problem("nrho-9-2")
+
+
+@pytest.fixture(scope="module")
+def nrho_ref(nrho):
+    return reference_from_problem(nrho)
+
+
+def _batch_cr3bp_rhs(mu, w):
+    """CR3BP written out here (independent of ocreach) for a batch: ``x`` is (6 N,), ``w`` (N, 3)
+    the disturbance held over the step."""
+    def f(t, x):
+        X = x.reshape(-1, 6)
+        r1 = np.sqrt((X[:, 0] + mu) ** 2 + X[:, 1] ** 2 + X[:, 2] ** 2)
+        r2 = np.sqrt((X[:, 0] - 1 + mu) ** 2 + X[:, 1] ** 2 + X[:, 2] ** 2)
+        ax = (2 * X[:, 4] + X[:, 0] - (1 - mu) * (X[:, 0] + mu) / r1**3
+              - mu * (X[:, 0] - 1 + mu) / r2**3)
+        ay = -2 * X[:, 3] + X[:, 1] - (1 - mu) * X[:, 1] / r1**3 - mu * X[:, 1] / r2**3
+        az = -(1 - mu) * X[:, 2] / r1**3 - mu * X[:, 2] / r2**3
+        return np.column_stack([X[:, 3:], ax + w[:, 0], ay + w[:, 1], az + w[:, 2]]).ravel()
+    return f
+
+
+def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_drift(nrho,
+                                                                                       nrho_ref):
+    """The guaranteed tubes of ``tube_interval="adaptive"`` across the 9:2 NRHO's perilune (steps
+    72..84, perilune between 78 and 79): ``taylor`` from the paper's initial set stops a few steps
+    after perilune, so the partition restarts it there, and every tube is guaranteed.  Every
+    sampled zero-thrust drift trajectory -- all 64 vertices and 16 interior points of each
+    tube's initial box, per-step disturbances at the corners of +-W, independent SciPy DOP853
+    integration of the CR3BP -- has zonotope gauge <= 1 at every grid time of its tube."""
+    from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS, paper_initial_set
+    from ocreach.control.tube import sound_drift_partition
+
+    G0 = paper_initial_set(nrho)
+    tubes = sound_drift_partition(nrho, nrho_ref, 72, 85, G0, 1e-7, "taylor",
+                                  **ADAPTIVE_TUBE_OPTIONS)
+    assert len(tubes) >= 2  # one tube from step 72 cannot cross perilune
+    assert tubes[0].k0 == 72 and tubes[-1].k_end == 84
+    assert all(b.k0 == a.k_end + 1 for a, b in zip(tubes, tubes[1:]))  # contiguous
+    assert all(t.guaranteed and "failure" in t.meta for t in tubes[:-1]) and tubes[-1].guaranteed
+    mu = nrho.param("mu")
+    rng = np.random.default_rng(11)
+    vertices = np.array(list(itertools.product([-1.0, 1.0], repeat=6)))
+    worst = []
+    for tube in tubes:
+        xi = np.vstack([vertices, rng.uniform(-1, 1, (16, 6))])
+        X = nrho_ref.state(tube.k0) + xi * G0
+        assert np.max(tube.gauge(np.full(len(X), tube.k0), X)) <= 1 + 1e-12  # vertices on it
+        gam = []
+        for k in range(tube.k0, tube.k_end):
+            w = 1e-7 * rng.choice([-1.0, 1.0], (len(X), 3))
+            sol = solve_ivp(_batch_cr3bp_rhs(mu, w), (nrho_ref.time(k), nrho_ref.time(k + 1)),
+                            X.ravel(), method="DOP853", rtol=1e-12, atol=1e-14)
+            assert sol.success
+            X = sol.y[:, -1].reshape(-1, 6)
+            gam.append(tube.gauge(np.full(len(X), k + 1), X))
+        worst.append(float(np.max(gam)))
+    # <= 1 up to the gauge LP's tolerance (HiGHS, rows equilibrated: 1e-7 absolute)
+    assert max(worst) <= 1.0 + 1e-7
+    assert min(worst) > 0.3  # not trivially large
+
+
+def test_sound_drift_partition_bad_input_and_budget(nrho, nrho_ref):
+    """A range that is empty, a tube budget too small for perilune (taylor from step 72 stops at
+    79, so one tube cannot cover 72..84), and the partial tube: its steps, its failure message."""
+    from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS, paper_initial_set
+    from ocreach.control.tube import sound_drift_partition
+    from ocreach.errors import SolverError
+
+    G0 = paper_initial_set(nrho)
+    with pytest.raises(ProblemError, match="stop"):
+        sound_drift_partition(nrho, nrho_ref, 10, 10, G0, 1e-7)
+    with pytest.raises(SolverError, match="max_tubes = 1"):
+        sound_drift_partition(nrho, nrho_ref, 72, 85, G0, 1e-7, max_tubes=1,
+                              **ADAPTIVE_TUBE_OPTIONS)
+    part = reach_drift_tube(nrho, nrho_ref, 72, 14, G0, 1e-7, "taylor", partial=True,
+                            **ADAPTIVE_TUBE_OPTIONS)
+    assert part.k0 == 72 and part.k_end == 79 and part.guaranteed
+    assert "cannot be enclosed" in part.meta["failure"]
+    with pytest.raises(SolverError, match="cannot be enclosed"):
+        reach_drift_tube(nrho, nrho_ref, 72, 14, G0, 1e-7, "taylor", **ADAPTIVE_TUBE_OPTIONS)
+
+
+def test_nrho_station_keeping_uses_guaranteed_tubes_and_says_so_per_refresh(nrho):
+    """nrho-9-2's default station-keeping tube (``problem.extra``): taylor, refreshed where it
+    stops; over 0.6 revolutions every refresh interval is logged as guaranteed, in the settings
+    and in each controller's metrics, and the intervals tile the run."""
+    assert nrho.extra["station_keeping"] == {"tube_source": "taylor", "tube_interval": "adaptive",
+                                             "anticipate": True}
+    run = run_station_keeping(nrho, controllers=("lqr",), revolutions=0.6)
+    s = run.settings
+    tubes = s["tubes"]
+    assert s["refresh_steps_per_rev"] == [t["refresh_step"] for t in tubes]
+    assert len(tubes) >= 3 and tubes[0]["steps"][0] == 0 and tubes[-1]["steps"][1] == s["n_steps"]
+    assert all(a["steps"][1] == b["steps"][0] for a, b in zip(tubes, tubes[1:]))
+    assert all(t["guaranteed"] and t["source"].startswith("interval hull of taylor")
+               for t in tubes)
+    assert s["tube_guaranteed"] is True and run.metrics["lqr"]["tube_guaranteed"] is True
+    # the LQR from the paper's offset stays in the (large) guaranteed tubes
+    assert run.metrics["lqr"]["max_gauge"] <= 1.0
+
+
+def test_anticipating_trigger_fires_before_the_gate_on_the_predicted_drift(nrho, nrho_ref):
+    """``anticipate=True``: at step 40 (deep inside the large apolune tube) a state whose drift
+    misses the initial box of the next refresh (step 76 of the guaranteed schedule) by 1.5x
+    triggers the MPC; without anticipation it does not.  The predicted gauge is checked against the drift
+    integrated independently (SciPy DOP853, the CR3BP written out here): the linear prediction is
+    an estimate, within 2 % here."""
+    sched = drift_schedule(nrho, nrho_ref, source="taylor", interval="adaptive",
+                           tube_options=None)
+    k, r = 40, sched.next_refresh(sched.refresh_step(40))
+    assert r == 76 and sched.refresh_step(k) == 0
+    box = sched.tube(r).half_widths()[0]
+    nrho_ref.linearize()
+    Phi = np.eye(6)
+    for i in range(k, r):  # the reference's one-step STMs (RK4 variational, 32 substeps)
+        Phi = nrho_ref.A[i] @ Phi
+    v = np.linalg.svd(Phi)[2][0]  # the most amplified direction, scaled to land at 1.5x the box
+    x = nrho_ref.state(k) + 1.5 * v / np.abs(Phi @ v / box).max()
+    assert sched.gauge(k, x) < 0.1  # deep inside the current (apolune) tube
+    sol = solve_ivp(_batch_cr3bp_rhs(nrho.param("mu"), np.zeros((1, 3))),
+                    (nrho_ref.time(k), nrho_ref.time(r)), x, method="DOP853", rtol=1e-12,
+                    atol=1e-14)
+    g_true = sched.gauge(r, sol.y[:, -1])
+    ctl = {a: EventTriggeredMPC(Q_PAPER, R_PAPER, sched, n_p=4, anticipate=a).setup(nrho_ref,
+                                                                                      "ball")
+           for a in (False, True)}
+    assert ctl[True].predicted_gauge(k, x) == pytest.approx(1.5, rel=1e-9)
+    assert g_true == pytest.approx(1.5, rel=2e-2)
+    u_plain, u_ant = ctl[False].control(k, x), ctl[True].control(k, x)
+    assert not ctl[False].active[-1] and np.all(u_plain == 0)
+    assert ctl[True].active[-1] and np.linalg.norm(u_ant) > 0
+    assert ctl[True].gauges[-1] == ctl[False].gauges[-1]  # the logged gauge is the tube's
+    with pytest.raises(ProblemError, match="anticipate"):
+        EventTriggeredMPC(Q_PAPER, R_PAPER, sched, anticipate="yes")
+    # refreshes every 24 steps (not a divisor of the period): the same phase, another distance to
+    # the next refresh, so another transition matrix
+    every24 = drift_schedule(nrho, nrho_ref, source="linear", interval=24, lookahead=0)
+    ant = EventTriggeredMPC(Q_PAPER, R_PAPER, every24, n_p=4, anticipate=True)
+    M = nrho_ref.n_steps
+    for kk in (10, 10 + M):
+        rr = every24.next_refresh(every24.refresh_step(kk))
+        P = np.eye(6)
+        for i in range(kk, rr):
+            P = nrho_ref.A[i % M] @ P
+        xx = nrho_ref.state(kk) + 1e-6
+        want = every24.gauge(rr, nrho_ref.state(rr) + P @ (xx - nrho_ref.state(kk)))
+        assert ant.predicted_gauge(kk, xx) == pytest.approx(want, rel=1e-12)
+    steps_to_go = [every24.next_refresh(every24.refresh_step(kk)) - kk for kk in (10, 10 + M)]
+    assert steps_to_go[0] != steps_to_go[1]
+
+
 # ----------------------------------------------------------------------------- Delta-V
 def test_delta_v_in_si_from_thrust_mass_and_time_unit(halo):
     """Paper: T_max = 0.1 N, m0 = 1000 kg -> 1e-4 m/s^2; t* = 375200 s.  Full thrust for 10 steps
@@ -343,6 +522,8 @@ def test_station_keeping_bad_inputs(halo):
         run_station_keeping(halo, controllers=("event-mpc",), revolutions=0.05, beta=1.2)
     with pytest.raises(ProblemError, match="periodic reference"):
         run_station_keeping(ocreach.get_problem("earth-mars"), controllers=("lqr",))
+    with pytest.raises(ProblemError, match="anticipate"):
+        run_station_keeping(halo, controllers=("lqr",), revolutions=0.05, anticipate="no")
     with pytest.raises(ProblemError, match="tube_slack"):
         MPC(Q_PAPER, R_PAPER, tube=6, tube_slack=-1.0)
     with pytest.raises(ProblemError, match="tube_slack needs"):

@@ -30,7 +30,14 @@ from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, simulate
-from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube, reach_drift_tube
+from ocreach.control.tube import (
+    Tube,
+    TubeSchedule,
+    apolune_phase,
+    linear_drift_tube,
+    reach_drift_tube,
+    sound_drift_partition,
+)
 from ocreach.control.tube_mpc import MPCWrapper
 from ocreach.errors import ProblemError, SolverError, check_count
 
@@ -41,6 +48,13 @@ PAPER_W = 1e-7
 PAPER_DELTA_V_MPS = 0.0061
 PAPER_TF_HOURS = 157.0
 MEMBERSHIPS = ("zonotope", "box")
+#: Sound-method options of the adaptive tubes (``tube_interval="adaptive"``), measured on nrho-9-2
+#: with the paper's sets: 16 sub-steps per 1-h step keep the tube from perilune to the next
+#: apolune within 1.32x of the linearised tube's box (4 sub-steps: 3.7x; 1: fails after 24
+#: steps); the sub-step may be halved 10 times (at perilune ||A h||_inf of the unscaled CR3BP
+#: exceeds what 40 Taylor terms of e^{Ah} bound at 6 halvings); no splitting (a union's zonotope
+#: enclosure is looser than restarting the tube).
+ADAPTIVE_TUBE_OPTIONS = {"substeps": 16, "max_halvings": 10, "split": False}
 #: Tube sources: the linearised tube, a sound method, or a sound method with the linear tube
 #: wherever it fails (each tube's source and guarantee are logged per refresh).
 FALLBACK_SOURCES = ("taylor-or-linear", "sdc-or-linear")
@@ -117,7 +131,7 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
                    disturbance: Any = PAPER_W, membership: str = "box", phase: int | str = "apolune",
                    every: int = 1, lookahead: int = PAPER_N, source: str = "linear",
                    order: float = 5.0, tube_options: dict | None = None,
-                   interval: int | None = None) -> TubeSchedule:
+                   interval: int | str | None = None) -> TubeSchedule:
     """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
     revolutions; each covers its interval plus ``lookahead`` steps.
 
@@ -127,6 +141,10 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     method that cannot enclose the interval raises), or ``"taylor-or-linear"`` /
     ``"sdc-or-linear"`` (the sound tube where the method succeeds, else the linear one, its
     ``meta["fallback_reason"]`` the method's error).  :func:`tube_log` lists which was used.
+    ``interval="adaptive"`` (with ``"taylor"`` / ``"sdc"``): guaranteed tubes over every whole
+    revolution, each restarted from the initial set where the previous one stops
+    (:func:`~ocreach.control.tube.sound_drift_partition`: on the NRHO a short tube across
+    perilune); computed once for one period from ``phase`` and re-used, shifted, every period.
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
     """
@@ -135,6 +153,13 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     G0 = paper_initial_set(problem) if isinstance(initial, str) and initial == "paper" else initial
     if isinstance(G0, str):
         raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
+    if isinstance(interval, str):
+        if interval != "adaptive" or source not in ("taylor", "sdc"):
+            raise ProblemError(f"interval must be a number of steps, None (every revolution) or "
+                               f"'adaptive' (with tube source 'taylor' or 'sdc'); got "
+                               f"{interval!r} with source {source!r}")
+        return _adaptive_schedule(problem, reference, G0, disturbance, source, membership, phase,
+                                  tube_options or {})
     length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
 
     def linear(k: int) -> Tube:
@@ -169,6 +194,55 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
                         lookahead=lookahead, reuse=True, interval=interval)
 
 
+#: adaptive tube partitions of this process, by :func:`_partition_key` (they are deterministic:
+#: several runs on the same reference, e.g. one per plant, compute them once)
+_PARTITIONS: dict[str, list[Tube]] = {}
+
+
+def _partition_key(problem, reference: TrackingReference, phase: int, G0: Any, disturbance: Any,
+                   method: str, options: dict) -> str:
+    """Everything :func:`~ocreach.control.tube.sound_drift_partition` depends on, hashed: the
+    model, its parameters, the reference states and times, the sets, the method and options."""
+    import hashlib
+
+    h = hashlib.sha256()
+    h.update(repr((problem.model.name, problem.model.n_x, problem.id, problem.control_set.kind,
+                   phase, method,
+                   sorted((k, repr(v)) for k, v in options.items()), repr(disturbance))).encode())
+    for a in (reference.X, reference.time(np.arange(reference.n_steps + 1)), reference.params,
+              problem.params, np.asarray(G0, float)):
+        h.update(np.ascontiguousarray(np.asarray(a, float)).tobytes())
+    return h.hexdigest()
+
+
+def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
+                       method: str, membership: str, phase: int | str,
+                       options: dict) -> TubeSchedule:
+    """Guaranteed tubes over one period from ``phase``, refreshed where the sound method stops
+    (:func:`~ocreach.control.tube.sound_drift_partition`), re-used every period.  MPC windows that
+    cross a refresh take the next tube's sets, so no tube needs a lookahead."""
+    M = reference.n_steps
+    p0 = apolune_phase(reference) if phase == "apolune" else phase
+    if isinstance(p0, str) or isinstance(p0, bool) or int(p0) != p0 or not 0 <= int(p0) < M:
+        raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
+    opts = {**ADAPTIVE_TUBE_OPTIONS, **options}
+    key = _partition_key(problem, reference, int(p0), G0, disturbance, method, opts)
+    tubes = _PARTITIONS.get(key)
+    if tubes is None:
+        tubes = sound_drift_partition(problem, reference, int(p0), int(p0) + M, G0, disturbance,
+                                      method, **opts)
+        if len(_PARTITIONS) >= 8:
+            _PARTITIONS.pop(next(iter(_PARTITIONS)))
+        _PARTITIONS[key] = tubes
+    wrap = as_box if membership == "box" else (lambda t: t)
+    by_phase = {t.k0 % M: wrap(t) for t in tubes}
+
+    def build(k: int) -> Tube:
+        return by_phase[k % M].shifted(k)
+
+    return TubeSchedule(build, reference, phases=sorted(by_phase), reuse=True)
+
+
 # ------------------------------------------------------------------------------------------------
 # controllers
 # ------------------------------------------------------------------------------------------------
@@ -181,6 +255,13 @@ class EventTriggeredMPC(MPCWrapper):
     trigger's ``beta``, so the MPC aims for the release region).  Logs per step: ``gauges``,
     ``active``, ``slacks`` (largest predicted slack, 0 when off), ``excursions`` (steps where the
     gauge exceeds 1, with the thrust flag).
+
+    ``anticipate=True`` (not in the paper): the trigger sees ``max(gamma_now, gamma_next)``,
+    ``gamma_next`` the gauge, in the next refresh's tube, of the state's drift predicted to the
+    next refresh step by the reference's STMs (:meth:`predicted_gauge`).  A guaranteed tube that
+    must restart from the initial set before perilune (``tube_interval="adaptive"``) is a gate the
+    state has to pass; this fires while the correction is still cheap, not at the gate.  The
+    prediction is linear (an estimate): it decides when to thrust, the tubes stay what they are.
     """
 
     name = "event-mpc"
@@ -188,7 +269,11 @@ class EventTriggeredMPC(MPCWrapper):
     def __init__(self, Q, R, schedule: TubeSchedule, *, trigger: EventTrigger | None = None,
                  n_p: int = PAPER_N, n_c: int | None = None, tube_slack: float = 100.0,
                  target: float | None = None, fallback: LQR | None = None,
-                 **mpc_options: Any) -> None:
+                 anticipate: bool = False, **mpc_options: Any) -> None:
+        if not isinstance(anticipate, (bool, np.bool_)):
+            raise ProblemError(f"anticipate must be True or False; got {anticipate!r}")
+        self.anticipate = bool(anticipate)
+        self._to_refresh: dict[tuple[int, int], np.ndarray] = {}
         self.schedule = schedule
         self.trigger = trigger or EventTrigger()
         self.target = self.trigger.beta if target is None else float(target)
@@ -213,14 +298,33 @@ class EventTriggeredMPC(MPCWrapper):
         if getattr(self.mpc, "reference", None) is not None:
             self.mpc.reset()
         self.gauges: list[float] = []
+        self.predicted_gauges: list[float] = []  # anticipate: gauge at the next refresh
         self.active: list[bool] = []
         self.slacks: list[float] = []
         self.solve_times: list[float] = []
 
+    def predicted_gauge(self, k: int, x: np.ndarray) -> float:
+        """Gauge in the next refresh's tube of ``x_ref(r) + Phi(r, k) (x - x_ref(k))``, ``r`` the
+        next refresh step after ``k`` and ``Phi`` the product of the reference's one-step STMs."""
+        sched, ref = self.schedule, self.schedule.reference
+        r = sched.next_refresh(sched.refresh_step(k))
+        key = (k % ref.n_steps, r - k)  # Phi depends on the phase and the steps to go
+        if key not in self._to_refresh:
+            ref.linearize()
+            idx = ref.gains_index(np.arange(k, r))
+            Phi = np.eye(ref.model.n_x)
+            for i in idx:
+                Phi = ref.A[i] @ Phi
+            self._to_refresh[key] = Phi
+        d = self._to_refresh[key] @ (np.asarray(x, float) - ref.state(k))
+        return sched.gauge(r, ref.state(r) + d)
+
     def control(self, k: int, x: np.ndarray) -> np.ndarray:
         g = self.schedule.gauge(k, x)
-        on = self.trigger.update(g)
+        g_next = self.predicted_gauge(k, x) if self.anticipate else 0.0
+        on = self.trigger.update(max(g, g_next))
         self.gauges.append(g)
+        self.predicted_gauges.append(g_next)
         self.active.append(on)
         if not on:
             self.slacks.append(0.0)
@@ -273,15 +377,13 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
     linear tube stood in)."""
     M = schedule.reference.n_steps
     out = []
-    r = schedule.refresh_step(0)
-    while r < n_steps:
+    for r in schedule.refresh_steps(n_steps):
         t = schedule.tube(r)
-        a, b = max(r, 0), min(r + schedule.interval, n_steps)
+        a, b = max(r, 0), min(schedule.next_refresh(r), n_steps)
         out.append({"refresh_step": int(r), "steps": [int(a), int(b)],
                     "revolutions": [a / M, b / M], "source": t.source,
                     "guaranteed": bool(t.guaranteed),
                     "fallback_reason": (t.meta or {}).get("fallback_reason")})
-        r += schedule.interval
     return out
 
 
@@ -344,7 +446,7 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference,
     if schedule is None:  # no tube (the ephemeris-corrected reference): no gauge metrics
         return _deviation_metrics(res, reference, problem, controller, dv, on, activations,
                                   None, None), None
-    refresh = schedule.phase + ((ks - schedule.phase) // schedule.interval) * schedule.interval
+    refresh = np.array([schedule.refresh_step(int(k)) for k in ks])
     gam = np.empty(K + 1)
     for r in np.unique(refresh):  # one batched gauge call per tube
         sel = refresh == r
@@ -405,6 +507,8 @@ class StationKeepingRun:
     reference: TrackingReference
     schedule: TubeSchedule | None  # None: no tube (the ephemeris-corrected reference)
     settings: dict = field(default_factory=dict)
+    #: per controller with an anticipating trigger: the predicted gauge at the next refresh
+    predicted_gauges: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 CONTROLLERS = ("event-mpc", "tube-mpc", "mpc", "lqr")
@@ -418,8 +522,8 @@ REFERENCES = ("cr3bp", "ephemeris")
 def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         revolutions: float = 10, dt: float | None = None, n_p: int = PAPER_N,
                         Q: Any = None, R: Any = None, beta: float = 0.7, m: int = 3,
-                        membership: str = "box", tube_source: str = "linear",
-                        tube_options: dict | None = None, tube_interval: int | None = None,
+                        membership: str = "box", tube_source: str | None = None,
+                        tube_options: dict | None = None, tube_interval: int | str | None = None,
                         phase: int | str = "apolune",
                         initial: Any = "paper", offset: Any = "paper", disturbance: Any = PAPER_W,
                         navigation: Any = None, seed: int = 0, tube_slack: float = 100.0,
@@ -427,6 +531,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         prediction_substeps: int | None = 4, terminal_set: bool = True,
                         plant: str = "cr3bp", reference: str = "cr3bp",
                         epoch: Any = DEFAULT_EPOCH, ephemeris_bodies: Any = DEFAULT_BODIES,
+                        anticipate: bool | None = None,
                         progress: bool = False) -> StationKeepingRun:
     """Closed loop of each controller over ``revolutions`` of the problem's periodic reference.
 
@@ -440,7 +545,13 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
     (``None``: ``n_sub``, no correction).  ``tube_source``: see :func:`drift_schedule`
     (``"taylor-or-linear"``: the sound tube where taylor encloses the interval, the linear one
-    elsewhere); ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
+    elsewhere); ``tube_interval="adaptive"`` with ``"taylor"``/``"sdc"``: guaranteed tubes over
+    whole revolutions, refreshed where the sound method stops (:func:`drift_schedule`);
+    ``settings["tubes"]`` (:func:`tube_log`) says which tube was used per refresh.
+    ``tube_source=None`` (default): the problem's ``extra["station_keeping"]`` (source and
+    interval; nrho-9-2: ``"taylor"``, ``"adaptive"``), else ``"linear"`` once per revolution.
+    ``anticipate``: the event-triggered MPC also fires on the predicted gauge at the next refresh
+    (:class:`EventTriggeredMPC`); ``None``: from the same ``extra`` entry, else False.
 
     ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.tube_mpc`).
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
@@ -465,6 +576,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                            f"{list(controllers)!r}")
     if isinstance(revolutions, bool) or not np.isfinite(revolutions) or revolutions <= 0:
         raise ProblemError(f"revolutions must be a number > 0; got {revolutions!r}")
+    EventTrigger(beta, m)  # beta and m checked before the tubes are built
     if plant not in PLANTS:
         raise ProblemError(f"plant must be one of {list(PLANTS)}; got {plant!r}")
     _check_reference_kind(reference, plant, controllers)
@@ -473,6 +585,18 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
     Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
     R = np.ones(problem.model.n_u) if R is None else R
+    if tube_source is None:
+        default = problem.extra.get("station_keeping") or {}
+        tube_source = default.get("tube_source", "linear")
+        if tube_interval is None:
+            tube_interval = default.get("tube_interval")
+        if anticipate is None:
+            anticipate = default.get("anticipate")
+    anticipate = False if anticipate is None else anticipate
+    if not isinstance(anticipate, (bool, np.bool_)):
+        raise ProblemError(f"anticipate must be True, False or None (the problem's default); got "
+                           f"{anticipate!r}")
+    anticipate = bool(anticipate)
     if reference == "ephemeris":
         ref, orbit = ephemeris_reference(problem, revolutions, epoch=epoch,
                                          bodies=ephemeris_bodies, dt=dt, n_sub=n_sub)
@@ -497,7 +621,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     build = {
         "event-mpc": lambda: EventTriggeredMPC(Q, R, schedule, trigger=EventTrigger(beta, m),
                                                n_p=n_p, tube_slack=tube_slack, fallback=lqr,
-                                               **mpc_kw),
+                                               anticipate=anticipate, **mpc_kw),
         "tube-mpc": lambda: TubeMPC(Q, R, schedule, disturbance=disturbance,
                                     velocity_dims=problem.velocity_dims, n_p=n_p,
                                     tube_slack=tube_slack, terminal_set=terminal_set,
@@ -517,7 +641,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         true_plant = EphemerisPlant(ref, kind, problem.velocity_dims,
                                     span_days=K * ref.dt * problem.units.time / 86400.0,
                                     epoch=epoch, bodies=ephemeris_bodies)
-    results, metrics, gauges, active = {}, {}, {}, {}
+    results, metrics, gauges, active, predicted = {}, {}, {}, {}, {}
     for name in controllers:
         ctl = build[name]()
         if ctl is not lqr:
@@ -532,6 +656,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                                    "disturbance_term": ctl.terminal_disturbance,
                                    "robustly_invariant": ctl.terminal_robust}
         results[name], metrics[name], gauges[name] = res, met, gam
+        if getattr(ctl, "anticipate", False):
+            predicted[name] = np.asarray(ctl.predicted_gauges, float)
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
     tube0 = schedule.tube(schedule.phase) if schedule is not None else None
@@ -546,7 +672,11 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "dt_hours": ref.dt * problem.units.time / 3600.0, "period_hours": ref.revolution_steps
         * ref.dt * problem.units.time / 3600.0, "n_p": n_p, "beta": beta, "m": m,
         "membership": membership, "tube_source": tube0.source if tube0 is not None else None,
+        "anticipate": anticipate,
         "tube_interval_steps": schedule.interval if schedule is not None else None,
+        "refresh_steps_per_rev": ([schedule.phase + int(o) for o in schedule.offsets]
+                                  if schedule is not None and schedule.offsets is not None
+                                  else None),
         "tube_guaranteed": all(t["guaranteed"] for t in tubes) if tubes else None,
         "tubes": tubes, "tube_sources_used": sorted({t["source"] for t in tubes}),
         "refresh_phase_step": schedule.phase if schedule is not None else None,
@@ -571,7 +701,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "paper": {"delta_v_mps": PAPER_DELTA_V_MPS, "t_f_hours": PAPER_TF_HOURS, "N": PAPER_N,
                   "G_pos": PAPER_G_POS, "G_vel": PAPER_G_VEL, "W": PAPER_W},
     }
-    return StationKeepingRun(results, metrics, gauges, active, ref, schedule, settings)
+    return StationKeepingRun(results, metrics, gauges, active, ref, schedule, settings, predicted)
 
 
 __all__ = ["CONTROLLERS", "EventTrigger", "EventTriggeredMPC", "NavigationError",

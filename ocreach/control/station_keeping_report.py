@@ -43,6 +43,8 @@ DESCRIPTIONS = {
     "lqr": "time-varying LQR (periodic Riccati solution; finite-horizon on the non-periodic "
            "ephemeris-corrected reference), every step (radially saturated)",
 }
+ANTICIPATE_TEXT = (" (event-mpc: or the predicted gauge, in the next refresh's tube, of the drift "
+                   "to that refresh > 1: the anticipating trigger, not in the paper)")
 TABLE_KEYS = ["revolutions", "delta_v_mps", "delta_v_per_rev_mps", "activations", "duty_cycle",
               "max_gauge", "max_gauge_off", "excursions_off", "max_deviation_km",
               "rms_deviation_km", "max_deviation_mps", "rms_deviation_mps", "max_thrust_ratio",
@@ -97,10 +99,15 @@ def summary_lines(data: dict) -> list[str]:
     rf = s.get("reference") or {"reference": "cr3bp"}
     if rf["reference"] == "ephemeris":
         return lines + ephemeris_reference_lines(data, names)
-    every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
-             else f"every {s['tube_interval_steps']} steps")
-    lines.append(f"Tube: membership {s['membership']}, refreshed at reference step "
-                 f"{s['refresh_phase_step']} (apolune) and then {every}; "
+    per_rev = s.get("refresh_steps_per_rev")
+    if per_rev:
+        when = (f"refreshed at reference steps {', '.join(str(r) for r in per_rev)} of every "
+                "revolution (restarted from the initial set where the sound method stops)")
+    else:
+        every = ("every revolution" if s["tube_interval_steps"] == s["steps_per_rev"]
+                 else f"every {s['tube_interval_steps']} steps")
+        when = f"refreshed at reference step {s['refresh_phase_step']} and then {every}"
+    lines.append(f"Tube: membership {s['membership']}, {when}; "
                  + ("every tube a guaranteed enclosure." if s["tube_guaranteed"] else
                     "NOT a guaranteed enclosure where a tube is linearised (no remainder term: "
                     "gauges near perilune carry its linearisation error)."))
@@ -206,7 +213,8 @@ def _markdown(problem, data: dict, lines: list[str], figs: list[str]) -> str:
     out = [f"# Station keeping: {problem.id}", "", problem.description, "",
            (f"{s['revolutions']:.3g} revolutions of {s['steps_per_rev']} steps of "
             f"{s['dt_hours']:.4g} h (period {s['period_hours']:.4g} h); N = {s['n_p']}; trigger "
-            f"gauge > 1, release gauge <= beta = {s['beta']} for m = {s['m']} steps; initial "
+            f"gauge > 1{ANTICIPATE_TEXT if s.get('anticipate') else ''}, release gauge <= beta = "
+            f"{s['beta']} for m = {s['m']} steps; initial "
             f"deviation set {s['initial_set']}; W = {s['disturbance_W']}; RK4 with "
             f"{s['rk4_substeps']} substeps; Q = {s['Q']}, R = {s['R']} (on the thrust "
             f"acceleration); tube slack penalty {s['tube_slack']}."), ""]
@@ -316,19 +324,24 @@ def _gauge_figure(problem, run: StationKeepingRun, t: np.ndarray, out: Path) -> 
     fig, ax = plt.subplots(figsize=(9, 4))
     for n in names:
         ax.semilogy(t, np.maximum(run.gauges[n], 1e-6), lw=0.8, label=n)
+    pred = run.predicted_gauges.get("event-mpc")
+    if pred is not None and len(pred):
+        ax.semilogy(t[: len(pred)], np.maximum(pred, 1e-6), ":", color="tab:blue", lw=0.7,
+                    label="event-mpc: predicted gauge at the next refresh")
     if "event-mpc" in run.active:
         on = run.active["event-mpc"]
         ax.fill_between(t[:-1], 1e-6, 1e6, where=on, step="post", color="gold", alpha=0.3,
                         label="event-mpc thrust on")
     ax.axhline(1.0, color="k", ls="--", lw=0.9, label="trigger (gauge = 1)")
     ax.axhline(s["beta"], color="g", ls=":", lw=0.9, label=f"release (gauge = beta = {s['beta']})")
-    for r in range(int(np.ceil(K / ref.n_steps)) + 1):
-        ax.axvline((sched.phase + r * sched.interval) * ref.dt * th, color="0.7", lw=0.5)
-    top = max(float(np.nanmax(run.gauges[n])) for n in names)
+    for r in sched.refresh_steps(K + 1):
+        ax.axvline(max(r, 0) * ref.dt * th, color="0.7", lw=0.5)
+    top = max([float(np.nanmax(run.gauges[n])) for n in names]
+              + [float(np.nanmax(p)) for p in run.predicted_gauges.values() if len(p)])
     ax.set_ylim(1e-3, max(10.0, 2 * top))
     ax.set_xlabel("time (h)")
     ax.set_ylabel("tube gauge of the true state")
-    ax.set_title("gauge (grey lines: tube refresh at apolune)")
+    ax.set_title("gauge (grey lines: tube refreshes)")
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3, which="both")
     save_figure(fig, out / "gauge.png", bbox_inches="tight")

@@ -24,7 +24,7 @@ guaranteed enclosure** (no remainder term); :func:`reach_drift_tube` uses the so
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -245,6 +245,12 @@ class Tube:
         j = self._j(k)
         return gauge(self.centers[j], self.generators[j], x)
 
+    def shifted(self, k0: int) -> Tube:
+        """The same sets from reference step ``k0`` (a tube about a periodic reference, whole
+        periods later)."""
+        return Tube(self.centers, self.generators, k0=k0, guaranteed=self.guaranteed,
+                    source=self.source, meta=self.meta)
+
     def scaled(self, beta: float) -> Tube:
         """The tube shrunk (``beta < 1``) or grown about its centres: generators times ``beta``."""
         if not np.isfinite(beta) or beta <= 0:
@@ -293,11 +299,15 @@ class TubeSchedule:
     reach across the next refresh: the steps after it are constrained by the next tube).  With
     ``reuse=True`` (the builder depends only on the phase of the periodic reference, e.g. a tube
     about the reference) a tube is built once per phase and re-used, shifted by whole periods.
+    ``phases`` (reference steps ``0..M-1``, instead of ``phase``/``every``/``interval``): refresh
+    at each of these steps of every period, i.e. intervals of different lengths (short ones around
+    perilune, see :func:`sound_drift_partition`).
     """
 
     def __init__(self, builder: Callable[[int], Tube], reference: TrackingReference, *,
                  phase: int | str = "apolune", every: int = 1, lookahead: int = 0,
-                 reuse: bool = True, interval: int | None = None) -> None:
+                 reuse: bool = True, interval: int | None = None,
+                 phases: Sequence[int] | None = None) -> None:
         if not reference.periodic:
             raise ProblemError(f"tube refresh needs a periodic reference (a period to refresh on); "
                                f"'{reference.name}' has none")
@@ -318,11 +328,51 @@ class TubeSchedule:
         self.builder = builder
         self.reuse = reuse
         self._tubes: dict[int, Tube] = {}
+        #: refresh offsets from ``phase`` within one period (None: every ``interval`` steps)
+        self.offsets: np.ndarray | None = None
+        if phases is not None:
+            if interval is not None:
+                raise ProblemError("give either phases (refresh steps per period) or interval "
+                                   "(steps between refreshes), not both")
+            ph = sorted({self._phase_step(p, M) for p in phases})
+            if not ph:
+                raise ProblemError("phases (refresh steps per period) must not be empty")
+            self.phase = ph[0]
+            self.offsets = np.array([p - ph[0] for p in ph], dtype=int)
+            self.interval = int(np.diff(np.r_[self.offsets, M]).max())  # the longest interval
+
+    @staticmethod
+    def _phase_step(p: Any, M: int) -> int:
+        if isinstance(p, (bool, np.bool_)) or int(p) != p or not 0 <= int(p) < M:
+            raise ProblemError(f"phases must be reference steps 0..{M - 1}; got {p!r}")
+        return int(p)
 
     def refresh_step(self, k: int) -> int:
         """The refresh step at or before ``k`` (steps before the first phase use the one a period
         earlier, i.e. ``phase - interval``)."""
-        return self.phase + ((int(k) - self.phase) // self.interval) * self.interval
+        if self.offsets is None:
+            return self.phase + ((int(k) - self.phase) // self.interval) * self.interval
+        M = self.reference.n_steps
+        base = self.phase + ((int(k) - self.phase) // M) * M
+        j = int(np.searchsorted(self.offsets, int(k) - base, side="right")) - 1
+        return base + int(self.offsets[j])
+
+    def next_refresh(self, r: int) -> int:
+        """The refresh step after the refresh step ``r``."""
+        if self.offsets is None:
+            return int(r) + self.interval
+        M = self.reference.n_steps
+        base = self.phase + ((int(r) - self.phase) // M) * M
+        j = int(np.searchsorted(self.offsets, int(r) - base, side="right"))
+        return base + (int(self.offsets[j]) if j < self.offsets.size else M)
+
+    def refresh_steps(self, n_steps: int) -> list[int]:
+        """Refresh steps whose intervals touch steps ``0..n_steps-1`` (the first may be < 0)."""
+        out, r = [], self.refresh_step(0)
+        while r < n_steps:
+            out.append(r)
+            r = self.next_refresh(r)
+        return out
 
     def tube(self, k: int) -> Tube:
         """The tube active at step ``k``."""
@@ -332,13 +382,12 @@ class TubeSchedule:
             base = next((b for b in self._tubes.values() if (b.k0 - r) % M == 0), None) \
                 if self.reuse else None
             if base is not None:
-                t = Tube(base.centers, base.generators, k0=r, guaranteed=base.guaranteed,
-                         source=base.source, meta=base.meta)
+                t = base.shifted(r)
             else:
                 t = self.builder(r)
                 if not isinstance(t, Tube):
                     raise ProblemError(f"tube builder must return a Tube; got {type(t).__name__}")
-                t.check_for(self.reference.model.n_x, r, r + self.interval - 1 + self.lookahead)
+                t.check_for(self.reference.model.n_x, r, self.next_refresh(r) - 1 + self.lookahead)
             self._tubes[r] = t
         return self._tubes[r]
 
@@ -366,7 +415,10 @@ class TubeSchedule:
 
     @property
     def n_generators(self) -> int:
-        return self.tube(self.phase).n_generators
+        """Most generators of the tubes of one period (the MPC's tube constraint is sized by it)."""
+        if self.offsets is None:
+            return self.tube(self.phase).n_generators
+        return max(self.tube(self.phase + int(o)).n_generators for o in self.offsets)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -423,8 +475,28 @@ def linear_drift_tube(reference: TrackingReference, k0: int, length: int, initia
                                meta={"order": order, "initial": G0.tolist(), "W": Wg.tolist()})
 
 
+def _drift_problem(problem, reference: TrackingReference, k0: int, length: int, initial: Any):
+    """The zero-thrust problem from ``x_ref(k0) + G0 [-1, 1]^q`` on the reference grid
+    ``t_{k0} .. t_{k0+length-1}`` (``a_max`` = 1e-300)."""
+    import dataclasses
+
+    model = problem.model
+    if "a_max" not in model.param_names:
+        raise ProblemError(f"a sound drift tube needs a model with an 'a_max' thrust parameter; "
+                           f"{model.name} has {list(model.param_names)}")
+    p = np.array(reference.params, float)
+    p[list(model.param_names).index("a_max")] = 1e-300
+    x0 = reference.state(k0)
+    G0 = _generator("initial deviation set", initial, model.n_x)
+    return dataclasses.replace(
+        problem, id=f"{problem.id}-drift", x0=x0.copy(), params=p, reference=None,
+        grid=reference.time(np.arange(k0, k0 + length)), initial_set=Zonotope(x0, G0),
+        method_options={})
+
+
 def reach_drift_tube(problem, reference: TrackingReference, k0: int, length: int, initial: Any,
-                     disturbance: float, method: str = "taylor", **options) -> Tube:
+                     disturbance: float, method: str = "taylor", *, partial: bool = False,
+                     **options) -> Tube:
     """Drift tube from a sound reachability method (``ocreach.reach(problem, "taylor" | "sdc")``).
 
     The problem is re-posed from ``x_ref(k0)`` on the reference grid ``t_{k0} .. t_{k0+length-1}``
@@ -434,34 +506,86 @@ def reach_drift_tube(problem, reference: TrackingReference, k0: int, length: int
     rounding; the enclosure is of that problem, so it contains the drift).  Union results (split
     parts) are replaced by their zonotope enclosure.  The tube's ``guaranteed`` flag is the
     result's.  A method that cannot enclose the whole horizon (e.g. near perilune) raises its
-    :class:`SolverError`.
+    :class:`SolverError`; with ``partial=True`` the tube of the steps it did enclose is returned
+    instead (shorter than ``length``, ``meta["failure"]`` the method's message).
     """
-    import dataclasses
-
     from ocreach.reach.base import reach
 
-    model = problem.model
-    if "a_max" not in model.param_names:
-        raise ProblemError(f"reach_drift_tube needs a model with an 'a_max' thrust parameter; "
-                           f"{model.name} has {list(model.param_names)}")
     length = check_count("length (tube steps)", length, 2)
-    p = np.array(reference.params, float)
-    p[list(model.param_names).index("a_max")] = 1e-300
-    x0 = reference.state(k0)
-    G0 = _generator("initial deviation set", initial, model.n_x)
-    drift = dataclasses.replace(
-        problem, id=f"{problem.id}-drift", x0=x0.copy(), params=p, reference=None,
-        grid=reference.time(np.arange(k0, k0 + length)), initial_set=Zonotope(x0, G0),
-        method_options={})
-    res = reach(drift, method, disturbance=disturbance, **options)
+    drift = _drift_problem(problem, reference, k0, length, initial)
+    failure = None
+    try:
+        res = reach(drift, method, disturbance=disturbance, **options)
+    except SolverError as err:
+        res = getattr(err, "partial", None)
+        if not partial or res is None or not res.sets:
+            raise
+        failure = " ".join(str(err).split())
     zs = res.sets
-    if zs is None or len(zs) != length:
+    if zs is None or (failure is None and len(zs) != length):
         raise SolverError(f"{method} returned {0 if zs is None else len(zs)} sets; need {length}")
+    meta = {"method": method, "options": dict(options)}
+    if failure is not None:
+        meta["failure"] = failure
     return Tube.from_zonotopes([z.to_zonotope() for z in zs], k0=k0,
                                guaranteed=bool(res.meta.get("guaranteed", False)),
-                               source=f"{method} (sound reachability)",
-                               meta={"method": method, "options": dict(options)})
+                               source=f"{method} (sound reachability)", meta=meta)
+
+
+def sound_drift_partition(problem, reference: TrackingReference, start: int, stop: int,
+                          initial: Any, disturbance: float, method: str = "taylor", *,
+                          max_tubes: int = 16, **options) -> list[Tube]:
+    """Guaranteed drift tubes covering reference steps ``start .. stop - 1``, each restarted from
+    the initial deviation set where the previous one stops.
+
+    A sound method started from ``x_ref(r) + G0 [-1, 1]^q`` encloses the zero-thrust drift only up
+    to where its first-order remainder can no longer be closed (on the 9:2 NRHO: a few steps
+    after perilune from the apolune; docs/validation.md).  Greedily from ``r = start``: the tube
+    from ``r`` (:func:`reach_drift_tube` with ``partial=True``) covers ``r .. r' - 1``, ``r'`` its
+    last enclosed step, and the next tube starts at ``r'``; if that one cannot take a single step,
+    the restart moves back a step (at most to ``r + 1``).  Returns the tubes (``k0`` = their
+    refresh steps, each covering up to the next refresh); raises :class:`SolverError` if no
+    restart makes progress or more than ``max_tubes`` tubes would be needed.
+    """
+    start, stop = int(start), int(stop)
+    if stop <= start:
+        raise ProblemError(f"sound_drift_partition: stop ({stop}) must be > start ({start})")
+    max_tubes = check_count("max_tubes", max_tubes, 1)
+
+    def build(r: int) -> Tube:
+        t = reach_drift_tube(problem, reference, r, stop - r + 1, initial, disturbance, method,
+                             partial=True, **options)
+        if not t.guaranteed:
+            raise SolverError(f"{method} is not a guaranteed method here (tube from step {r})")
+        return t
+
+    tubes = [build(start)]
+    while tubes[-1].k_end < stop:
+        prev = tubes[-1]
+        if len(tubes) >= max_tubes:
+            raise SolverError(f"sound_drift_partition: more than max_tubes = {max_tubes} tubes "
+                              f"needed for steps {start}..{stop - 1} ({method} stopped at step "
+                              f"{prev.k_end})")
+        for r in range(prev.k_end, prev.k0, -1):
+            nxt = build(r)
+            if nxt.k_end > r:
+                break
+        else:
+            raise SolverError(f"sound_drift_partition: {method} cannot take a step from any "
+                              f"restart in {prev.k0 + 1}..{prev.k_end}: "
+                              f"{(prev.meta or {}).get('failure', '')[:300]}")
+        tubes[-1] = _head(prev, r - prev.k0)
+        tubes.append(nxt)
+    tubes[-1] = _head(tubes[-1], stop - tubes[-1].k0)
+    return tubes
+
+
+def _head(tube: Tube, n: int) -> Tube:
+    """The first ``n`` sets of ``tube`` (steps ``k0 .. k0 + n - 1``)."""
+    return Tube(tube.centers[:n], tube.generators[:n], k0=tube.k0, guaranteed=tube.guaranteed,
+                source=tube.source, meta=tube.meta)
 
 
 __all__ = ["CasadiGauge", "Tube", "TubeSchedule", "apolune_phase", "casadi_gauge_constraints",
-           "disturbance_input", "gauge", "linear_drift_tube", "reach_drift_tube"]
+           "disturbance_input", "gauge", "linear_drift_tube", "reach_drift_tube",
+           "sound_drift_partition"]
