@@ -16,12 +16,14 @@ reachable set (the STT truncation error is not bounded, Foss Sec. 5).
 
 Beyond the paper (documented in docs/stt.md):
 
-* **splitting** (``split=(max_parts, threshold)``): before a step, the nonlinearity index
-  ``eta = max ||order-n term|| / max ||linear term||`` of the STT polynomial on samples of ``dZ_k``
-  is computed; while ``eta > threshold`` and parts remain, the part is split exactly along its
-  largest dependent factor (independent generators are first turned into dependent factors, which
-  is exact) and each half gets its own reference trajectory started at its centre (one extra STT
-  integration per part and segment).  The set at a time is then a :class:`PZUnion`.
+* **splitting** (``split="factor" | "axis"``, ``max_parts``, ``split_tol``;
+  :mod:`ocreach.reach.stt_split`): before a step the truncation error of each part's STT
+  polynomial is estimated against the true flow of extreme samples of ``dZ_k``; parts above
+  ``split_tol`` (relative to the part's image) are split, worst first, while fewer than
+  ``max_parts`` exist, and each half gets its own reference trajectory started at its centre (one
+  extra STT integration per part and segment).  The set at a time is then a :class:`PZUnion`;
+  ``meta["parts"]`` counts the parts per time, ``meta["truncation_error"]`` the largest estimate
+  per step.
 * **reachable tube** (``tube_substeps=s``): for each segment the sets at ``s - 1`` interior times
   are computed by second-order STTs from ``t_k`` to ``t_k + i dt / s`` applied to ``dZ_k`` (the
   control is held on the segment, so the map is exact in the same sense), and each is bloated by
@@ -44,6 +46,7 @@ from ocreach.errors import ProblemError, SetError, SolverError, check_count, che
 from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
+from ocreach.reach.stt_split import check_split_options
 
 if TYPE_CHECKING:
     from ocreach.sets import Interval, PolyZonotope
@@ -460,8 +463,15 @@ class STTReach(Method):
         3.5 % / 9.6 %; the default before issue 12's 3 % target) or ``"pz"`` (Foss Eq. 16 in
         2-D, the cube-to-ball polynomial in 3-D).
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
-        ``split`` [None]: ``(max_parts, threshold)``; split a part while its nonlinearity index
-        exceeds ``threshold`` and fewer than ``max_parts`` parts exist (None = Algorithm 1 as is).
+        ``split`` [None]: how a part is split where the STT polynomial is not valid over it
+        (:mod:`ocreach.reach.stt_split`): ``"factor"`` (exact, halves the dependent factor with
+        the largest order-2 contribution) or ``"axis"`` (halves an enclosure along the part's
+        principal axis); None = Algorithm 1 as is.  Before each step the truncation error of
+        every part (the STT polynomial against the true flow on extreme samples, relative to the
+        part's image) is estimated; the parts above ``split_tol`` are split, worst first, while
+        fewer than ``max_parts`` parts exist; each half gets its own reference and STTs.
+        ``max_parts`` [16]: the largest number of parts (>= 1).
+        ``split_tol`` [0.02]: the truncation-error tolerance, a fraction of the part's image.
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
         library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.
@@ -483,7 +493,9 @@ class STTReach(Method):
         input_set: str | None = None
         ball_input: str = "auto"
         reduction: str = "pca"
-        split: tuple | None = None
+        split: str | None = None
+        max_parts: int = 16
+        split_tol: float = 0.02
         tube_substeps: int = 0
         engine: str = "fused"
         lift_independent: bool = False
@@ -501,17 +513,8 @@ class STTReach(Method):
                 raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {self.ball_input!r}")
             if self.reduction not in REDUCTIONS:
                 raise ProblemError(f"reduction must be one of {REDUCTIONS}; got {self.reduction!r}")
-            if isinstance(self.split, str):  # CLI: --set split=4,0.01
-                self.split = tuple(v for v in self.split.strip("()[] ").split(",") if v.strip())
-            if self.split is not None:
-                try:
-                    parts, thr = self.split
-                    parts, thr = int(parts), float(thr)
-                except (TypeError, ValueError):
-                    raise ProblemError(f"split must be (max_parts, threshold) or None; got {self.split!r}") from None
-                if parts < 1 or not thr > 0:
-                    raise ProblemError(f"split needs max_parts >= 1 and threshold > 0; got {self.split!r}")
-                self.split = (parts, thr)
+            self.split, self.max_parts, self.split_tol = check_split_options(
+                self.split, self.max_parts, self.split_tol)
             self.tube_substeps = check_count("tube_substeps", self.tube_substeps, 0)
             if self.tube_substeps == 1:
                 raise ProblemError(f"tube_substeps must be 0 (off) or >= 2; got {self.tube_substeps!r}")
@@ -565,36 +568,45 @@ class STTReach(Method):
         sets: list[Any] = [self._assemble(parts)]
         tube: list[Any] = []
         eta_hist = np.zeros(K)
+        err_hist = np.zeros(K)
         gens = np.zeros(K + 1, dtype=int)
         gens[0] = sets[0].n_generators
         for k in range(K):
-            with timer("other"):
-                U = [input_pz(kind, model.n_u, n_thr, opt.ball_input) for _ in parts]
-            new_parts, done = [], []
-            stack = [(p, u) for p, u in zip(parts, U)]
-            while stack:
-                part, Uk = stack.pop()
-                phi, x1 = self._segment_phi(part, k, problem, timer, counts)
+            pending, new_parts, done = parts, [], []
+            while pending:  # breadth first: split the worst parts while the budget lasts
                 with timer("other"):
-                    dR = make_dependent(part.dR) if opt.lift_independent else part.dR
-                    dZ = dR.cartesian(Uk)
-                if opt.split is not None and opt.order >= 2:
-                    with timer("splitting"):
-                        eta = nonlinearity_index(phi, dZ)
-                        eta_hist[k] = max(eta_hist[k], eta)
-                        n_now = len(new_parts) + len(stack) + 1
-                        if eta > opt.split[1] and n_now < opt.split[0] and part.dR.n_generators > 0:
-                            counts["splits"] += 1
-                            for child in self._split(part):
-                                stack.append((child, Uk))
-                            continue
-                try:
-                    dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk)
-                except (SolverError, SetError) as exc:
-                    raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
-                new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
-                part.dZ = dZ  # kept for the tube
-                done.append(part)
+                    U = [input_pz(kind, model.n_u, n_thr, opt.ball_input) for _ in pending]
+                prepared = []
+                for part, Uk in zip(pending, U):
+                    phi, x1 = self._segment_phi(part, k, problem, timer, counts)
+                    with timer("other"):
+                        dR = make_dependent(part.dR) if opt.lift_independent else part.dR
+                        dZ = dR.cartesian(Uk)
+                    err = 0.0
+                    if opt.split is not None:
+                        with timer("splitting"):
+                            err = self._truncation_error(phi, dZ, part, x1, k, problem)
+                            eta_hist[k] = max(eta_hist[k], nonlinearity_index(phi, dZ))
+                        err_hist[k] = max(err_hist[k], err)
+                    prepared.append((err, part, phi, x1, dZ))
+                room = opt.max_parts - len(new_parts) - len(pending)
+                worst = sorted((i for i, (err, part, *_) in enumerate(prepared)
+                                if err > opt.split_tol and part.dR.n_generators > 0),
+                               key=lambda i: -prepared[i][0])[:max(room, 0)]
+                pending = []
+                for i, (err, part, phi, x1, dZ) in enumerate(prepared):
+                    if i in worst:
+                        with timer("splitting"):
+                            pending.extend(self._split(part, phi))
+                        counts["splits"] += 1
+                        continue
+                    try:
+                        dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk)
+                    except (SolverError, SetError) as exc:
+                        raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
+                    new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
+                    part.dZ = dZ  # kept for the tube
+                    done.append(part)
             if opt.tube_substeps:
                 with timer("tube"):
                     tube.append(self._tube_segment(problem, k, parts_with_dz=done, new=new_parts))
@@ -611,6 +623,7 @@ class STTReach(Method):
         meta["parts"] = [len(s.parts) if isinstance(s, PZUnion) else 1 for s in sets]
         if opt.split is not None:
             meta["nonlinearity_index"] = eta_hist
+            meta["truncation_error"] = err_hist
         meta["reference"] = ref.states
         return ReachResult(times=grid, sets=sets, meta=meta, tubes=tube if opt.tube_substeps else None)
 
@@ -630,12 +643,33 @@ class STTReach(Method):
         counts["part_stts"] += 1
         return [ph[0] for ph in r.phi], r.states[-1]
 
-    def _split(self, part: _Part) -> list[_Part]:
-        """Split the part's deviation set along its largest dependent factor (exact) and re-centre
-        each half on its own reference state."""
-        dR = make_dependent(part.dR)
+    def _truncation_error(self, phi: list[np.ndarray], dZ: PolyZonotope, part: _Part, x1: np.ndarray,
+                          k: int, problem: Problem) -> float:
+        """Sampled truncation error of the part's step (:func:`ocreach.reach.stt_split.truncation_error`)
+        against the true flow of the samples (held controls) over ``[t_k, t_{k+1}]``."""
+        from ocreach.flow import propagate
+        from ocreach.reach.stt_split import truncation_error
+
+        opt, n_x = self.options, problem.model.n_x
+
+        def flow(S: np.ndarray) -> np.ndarray:
+            X = propagate(self._model, part.x_ref + S[:, :n_x], S[:, None, n_x:], problem.grid[k:k + 2],
+                          p=problem.params, rtol=opt.rtol, atol=opt.atol)
+            return X[:, -1] - x1
+
+        return truncation_error(phi, dZ, flow, n_x, seed=k)
+
+    def _split(self, part: _Part, phi: list[np.ndarray]) -> list[_Part]:
+        """Split the part's deviation set in two (``options.split``: exact along a factor, or an
+        enclosure along its principal axis) and re-centre each half on its own reference state."""
+        from ocreach.reach.stt_split import split_axis, split_factor
+
+        if self.options.split == "axis":
+            halves = split_axis(part.dR)
+        else:
+            halves = split_factor(part.dR, phi[1] if len(phi) >= 2 else None)
         out = []
-        for half in dR.split():
+        for half in halves:
             ih = half.interval_hull()
             centre = 0.5 * (np.asarray(ih.lo) + np.asarray(ih.hi))
             out.append(_Part(part.x_ref + centre, half - centre, nominal=False, depth=part.depth + 1))
