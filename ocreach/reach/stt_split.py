@@ -42,8 +42,8 @@ ERROR_SAMPLES = 24
 
 def check_split_options(split: Any, max_parts: Any, split_tol: Any) -> tuple[str | None, int, float]:
     """Validate ``split``, ``max_parts`` and ``split_tol`` (clear :class:`ProblemError` otherwise)."""
-    if isinstance(split, (tuple, list)):
-        raise ProblemError(f"split={tuple(split)!r}: the (max_parts, threshold) form was replaced; give "
+    if isinstance(split, (tuple, list)) or (isinstance(split, str) and "," in split):
+        raise ProblemError(f"split={split!r}: the (max_parts, threshold) form was replaced; give "
                            f"split='factor' or 'axis', max_parts=N and split_tol=TOL")
     if split in ("none", "off", ""):
         split = None
