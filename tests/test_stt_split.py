@@ -17,7 +17,7 @@ from ocreach.geometry import hull_area, outline_area, points_in_polygons
 from ocreach.problem import get_problem
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.stt import PZUnion, STTReach, make_dependent
-from ocreach.reach.stt_split import split_axis, split_factor, truncation_error
+from ocreach.reach.stt_split import split_box, split_factor, truncation_error
 from ocreach.sets import Interval, PolyZonotope, new_ids
 
 
@@ -65,24 +65,18 @@ def test_split_factor_halves_cover_the_part_exactly():
     assert ok
 
 
-def test_split_axis_halves_contain_the_part():
-    """Each point x of the part lies in a half: x = rest(alpha) + v s with s = l.(x - c) in the
-    half's segment (an enclosure, so the halves are checked to contain, not to equal, the part)."""
+def test_split_box_halves_contain_the_part():
+    """Every point of the part (dense extreme and uniform factor samples) lies in one of the two
+    halves, which are parallelotopes: solve for their factors and check |a| <= 1."""
     rng = np.random.default_rng(1)
-    dep = make_dependent(random_pz(rng, 4, 10, 3, 2))
-    halves = split_axis(dep)
-    A = {int(i): rng.choice([-1.0, 1.0, 0.3, -0.7], 500) for i in dep.id}
-    x = evaluate_by_id(dep, A)
+    pz = random_pz(rng, 4, 10, 3, 2)
+    halves = split_box(pz, rng.standard_normal((4, 6, 6)))
+    x = np.vstack([pz.sample(3000, rng, mode="extreme"), pz.sample(3000, rng)])
     hit = np.zeros(len(x), dtype=bool)
     for h in halves:
-        new = [int(i) for i in h.id if int(i) not in A]
-        assert len(new) == 1 and h.n_independent == 0
-        # the segment factor: solve the one linear unknown from the point
-        base = evaluate_by_id(h, {**A, new[0]: np.zeros(len(x))})
-        g = evaluate_by_id(h, {**A, new[0]: np.ones(len(x))}) - base
-        beta = np.sum((x - base) * g, axis=1) / np.sum(g * g, axis=1)
-        inside = (np.abs(beta) <= 1 + 1e-9) & np.all(np.abs(base + beta[:, None] * g - x) < 1e-9, axis=1)
-        hit |= inside
+        assert h.n_generators == 4 and h.n_independent == 0 and np.all(h.E.sum(axis=0) == 1)
+        a = np.linalg.solve(h.G, (x - h.c).T).T
+        hit |= np.max(np.abs(a), axis=1) <= 1 + 1e-9
     assert hit.all()
 
 
@@ -137,6 +131,6 @@ def test_bad_split_options(opts, word):
 
 
 def test_cli_style_strings_are_accepted():
-    o = STTReach(split="axis", max_parts="8", split_tol="0.05").options
-    assert (o.split, o.max_parts, o.split_tol) == ("axis", 8, 0.05)
+    o = STTReach(split="box", max_parts="8", split_tol="0.05").options
+    assert (o.split, o.max_parts, o.split_tol) == ("box", 8, 0.05)
     assert STTReach(split="none").options.split is None

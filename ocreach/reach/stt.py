@@ -16,7 +16,7 @@ reachable set (the STT truncation error is not bounded, Foss Sec. 5).
 
 Beyond the paper (documented in docs/stt.md):
 
-* **splitting** (``split="factor" | "axis"``, ``max_parts``, ``split_tol``;
+* **splitting** (``split="factor" | "box"``, ``max_parts``, ``split_tol``;
   :mod:`ocreach.reach.stt_split`): before a step the truncation error of each part's STT
   polynomial is estimated against the true flow of extreme samples of ``dZ_k``; parts above
   ``split_tol`` (relative to the part's image) are split, worst first, while fewer than
@@ -465,8 +465,8 @@ class STTReach(Method):
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
         ``split`` [None]: how a part is split where the STT polynomial is not valid over it
         (:mod:`ocreach.reach.stt_split`): ``"factor"`` (exact, halves the dependent factor with
-        the largest order-2 contribution) or ``"axis"`` (halves an enclosure along the part's
-        principal axis); None = Algorithm 1 as is.  Before each step the truncation error of
+        the largest order-2 contribution) or ``"box"`` (halves the part's PCA parallelotope, an
+        enclosure; compact parts); None = Algorithm 1 as is.  Before each step the truncation error of
         every part (the STT polynomial against the true flow on extreme samples, relative to the
         part's image) is estimated; the parts above ``split_tol`` are split, worst first, while
         fewer than ``max_parts`` parts exist; each half gets its own reference and STTs.
@@ -660,14 +660,12 @@ class STTReach(Method):
         return truncation_error(phi, dZ, flow, n_x, seed=k)
 
     def _split(self, part: _Part, phi: list[np.ndarray]) -> list[_Part]:
-        """Split the part's deviation set in two (``options.split``: exact along a factor, or an
-        enclosure along its principal axis) and re-centre each half on its own reference state."""
-        from ocreach.reach.stt_split import split_axis, split_factor
+        """Split the part's deviation set in two (``options.split``: exact along a factor, or the
+        halves of its PCA parallelotope) and re-centre each half on its own reference state."""
+        from ocreach.reach.stt_split import split_box, split_factor
 
-        if self.options.split == "axis":
-            halves = split_axis(part.dR)
-        else:
-            halves = split_factor(part.dR, phi[1] if len(phi) >= 2 else None)
+        phi2 = phi[1] if len(phi) >= 2 else None
+        halves = split_box(part.dR, phi2) if self.options.split == "box" else split_factor(part.dR, phi2)
         out = []
         for half in halves:
             ih = half.interval_hull()
