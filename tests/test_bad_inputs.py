@@ -81,7 +81,7 @@ def _cli_cases(tmp: Path) -> list[tuple]:
                         "divergence_factor": ["0.5", "x"], "max_memory_gb": ["0", "-1", "x"]},
         ("vdp", "stt"): {"order": ["0", "4", "x"], "h_max": ["0", "x"], "input_set": ["circle"],
                          "reduction": ["x"], "split": ["x", "(4,0.01)"], "max_parts": ["0", "2.5"],
-                         "split_tol": ["0", "-1", "x"],
+                         "split_tol": ["0", "-1", "x"], "split_keep": ["-1"],
                          "tube_substeps": ["1", "-1"], "engine": ["x"],
                          "lift_independent": ["maybe", "2"], "rtol": ["1"], "atol": ["-1"]},
         ("vdp", "ode"): {"samples": ["0", "x"], "seed": ["-3"], "rtol": ["0.5"]},

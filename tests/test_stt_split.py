@@ -70,14 +70,19 @@ def test_split_box_halves_contain_the_part():
     halves, which are parallelotopes: solve for their factors and check |a| <= 1."""
     rng = np.random.default_rng(1)
     pz = random_pz(rng, 4, 10, 3, 2)
-    halves = split_box(pz, rng.standard_normal((4, 6, 6)))
     x = np.vstack([pz.sample(3000, rng, mode="extreme"), pz.sample(3000, rng)])
     hit = np.zeros(len(x), dtype=bool)
-    for h in halves:
+    for h in split_box(pz, rng.standard_normal((4, 6, 6))):
         assert h.n_generators == 4 and h.n_independent == 0 and np.all(h.E.sum(axis=0) == 1)
         a = np.linalg.solve(h.G, (x - h.c).T).T
         hit |= np.max(np.abs(a), axis=1) <= 1 + 1e-9
     assert hit.all()
+    # with kept generators the halves are no parallelotopes; their union still contains the part
+    # (checked by the support function of the halves' exact enclosures against the samples)
+    D = rng.standard_normal((200, 4))
+    halves = split_box(pz, None, keep=3)
+    h = np.max([hv.support(D) for hv in halves], axis=0)
+    assert np.all(h >= (x @ D.T).max(axis=0) - 1e-9)
 
 
 def test_no_split_triggered_equals_unsplit():
@@ -124,13 +129,14 @@ def test_truncation_error_is_zero_for_an_exact_polynomial():
 @pytest.mark.parametrize("opts, word", [
     (dict(split=(4, 0.01)), "replaced"), (dict(split="x"), "split"), (dict(split="factor", max_parts=0), "max_parts"),
     (dict(max_parts=2.5), "max_parts"), (dict(max_parts="many"), "max_parts"), (dict(split_tol=0), "split_tol"),
-    (dict(split_tol=-1.0), "split_tol"), (dict(split_tol=float("nan")), "split_tol"), (dict(split_tol="a"), "split_tol")])
+    (dict(split_tol=-1.0), "split_tol"), (dict(split_tol=float("nan")), "split_tol"), (dict(split_tol="a"), "split_tol"),
+    (dict(split_keep=-1), "split_keep"), (dict(split_keep=1.5), "split_keep")])
 def test_bad_split_options(opts, word):
     with pytest.raises(ProblemError, match=word):
         STTReach(**opts)
 
 
-def test_cli_style_strings_are_accepted():
-    o = STTReach(split="box", max_parts="8", split_tol="0.05").options
-    assert (o.split, o.max_parts, o.split_tol) == ("box", 8, 0.05)
+def test_option_forms_are_accepted():
+    o = STTReach(split="box", max_parts=8.0, split_tol="0.05", split_keep=0).options
+    assert (o.split, o.max_parts, o.split_tol, o.split_keep) == ("box", 8, 0.05, 0)
     assert STTReach(split="none").options.split is None

@@ -465,13 +465,17 @@ class STTReach(Method):
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
         ``split`` [None]: how a part is split where the STT polynomial is not valid over it
         (:mod:`ocreach.reach.stt_split`): ``"factor"`` (exact, halves the dependent factor with
-        the largest order-2 contribution) or ``"box"`` (halves the part's PCA parallelotope, an
-        enclosure; compact parts); None = Algorithm 1 as is.  Before each step the truncation error of
+the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
+        ``split_keep`` largest generators plus the PCA box of the others; more compact parts);
+        None = Algorithm 1 as is.  Before each step the truncation error of
         every part (the STT polynomial against the true flow on extreme samples, relative to the
         part's image) is estimated; the parts above ``split_tol`` are split, worst first, while
         fewer than ``max_parts`` parts exist; each half gets its own reference and STTs.
         ``max_parts`` [16]: the largest number of parts (>= 1).
-        ``split_tol`` [0.02]: the truncation-error tolerance, a fraction of the part's image.
+        ``split_tol`` [0.01]: the truncation-error tolerance, a fraction of the part's image.
+        ``split_keep`` [30]: generators a ``"box"`` split keeps before boxing the rest (0 = the
+        PCA parallelotope; more = tighter but less compact parts; chosen on nrho-flyby,
+        docs/validation.md "STT splitting").
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
         library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.
@@ -495,7 +499,8 @@ class STTReach(Method):
         reduction: str = "pca"
         split: str | None = None
         max_parts: int = 16
-        split_tol: float = 0.02
+        split_tol: float = 0.01
+        split_keep: int = 30
         tube_substeps: int = 0
         engine: str = "fused"
         lift_independent: bool = False
@@ -515,6 +520,7 @@ class STTReach(Method):
                 raise ProblemError(f"reduction must be one of {REDUCTIONS}; got {self.reduction!r}")
             self.split, self.max_parts, self.split_tol = check_split_options(
                 self.split, self.max_parts, self.split_tol)
+            self.split_keep = check_count("split_keep", self.split_keep, 0)
             self.tube_substeps = check_count("tube_substeps", self.tube_substeps, 0)
             if self.tube_substeps == 1:
                 raise ProblemError(f"tube_substeps must be 0 (off) or >= 2; got {self.tube_substeps!r}")
@@ -661,11 +667,12 @@ class STTReach(Method):
 
     def _split(self, part: _Part, phi: list[np.ndarray]) -> list[_Part]:
         """Split the part's deviation set in two (``options.split``: exact along a factor, or the
-        halves of its PCA parallelotope) and re-centre each half on its own reference state."""
+        halves of a PCA-reduced enclosure) and re-centre each half on its own reference state."""
         from ocreach.reach.stt_split import split_box, split_factor
 
         phi2 = phi[1] if len(phi) >= 2 else None
-        halves = split_box(part.dR, phi2) if self.options.split == "box" else split_factor(part.dR, phi2)
+        opt = self.options
+        halves = split_box(part.dR, phi2, opt.split_keep) if opt.split == "box" else split_factor(part.dR, phi2)
         out = []
         for half in halves:
             ih = half.interval_hull()

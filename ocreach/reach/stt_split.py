@@ -18,9 +18,9 @@ This module holds the two pieces of that rule:
 union equals the part.  It shrinks the part only along that factor's generators, so it pays off
 when few factors carry the set (an uncertain initial box); after many steps the extent is a sum
 of many comparable generators (on nrho-flyby at 0.7 TU the largest of 200 carries 3.5 % of it)
-and halving one barely changes it.  ``split_box`` first encloses the part by its PCA
-parallelotope (the sound reduction to ``n`` generators) and halves that exactly: compact
-parts, at the price of the box around the part (docs/validation.md, "STT splitting").
+and halving one barely changes it.  ``split_box`` first reduces the part to its ``keep`` largest
+generators plus the PCA box of the rest (the sound reduction) and halves that exactly: more
+compact parts, at the price of the box (docs/validation.md, "STT splitting").
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ocreach.errors import ProblemError
+from ocreach.errors import ProblemError, check_count
 
 if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
@@ -40,7 +40,8 @@ ERROR_SAMPLES = 24
 
 
 def check_split_options(split: Any, max_parts: Any, split_tol: Any) -> tuple[str | None, int, float]:
-    """Validate ``split``, ``max_parts`` and ``split_tol`` (clear :class:`ProblemError` otherwise)."""
+    """Validate ``split``, ``max_parts`` and ``split_tol`` (clear :class:`ProblemError` otherwise;
+    ``split_keep`` is a count checked by the caller)."""
     if isinstance(split, (tuple, list)) or (isinstance(split, str) and "," in split):
         raise ProblemError(f"split={split!r}: the (max_parts, threshold) form was replaced; give "
                            f"split='factor' or 'box', max_parts=N and split_tol=TOL")
@@ -48,14 +49,7 @@ def check_split_options(split: Any, max_parts: Any, split_tol: Any) -> tuple[str
         split = None
     if split is not None and split not in SPLIT_MODES:
         raise ProblemError(f"split must be one of {SPLIT_MODES} or None; got {split!r}")
-    try:
-        parts = int(max_parts)
-        if parts != max_parts and not (isinstance(max_parts, str) and str(parts) == max_parts.strip()):
-            raise ValueError
-    except (TypeError, ValueError):
-        raise ProblemError(f"max_parts must be an integer >= 1; got {max_parts!r}") from None
-    if parts < 1:
-        raise ProblemError(f"max_parts must be an integer >= 1; got {max_parts!r}")
+    parts = check_count("max_parts", max_parts, 1)
     try:
         tol = float(split_tol)
     except (TypeError, ValueError):
@@ -108,13 +102,14 @@ def split_factor(dR: PolyZonotope, phi2: np.ndarray | None = None) -> tuple[Poly
     return dep.split(int(dep.id[int(np.argmax(q))]))
 
 
-def split_box(dR: PolyZonotope, phi2: np.ndarray | None = None) -> tuple[PolyZonotope, PolyZonotope]:
-    """Halves of the PCA parallelotope enclosing ``dR`` (not exact: their union contains ``dR``).
+def split_box(dR: PolyZonotope, phi2: np.ndarray | None = None, keep: int = 0) -> tuple[PolyZonotope, PolyZonotope]:
+    """Halves of a PCA-reduced enclosure of ``dR`` (not exact: their union contains ``dR``).
 
-    ``dR`` is reduced to ``n`` generators by the sound PCA reduction (Kopetzki et al. 2017, as
-    :meth:`PolyZonotope.reduce`), i.e. to the box of ``dR`` in its principal frame, and that
-    parallelotope is split exactly by :func:`split_factor` (along the box generator with the
-    largest order-2 contribution).  The parts are compact (halves of a box), which exact splits of a
-    set with many comparable generators are not; the price is the box around ``dR``.
+    ``dR`` is reduced to ``n + keep`` generators by the sound PCA reduction (Kopetzki et al. 2017,
+    as :meth:`PolyZonotope.reduce`): the ``keep`` largest generators stay, the others are boxed in
+    their principal frame (``keep = 0``: the PCA parallelotope of ``dR``).  That set is split
+    exactly by :func:`split_factor`.  The parts are more compact than exact halves of a set with
+    many comparable generators; the price is the box, smaller the more generators are kept
+    (measured on nrho-flyby in docs/validation.md, "STT splitting").
     """
-    return split_factor(dR.reduce(dR.dim, "pca"), phi2)
+    return split_factor(dR.reduce(dR.dim + int(keep), "pca"), phi2)
