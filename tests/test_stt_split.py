@@ -11,7 +11,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-import ocreach
 from ocreach.errors import ProblemError, SolverError
 from ocreach.geometry import hull_area, outline_area, points_in_polygons
 from ocreach.problem import get_problem
