@@ -16,7 +16,7 @@ from ocreach.geometry import hull_area, outline_area, points_in_polygons
 from ocreach.problem import get_problem
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.stt import PZUnion, STTReach, make_dependent
-from ocreach.reach.stt_split import split_box, split_factor, truncation_error
+from ocreach.reach.stt_split import error_samples, split_box, split_factor, truncation_error
 from ocreach.sets import Interval, PolyZonotope, new_ids
 
 
@@ -118,11 +118,11 @@ def test_truncation_error_is_zero_for_an_exact_polynomial():
     phi[1] = phi[1] + phi[1].transpose(0, 2, 1)
     dZ = random_pz(rng, 3, 5, 3, 0)
 
-    def flow(S):
-        return S @ phi[0].T + 0.5 * np.einsum("iab,na,nb->ni", phi[1], S, S)
-
-    assert truncation_error(phi, dZ, flow, 2) < 1e-12
-    assert truncation_error(phi[:1], dZ, flow, 2) > 1e-3
+    S = error_samples(dZ)
+    true = S @ phi[0].T + 0.5 * np.einsum("iab,na,nb->ni", phi[1], S, S)
+    assert S.shape == (24, 3) and np.all(np.abs(dZ.contains(S[:3])))
+    assert truncation_error(phi, S, true) < 1e-12
+    assert truncation_error(phi[:1], S, true) > 1e-3
 
 
 @pytest.mark.parametrize("opts, word", [

@@ -588,13 +588,14 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
                     with timer("other"):
                         dR = make_dependent(part.dR) if opt.lift_independent else part.dR
                         dZ = dR.cartesian(Uk)
-                    err = 0.0
-                    if opt.split is not None:
-                        with timer("splitting"):
-                            err = self._truncation_error(phi, dZ, part, x1, k, problem)
-                            eta_hist[k] = max(eta_hist[k], nonlinearity_index(phi, dZ))
-                        err_hist[k] = max(err_hist[k], err)
-                    prepared.append((err, part, phi, x1, dZ))
+                    prepared.append([0.0, part, phi, x1, dZ])
+                if opt.split is not None:
+                    with timer("splitting"):
+                        errs = self._truncation_errors(prepared, k, problem)
+                        for rec, err in zip(prepared, errs):
+                            rec[0] = err
+                            eta_hist[k] = max(eta_hist[k], nonlinearity_index(rec[2], rec[4]))
+                    err_hist[k] = max(err_hist[k], max(errs))
                 room = opt.max_parts - len(new_parts) - len(pending)
                 worst = sorted((i for i, (err, part, *_) in enumerate(prepared)
                                 if err > opt.split_tol and part.dR.n_generators > 0),
@@ -649,21 +650,21 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         counts["part_stts"] += 1
         return [ph[0] for ph in r.phi], r.states[-1]
 
-    def _truncation_error(self, phi: list[np.ndarray], dZ: PolyZonotope, part: _Part, x1: np.ndarray,
-                          k: int, problem: Problem) -> float:
-        """Sampled truncation error of the part's step (:func:`ocreach.reach.stt_split.truncation_error`)
-        against the true flow of the samples (held controls) over ``[t_k, t_{k+1}]``."""
+    def _truncation_errors(self, prepared: list, k: int, problem: Problem) -> list[float]:
+        """Sampled truncation error of each part's step (:func:`ocreach.reach.stt_split.truncation_error`):
+        the samples of all parts are propagated over ``[t_k, t_{k+1}]`` (held controls) in one batch."""
         from ocreach.flow import propagate
-        from ocreach.reach.stt_split import truncation_error
+        from ocreach.reach.stt_split import error_samples, truncation_error
 
         opt, n_x = self.options, problem.model.n_x
-
-        def flow(S: np.ndarray) -> np.ndarray:
-            X = propagate(self._model, part.x_ref + S[:, :n_x], S[:, None, n_x:], problem.grid[k:k + 2],
-                          p=problem.params, rtol=opt.rtol, atol=opt.atol)
-            return X[:, -1] - x1
-
-        return truncation_error(phi, dZ, flow, n_x, seed=k)
+        S = [error_samples(dZ, seed=k) for _, _, _, _, dZ in prepared]
+        X0 = np.vstack([part.x_ref + s[:, :n_x] for (_, part, *_), s in zip(prepared, S)])
+        Uc = np.vstack([s[:, n_x:] for s in S])[:, None, :]
+        X1 = propagate(self._model, X0, Uc, problem.grid[k:k + 2], p=problem.params, rtol=opt.rtol,
+                       atol=opt.atol)[:, -1]
+        ends = np.cumsum([len(s) for s in S])[:-1]
+        return [truncation_error(phi, s, x - x1)
+                for (_, _, phi, x1, _), s, x in zip(prepared, S, np.split(X1, ends))]
 
     def _split(self, part: _Part, phi: list[np.ndarray]) -> list[_Part]:
         """Split the part's deviation set in two (``options.split``: exact along a factor, or the

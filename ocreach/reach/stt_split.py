@@ -59,22 +59,25 @@ def check_split_options(split: Any, max_parts: Any, split_tol: Any) -> tuple[str
     return split, parts, tol
 
 
-def truncation_error(phi: list[np.ndarray], dZ: PolyZonotope, flow: Any, n_x: int,
-                     samples: int = ERROR_SAMPLES, seed: int = 0) -> float:
+def error_samples(dZ: PolyZonotope, samples: int = ERROR_SAMPLES, seed: int = 0) -> np.ndarray:
+    """``samples`` extreme samples (factors at +-1) of a step's set ``dZ_k = dR_k x U_k``, (N, n_z):
+    the deviations at which :func:`truncation_error` compares the STT polynomial with the flow."""
+    return dZ.sample(samples, np.random.default_rng(seed), mode="extreme")
+
+
+def truncation_error(phi: list[np.ndarray], S: np.ndarray, true: np.ndarray) -> float:
     """Pointwise error of the STT polynomial over one step, relative to the part's image.
 
-    ``phi``: the step's STTs ``Phi_k^(j)`` about the part's reference (Foss Eq. 13); ``dZ``: the
-    step's set ``dR_k x U_k`` (deviations); ``flow(dz)``: the true deviation at ``t_{k+1}`` of the
-    samples ``dz`` (N, n_z) (their states and controls propagated over the step, minus the
-    reference).  Returns ``max_s ||p(dz_s) - flow(dz_s)|| / max_s ||flow(dz_s)||`` over
-    ``samples`` extreme samples (factors at +-1) of ``dZ``: an estimate (samples, not a bound) of
-    how far the truncated expansion is from the true flow, in units of the part's size.
+    ``phi``: the step's STTs ``Phi_k^(j)`` about the part's reference (Foss Eq. 13); ``S``: sampled
+    deviations ``dz`` (N, n_z) of the step's set (:func:`error_samples`); ``true``: the true
+    deviations at ``t_{k+1}`` of the same samples (their states and held controls propagated over
+    the step, minus the reference), (N, n_x).  Returns ``max_s ||p(dz_s) - true_s|| / max_s
+    ||true_s - mean(true)||``: an estimate (samples, not a bound) of how far the truncated expansion
+    is from the true flow, in units of the part's size.
     """
     from ocreach.reach.stt import stt_polynomial
 
-    S = dZ.sample(samples, np.random.default_rng(seed), mode="extreme")
     poly = sum(stt_polynomial(phi, S))
-    true = flow(S)
     size = float(np.max(np.linalg.norm(true - true.mean(axis=0), axis=1)))
     err = float(np.max(np.linalg.norm(poly - true, axis=1)))
     if not np.isfinite(err):
