@@ -50,6 +50,7 @@ RUNS = {
     "o1_h200_factor16": dict(order=1, h_max=200, split="factor", max_parts=16),
     "o1_h200_box16": dict(order=1, h_max=200, split="box", max_parts=16),
     "o1_h200_box64": dict(order=1, h_max=200, split="box", max_parts=64),
+    "o1_h200_box16_keep45": dict(order=1, h_max=200, split="box", max_parts=16, split_keep=45),
     "o1_h200_box16_keep60": dict(order=1, h_max=200, split="box", max_parts=16, split_keep=60),
 }
 #: unions of at most this many parts get branch-and-bound support bounds per part (more: the
