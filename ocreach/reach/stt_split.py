@@ -17,7 +17,7 @@ This module holds the two pieces of that rule:
 ``split_factor`` halves the dependent factor with the largest order-2 contribution: the halves'
 union equals the part.  It shrinks the part only along that factor's generators, so it pays off
 when few factors carry the set (an uncertain initial box); after many steps the extent is a sum
-of many comparable generators (on nrho-flyby at 0.7 TU the largest of 200 carries 3.5 % of it)
+of many comparable generators (on nrho-flyby at 0.7 TU the largest of 200 carries 2.9 % of it)
 and halving one barely changes it.  ``split_box`` first reduces the part to its ``keep`` largest
 generators plus the PCA box of the rest (the sound reduction) and halves that exactly: more
 compact parts, at the price of the box (docs/validation.md, "STT splitting").
