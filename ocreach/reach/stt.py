@@ -35,6 +35,7 @@ Beyond the paper (documented in docs/stt.md):
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -145,6 +146,15 @@ class PZUnion:
 
 
 # ============================================================================ helpers
+@functools.lru_cache(maxsize=16)
+def _ball_zonotope(n: int, k: int):
+    """:func:`ocreach.sets.unit_ball_zonotope` (immutable, so one per ``(n, k)``: every step of every
+    part uses the same input set, only its identifiers are fresh)."""
+    from ocreach.sets import unit_ball_zonotope
+
+    return unit_ball_zonotope(n, k)
+
+
 def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> PolyZonotope:
     """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
 
@@ -159,7 +169,7 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
     ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
     :meth:`ocreach.model.Model.throttle_relaxed` (own fresh factor).
     """
-    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz, unit_ball_zonotope
+    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz
 
     def box(m: int) -> PolyZonotope:
         return PolyZonotope(np.zeros(m), np.eye(m), None, np.eye(m, dtype=np.int64), new_ids(m))
@@ -170,7 +180,7 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
         return input_pz(kind, n_u, n_throttle, BALL_INPUT_AUTO.get(n_u, "zonotope"))
     elif kind == "ball" and ball in ("zonotope", "zonotope-coarse") and n_u > 1:
         table = BALL_ZONOTOPE_GENERATORS if ball == "zonotope" else BALL_ZONOTOPE_GENERATORS_COARSE
-        Z = unit_ball_zonotope(n_u, table.get(n_u, 2 * n_u))
+        Z = _ball_zonotope(n_u, table.get(n_u, 2 * n_u))
         U = PolyZonotope.from_zonotope(Z, new_ids(Z.G.shape[1]))
     elif kind == "ball":
         if ball not in BALL_INPUTS:
