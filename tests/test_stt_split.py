@@ -128,7 +128,8 @@ def test_truncation_error_is_zero_for_an_exact_polynomial():
 @pytest.mark.parametrize("opts, word", [
     (dict(split=(4, 0.01)), "replaced"), (dict(split="x"), "split"), (dict(split="factor", max_parts=0), "max_parts"),
     (dict(max_parts=2.5), "max_parts"), (dict(max_parts="many"), "max_parts"), (dict(split_tol=0), "split_tol"),
-    (dict(split_tol=-1.0), "split_tol"), (dict(split_tol=float("nan")), "split_tol"), (dict(split_tol="a"), "split_tol"),
+    (dict(split_tol=-1.0), "split_tol"), (dict(split_tol=float("nan")), "split_tol"),
+    (dict(split_tol="a"), "split_tol"),
     (dict(split_keep=-1), "split_keep"), (dict(split_keep=1.5), "split_keep")])
 def test_bad_split_options(opts, word):
     with pytest.raises(ProblemError, match=word):

@@ -485,7 +485,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         ``split_tol`` [0.01]: the truncation-error tolerance, a fraction of the part's image.
         ``split_keep`` [30]: generators a ``"box"`` split keeps before boxing the rest (0 = the
         PCA parallelotope; more = tighter but less compact parts; chosen on nrho-flyby,
-        docs/validation.md "STT splitting").
+        docs/validation.md "STT splitting on nrho-flyby").
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
         library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.

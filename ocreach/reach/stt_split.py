@@ -20,7 +20,7 @@ when few factors carry the set (an uncertain initial box); after many steps the 
 of many comparable generators (on nrho-flyby at 0.7 TU the largest of 200 carries 2.9 % of it)
 and halving one barely changes it.  ``split_box`` first reduces the part to its ``keep`` largest
 generators plus the PCA box of the rest (the sound reduction) and halves that exactly: more
-compact parts, at the price of the box (docs/validation.md, "STT splitting").
+compact parts, at the price of the box (docs/validation.md, "STT splitting on nrho-flyby").
 """
 from __future__ import annotations
 
@@ -113,6 +113,6 @@ def split_box(dR: PolyZonotope, phi2: np.ndarray | None = None, keep: int = 0) -
     their principal frame (``keep = 0``: the PCA parallelotope of ``dR``).  That set is split
     exactly by :func:`split_factor`.  The parts are more compact than exact halves of a set with
     many comparable generators; the price is the box, smaller the more generators are kept
-    (measured on nrho-flyby in docs/validation.md, "STT splitting").
+    (measured on nrho-flyby in docs/validation.md, "STT splitting on nrho-flyby").
     """
     return split_factor(dR.reduce(dR.dim + int(keep), "pca"), phi2)
