@@ -1,21 +1,31 @@
-"""Foss Fig. 6 (NRHO Moon flyby, ephemeris model) with the exact set queries, and why order 2 fails.
+"""Foss Fig. 6 (NRHO Moon flyby, ephemeris model): STT sets with and without splitting, and why
+order 2 fails.
 
     python examples/foss_fig6_nrho.py [--problem nrho-flyby] [--out docs/figures] [--extremals 1000]
 
 1. Pointwise validity of the STT polynomial: the per-step polynomials ``dx_{k+1} = sum_j 1/j!
    Phi_k^(j)[dx_k, u_k]^j`` composed along the controls of 1000 Monte Carlo trajectories (no set,
    no reduction, no input-set approximation) against the true endpoints, for n = 1, 2, 3.
-2. Set extent at every time: ``max_d (h(d) - d^T x_ref)`` over 64 position directions, for the STT
-   sets (upper and lower bounds by branch and bound, :func:`ocreach.sets.pz_exact.support_bounds`),
-   the ``ode`` extremals and Monte Carlo endpoints.
-3. Figure like Foss Fig. 6: x-y and y-z projections of the STT sets (outer hull polygons of the
-   upper support bounds) with 100 of the extremals.
+2. The same with ideal parts: the true states at ``t_s`` clustered (k-means, 1 .. 256 clusters),
+   each cluster's samples composed about the ballistic reference from its centroid -- how many
+   compact parts an exact splitting would need for the expansion to hold.
+3. Set extent at every time: ``max_d (h(d) - d^T x_ref)`` over 64 position directions, for the STT
+   runs in :data:`RUNS` (with and without ``split``), against the ``ode`` extremals and Monte Carlo
+   endpoints, and the smallest margin ``min_d (h_upper(d) - max_truth(d))`` (negative: a true
+   endpoint is certainly outside the set in direction d).  Lower and upper bounds by branch and
+   bound (:func:`ocreach.sets.pz_exact.support_bounds`), per part for unions of at most
+   :data:`EXACT_PARTS` parts; larger unions: upper = the parts' zonotope enclosures, lower = 256
+   extreme samples per part.
+4. Figure like Foss Fig. 6: x-y and y-z projections of the split order-1 sets with 100 extremals,
+   and the extent ratio of every run against time.
 Writes ``OUT/foss_fig6_<problem>.png`` and ``OUT/foss_fig6_<problem>.json``.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +35,29 @@ from ocreach.errors import SolverError
 from ocreach.plot import save_figure
 from ocreach.problem import get_problem
 from ocreach.reach.result import atomic_write_text
-from ocreach.reach.stt import STTReach, stt_polynomial
-from ocreach.sets.pz_exact import hull_polygons, support_bounds
+from ocreach.flow import stt as stt_flow
+from ocreach.reach.stt import PZUnion, STTReach, stt_polynomial
+from ocreach.sets.pz_exact import support_bounds
+
+#: STT runs measured (name -> options); all with the problem's ball input (``ball_input="auto"``)
+RUNS = {
+    "o2_h60": dict(order=2, h_max=60),
+    "o2_h60_box64": dict(order=2, h_max=60, split="box", max_parts=64),
+    "o2_h200_box64": dict(order=2, h_max=200, split="box", max_parts=64),
+    "o1_h60": dict(order=1, h_max=60),
+    "o1_h200": dict(order=1, h_max=200),
+    "o1_h60_box16": dict(order=1, h_max=60, split="box", max_parts=16),
+    "o1_h200_factor16": dict(order=1, h_max=200, split="factor", max_parts=16),
+    "o1_h200_box16": dict(order=1, h_max=200, split="box", max_parts=16),
+    "o1_h200_box64": dict(order=1, h_max=200, split="box", max_parts=64),
+    "o1_h200_box16_keep45": dict(order=1, h_max=200, split="box", max_parts=16, split_keep=45),
+    "o1_h200_box16_keep60": dict(order=1, h_max=200, split="box", max_parts=16, split_keep=60),
+}
+#: unions of at most this many parts get branch-and-bound support bounds per part (more: the
+#: parts' zonotope enclosures and extreme samples, faster but a weaker lower bound)
+EXACT_PARTS = 16
+#: the run drawn in the figure
+FIGURE_RUN = "o1_h200_box16"
 
 
 def sphere_directions(m: int, seed: int = 0) -> np.ndarray:
@@ -58,19 +89,89 @@ def pointwise_errors(problem, mc, orders=(1, 2, 3)) -> dict:
     return out
 
 
-def extents(sets, ref, D) -> tuple[list, list]:
-    lo, hi = [], []
-    for k, S in enumerate(sets):
-        P = S.project([0, 1, 2])
-        if P.n_generators == 0:
-            lo.append(0.0)
-            hi.append(0.0)
-            continue
-        sb = support_bounds(P, D, tol=1e-3)
+def partition_errors(problem, mc, t_split: float = 0.6, parts=(1, 4, 16, 64, 256), orders=(1, 2)) -> dict:
+    """Pointwise error / MC extent of the STT polynomials composed from ``t_split`` about the
+    references of k-means clusters of the true states there (ideal compact parts)."""
+    from scipy.cluster.vq import kmeans2
+
+    X = np.stack([np.asarray(P) for P in mc.points], axis=1)
+    U = np.asarray(mc.controls)
+    K, g = problem.grid.size - 1, problem.grid
+    ks = int(np.argmin(np.abs(g - t_split)))
+    ref = stt_flow(problem.model, problem.x0, np.zeros((K, problem.model.n_u)), g, 1, p=problem.params).states
+    ext = np.array([np.linalg.norm(X[:, k, :3] - ref[k, :3], axis=1).max() for k in range(ks + 1, K + 1)])
+    Z = X[:, ks]
+    sd = Z.std(axis=0)
+    out: dict = {"t_split": float(g[ks]), "times": g[ks + 1:].tolist()}
+    for P in parts:
+        if P == 1:
+            lab, cen = np.zeros(len(Z), dtype=int), Z.mean(axis=0, keepdims=True)
+        else:
+            cen, lab = kmeans2(Z / sd, P, seed=1, minit="++")
+            cen = cen * sd
+        for order in orders:
+            worst = np.zeros(K - ks)
+            for j in range(P):
+                idx = np.flatnonzero(lab == j)
+                if idx.size == 0:
+                    continue
+                r = stt_flow(problem.model, cen[j], np.zeros((K - ks, problem.model.n_u)), g[ks:], order,
+                             p=problem.params)
+                dx = X[idx, ks] - cen[j]
+                for i, k in enumerate(range(ks, K)):
+                    dx = sum(stt_polynomial([ph[i] for ph in r.phi], np.hstack([dx, U[idx, k]])))
+                    err = np.linalg.norm(dx[:, :3] - (X[idx, k + 1, :3] - r.states[i + 1, :3]), axis=1)
+                    worst[i] = max(worst[i], float(err.max()))
+            out[f"order{order}_parts{P}"] = (worst / ext).tolist()
+    return out
+
+
+def support_range(S, D: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of the support of a PZ or a union of PZs (position projection)."""
+    if isinstance(S, PZUnion) and len(S.parts) <= EXACT_PARTS:
+        sbs = [support_bounds(p.project([0, 1, 2]), D, tol=1e-3) for p in S.parts]
+        return np.max([b.lower for b in sbs], axis=0), np.max([b.upper for b in sbs], axis=0)
+    if isinstance(S, PZUnion):
+        parts = [p.project([0, 1, 2]) for p in S.parts]
+        hi = np.max([np.atleast_1d(p.support(D)) for p in parts], axis=0)
+        lo = np.max([(p.sample(256, rng, mode="extreme") @ D.T).max(axis=0) for p in parts], axis=0)
+        return lo, hi
+    P = S.project([0, 1, 2])
+    if P.n_generators == 0:
+        return D @ P.c, D @ P.c
+    sb = support_bounds(P, D, tol=1e-3)
+    return sb.lower, sb.upper
+
+
+def measure(problem, opts: dict, D: np.ndarray, truth: list, ref: np.ndarray) -> dict:
+    """One STT run (warm: the second of two), its runtime and its extents / margins per time."""
+    m = STTReach(**opts, divergence_factor=1e30)
+    rec: dict = {"options": opts}
+    try:
+        m.solve(problem)  # warm-up (compiled code, caches)
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = m.solve(problem)
+        rec["runtime_s"], rec["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+        sets = res.sets
+        rec["parts"] = list(map(int, res.meta["parts"]))
+        if "truncation_error" in res.meta:
+            rec["truncation_error"] = np.asarray(res.meta["truncation_error"]).tolist()
+    except SolverError as exc:
+        rec["error"] = str(exc)
+        return rec
+    rng = np.random.default_rng(0)
+    lo_r, hi_r, margin = [], [], []
+    for k in range(1, len(sets)):
+        lo, hi = support_range(sets[k], D, rng)
         c = D @ ref[k, :3]
-        lo.append(float(np.max(sb.lower - c)))
-        hi.append(float(np.max(sb.upper - c)))
-    return lo, hi
+        ext = float(np.max(truth[k] - c))
+        with np.errstate(invalid="ignore", over="ignore"):
+            lo_r.append(float(np.max(lo - c)) / ext)
+            hi_r.append(float(np.max(hi - c)) / ext)
+            margin.append(float(np.min(hi - truth[k])) / ext)
+    rec["extent_ratio_lower"], rec["extent_ratio_upper"], rec["margin_over_extent"] = lo_r, hi_r, margin
+    rec["sets"] = sets
+    return rec
 
 
 def main(argv=None) -> dict:
@@ -78,73 +179,74 @@ def main(argv=None) -> dict:
     ap.add_argument("--problem", default="nrho-flyby")
     ap.add_argument("--out", default="docs/figures")
     ap.add_argument("--extremals", type=int, default=1000)
+    ap.add_argument("--runs", default="", help="comma-separated names of RUNS (default: all)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     p = get_problem(a.problem)
     mc = ocreach.reach(p, "mc", samples=1000, seed=3)
     ode = ocreach.reach(p, "ode", samples=a.extremals)
-    report: dict = {"problem": p.id, "times": p.grid.tolist(), "pointwise_err_over_extent": pointwise_errors(p, mc)}
+    report: dict = {"problem": p.id, "times": p.grid.tolist(), "load_average": os.getloadavg(),
+                    "blas_threads": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
+                    "pointwise_err_over_extent": pointwise_errors(p, mc),
+                    "ideal_parts_err_over_extent": partition_errors(p, mc)}
     D = sphere_directions(64)
-    ref = None
-    for tag, opts in {"order1_ball": dict(order=1, input_set="ball"), "order1_box": dict(order=1, input_set="box"),
-                      "order2_ball": dict(order=2, input_set="ball")}.items():
-        m = STTReach(h_max=60, **opts)
-        try:
-            res = m.solve(p)
-            sets = res.sets
-            report[f"{tag}_runtime_s"] = float(sum(res.meta["runtime"].values()))
-        except SolverError as exc:
-            sets = None
-            report[f"{tag}_error"] = str(exc)
-        ref = m._ref.states
-        if sets is not None:
-            lo, hi = extents(sets, ref, D)
-            report[f"{tag}_extent_lower"], report[f"{tag}_extent_upper"] = lo, hi
-            if tag == "order1_ball":
-                fig_sets = sets
-    for tag, res in (("ode", ode), ("mc", mc)):
-        report[f"{tag}_extent"] = [float(np.max((np.asarray(P)[:, :3] - ref[k, :3]) @ D.T)) if k else 0.0
-                                   for k, P in enumerate(res.points)]
-    ex = np.maximum(np.asarray(report["ode_extent"]), np.asarray(report["mc_extent"]))
-    for tag in ("order1_ball", "order1_box", "order2_ball"):
-        if f"{tag}_extent_upper" in report:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                report[f"{tag}_ratio_upper"] = (np.asarray(report[f"{tag}_extent_upper"]) / ex).tolist()
-                report[f"{tag}_ratio_lower"] = (np.asarray(report[f"{tag}_extent_lower"]) / ex).tolist()
+    ref = stt_flow(p.model, p.x0, np.zeros((p.n_segments, p.model.n_u)), p.grid, 1, p=p.params).states
+    pts = [np.vstack([np.asarray(mc.points[k])[:, :3], np.asarray(ode.points[k])[:, :3]]) for k in range(p.grid.size)]
+    truth = [(P @ D.T).max(axis=0) for P in pts]
+    report["ode_extent"] = [float(np.max((np.asarray(P)[:, :3] - ref[k, :3]) @ D.T)) for k, P in enumerate(ode.points)]
+    report["mc_extent"] = [float(np.max((np.asarray(P)[:, :3] - ref[k, :3]) @ D.T)) for k, P in enumerate(mc.points)]
+    runs = {}
+    for name, opts in RUNS.items():
+        if a.runs and name not in a.runs.split(","):
+            continue
+        runs[name] = measure(p, opts, D, truth, ref)
+        r = runs[name]
+        print(name, "error" if "error" in r else f"{r['runtime_s']:.2f} s", "parts", r.get("parts", [0])[-1],
+              "ratio", " ".join(f"{v:.3g}" for v in r.get("extent_ratio_upper", [])[1::2]),
+              "margin", " ".join(f"{v:.2f}" for v in r.get("margin_over_extent", [])[1::2]))
+    report["runs"] = {k: {kk: vv for kk, vv in v.items() if kk != "sets"} for k, v in runs.items()}
+    fig_run = FIGURE_RUN if FIGURE_RUN in runs else next(iter(runs))
+    fig_sets = runs[fig_run]["sets"]
     # figure like Foss Fig. 6
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 5))
     traj = np.stack([np.asarray(P)[:100] for P in ode.points], axis=1)
-    for ax, dims in zip(axes, ((0, 1), (1, 2))):
+    for ax, dims in zip(axes[:2], ((0, 1), (1, 2))):
         for tr in traj:
             ax.plot(tr[:, dims[0]], tr[:, dims[1]], color="0.6", lw=0.4)
         for k, S in enumerate(fig_sets):
             if k == 0 or S.n_generators == 0:
                 continue
-            _, outer, _ = hull_polygons(S.project(list(dims)), (0, 1), n_dirs=64)
-            ax.fill(outer[:, 0], outer[:, 1], alpha=0.35, color="tab:blue", lw=0.5,
-                    label="stt n=1 (ball), hull of upper bounds" if k == 1 else None)
+            for i, poly in enumerate(S.outline(list(dims), pieces=64)):
+                ax.fill(poly[:, 0], poly[:, 1], alpha=0.25, color="tab:blue", lw=0.3,
+                        label=f"stt {fig_run} (parts' outlines)" if k == 1 and i == 0 else None)
         ax.set_xlabel("xyz"[dims[0]] + " [DU]")
         ax.set_ylabel("xyz"[dims[1]] + " [DU]")
         ax.grid(alpha=0.3)
         ax.axis("equal")
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"{p.id}: STT sets (n = 1, h_max = 60) and 100 ode extremals, t = 0..{p.grid[-1]:g} TU")
+    ax = axes[2]
+    for name, r in runs.items():
+        if "extent_ratio_upper" in r:
+            ax.semilogy(p.grid[1:], np.clip(r["extent_ratio_upper"], 1e-3, 1e6), marker=".", lw=1, label=name)
+    ax.axhline(1.5, color="k", ls="--", lw=0.8)
+    ax.set_ylim(0.8, 1e3)
+    ax.set_xlabel("t [TU]")
+    ax.set_ylabel("STT extent / max(ode, mc) extent")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    fig.suptitle(f"{p.id}: STT sets and 100 ode extremals, t = 0..{p.grid[-1]:g} TU")
     fig.tight_layout()
     save_figure(fig, out / f"foss_fig6_{p.id}.png", dpi=130)
     atomic_write_text(out / f"foss_fig6_{p.id}.json", json.dumps(report, indent=1))
-    for key, val in report.items():
-        if isinstance(val, list):
-            print(key, " ".join(f"{v:.3g}" for v in val[::2]))
-        elif isinstance(val, dict):
-            for k2, v2 in val.items():
+    for key in ("pointwise_err_over_extent", "ideal_parts_err_over_extent"):
+        for k2, v2 in report[key].items():
+            if isinstance(v2, list):
                 print(key, k2, " ".join(f"{v:.3g}" for v in v2[1::2]))
-        else:
-            print(key, val)
     return report
 
 

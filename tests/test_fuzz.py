@@ -31,7 +31,8 @@ small_num = st.one_of(st.integers(-3, 40).map(str), st.floats(-5, 5).map(repr))
 value = st.one_of(junk, small_num)
 OPTION_KEYS = {
     "mc": ["samples", "seed", "rtol", "mix", "divergence_factor", "max_memory_gb", "bogus"],
-    "stt": ["order", "h_max", "input_set", "reduction", "lift_independent", "split", "engine"],
+    "stt": ["order", "h_max", "input_set", "reduction", "lift_independent", "split", "max_parts", "split_tol",
+            "engine"],
     "ode": ["samples", "seed", "atol"],
     "ffoe": ["samples", "thrust", "dims", "random", "uncertainty_radius"],
 }

@@ -89,9 +89,9 @@ def test_cli_false_is_false(tmp_path):
     out = tmp_path / "o"
     rc, _, err = _cli("run", "vdp", "-m", "cut", "--out", str(out))  # not applicable: clear error
     assert rc == 2 and "does not apply" in err and not out.exists()
-    opts = coerce({"lift_independent": "false", "h_max": "50", "split": "4,0.01"},
-                  method_class("stt").Options)
-    assert opts == {"lift_independent": False, "h_max": 50, "split": (4, 0.01)}
+    opts = coerce({"lift_independent": "false", "h_max": "50", "split": "box", "max_parts": "8",
+                   "split_tol": "0.05"}, method_class("stt").Options)
+    assert opts == {"lift_independent": False, "h_max": 50, "split": "box", "max_parts": 8, "split_tol": 0.05}
     assert method_class("stt")(lift_independent="false").options.lift_independent is False  # API too
     with pytest.raises(ProblemError, match="stt option lift_independent must be a boolean"):
         ocreach.reach("vdp", "stt", lift_independent="maybe")

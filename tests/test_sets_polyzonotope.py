@@ -353,3 +353,19 @@ def test_exact_keys_add_and_refuse_what_does_not_fit(monkeypatch):
         assert fast.n_dependent == hashed.n_dependent and fast.n_independent == hashed.n_independent
         np.testing.assert_allclose(pointwise(fast, vals), pointwise(hashed, vals), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(fast.c, hashed.c, rtol=1e-12, atol=1e-12)
+
+
+def test_monomial_values_large_batches_equal_the_direct_powers():
+    """The log-space evaluation used for large batches equals prod a^e, with negative factors,
+    zeros (0^0 = 1, 0^e = 0) and factors outside [-1, 1]."""
+    from ocreach.sets.polyzonotope import monomial_values
+
+    rng = np.random.default_rng(5)
+    E = (rng.random((60, 400)) < 0.1) * rng.integers(1, 4, (60, 400))
+    A = rng.uniform(-2, 2, (30, 60))
+    A[rng.random(A.shape) < 0.1] = 0.0
+    ref = np.prod(A[:, :, None] ** E[None], axis=1)
+    got = monomial_values(A, E)
+    assert A.size * E.shape[1] > 50_000  # the log-space branch
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-300)
+    assert np.all(got[ref == 0] == 0)

@@ -175,7 +175,7 @@ def test_initial_set_and_splitting_cover_mc():
     box = Interval(base.x0 - 0.1, base.x0 + 0.1)
     p = dataclasses.replace(base, initial_set=box)
     plain = ocreach.reach(p, "stt", order=2, h_max=100)
-    split = ocreach.reach(p, "stt", order=2, h_max=100, split=(4, 0.01))
+    split = ocreach.reach(p, "stt", order=2, h_max=100, split="factor", max_parts=4, split_tol=0.002)
     assert isinstance(split.sets[-1], PZUnion) and split.meta["evaluations"]["splits"] >= 1
     np.testing.assert_allclose(plain.sets[0].interval_hull().lo, box.lo, atol=1e-12)
     end = MonteCarlo(samples=1500, seed=3).solve(p).points[-1]

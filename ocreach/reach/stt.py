@@ -16,12 +16,14 @@ reachable set (the STT truncation error is not bounded, Foss Sec. 5).
 
 Beyond the paper (documented in docs/stt.md):
 
-* **splitting** (``split=(max_parts, threshold)``): before a step, the nonlinearity index
-  ``eta = max ||order-n term|| / max ||linear term||`` of the STT polynomial on samples of ``dZ_k``
-  is computed; while ``eta > threshold`` and parts remain, the part is split exactly along its
-  largest dependent factor (independent generators are first turned into dependent factors, which
-  is exact) and each half gets its own reference trajectory started at its centre (one extra STT
-  integration per part and segment).  The set at a time is then a :class:`PZUnion`.
+* **splitting** (``split="factor" | "box"``, ``max_parts``, ``split_tol``;
+  :mod:`ocreach.reach.stt_split`): before a step the truncation error of each part's STT
+  polynomial is estimated against the true flow of extreme samples of ``dZ_k``; parts above
+  ``split_tol`` (relative to the part's image) are split, worst first, while fewer than
+  ``max_parts`` exist, and each half gets its own reference trajectory started at its centre (one
+  extra STT integration per part and segment).  The set at a time is then a :class:`PZUnion`;
+  ``meta["parts"]`` counts the parts per time, ``meta["truncation_error"]`` the largest estimate
+  per step.
 * **reachable tube** (``tube_substeps=s``): for each segment the sets at ``s - 1`` interior times
   are computed by second-order STTs from ``t_k`` to ``t_k + i dt / s`` applied to ``dZ_k`` (the
   control is held on the segment, so the map is exact in the same sense), and each is bloated by
@@ -33,6 +35,7 @@ Beyond the paper (documented in docs/stt.md):
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -44,6 +47,7 @@ from ocreach.errors import ProblemError, SetError, SolverError, check_count, che
 from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
+from ocreach.reach.stt_split import check_split_options
 
 if TYPE_CHECKING:
     from ocreach.sets import Interval, PolyZonotope
@@ -142,6 +146,15 @@ class PZUnion:
 
 
 # ============================================================================ helpers
+@functools.lru_cache(maxsize=16)
+def _ball_zonotope(n: int, k: int):
+    """:func:`ocreach.sets.unit_ball_zonotope` (immutable, so one per ``(n, k)``: every step of every
+    part uses the same input set, only its identifiers are fresh)."""
+    from ocreach.sets import unit_ball_zonotope
+
+    return unit_ball_zonotope(n, k)
+
+
 def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> PolyZonotope:
     """The input set as a polynomial zonotope with fresh identifiers (Foss Alg. 1 line 4).
 
@@ -156,7 +169,7 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
     ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
     :meth:`ocreach.model.Model.throttle_relaxed` (own fresh factor).
     """
-    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz, unit_ball_zonotope
+    from ocreach.sets import PolyZonotope, new_ids, unit_ball_pz
 
     def box(m: int) -> PolyZonotope:
         return PolyZonotope(np.zeros(m), np.eye(m), None, np.eye(m, dtype=np.int64), new_ids(m))
@@ -167,7 +180,7 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
         return input_pz(kind, n_u, n_throttle, BALL_INPUT_AUTO.get(n_u, "zonotope"))
     elif kind == "ball" and ball in ("zonotope", "zonotope-coarse") and n_u > 1:
         table = BALL_ZONOTOPE_GENERATORS if ball == "zonotope" else BALL_ZONOTOPE_GENERATORS_COARSE
-        Z = unit_ball_zonotope(n_u, table.get(n_u, 2 * n_u))
+        Z = _ball_zonotope(n_u, table.get(n_u, 2 * n_u))
         U = PolyZonotope.from_zonotope(Z, new_ids(Z.G.shape[1]))
     elif kind == "ball":
         if ball not in BALL_INPUTS:
@@ -460,8 +473,19 @@ class STTReach(Method):
         3.5 % / 9.6 %; the default before issue 12's 3 % target) or ``"pz"`` (Foss Eq. 16 in
         2-D, the cube-to-ball polynomial in 3-D).
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
-        ``split`` [None]: ``(max_parts, threshold)``; split a part while its nonlinearity index
-        exceeds ``threshold`` and fewer than ``max_parts`` parts exist (None = Algorithm 1 as is).
+        ``split`` [None]: how a part is split where the STT polynomial is not valid over it
+        (:mod:`ocreach.reach.stt_split`): ``"factor"`` (exact, halves the dependent factor with
+the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
+        ``split_keep`` largest generators plus the PCA box of the others; more compact parts);
+        None = Algorithm 1 as is.  Before each step the truncation error of
+        every part (the STT polynomial against the true flow on extreme samples, relative to the
+        part's image) is estimated; the parts above ``split_tol`` are split, worst first, while
+        fewer than ``max_parts`` parts exist; each half gets its own reference and STTs.
+        ``max_parts`` [16]: the largest number of parts (>= 1).
+        ``split_tol`` [0.01]: the truncation-error tolerance, a fraction of the part's image.
+        ``split_keep`` [30]: generators a ``"box"`` split keeps before boxing the rest (0 = the
+        PCA parallelotope; more = tighter but less compact parts; chosen on nrho-flyby,
+        docs/validation.md "STT splitting on nrho-flyby").
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
         library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.
@@ -483,7 +507,10 @@ class STTReach(Method):
         input_set: str | None = None
         ball_input: str = "auto"
         reduction: str = "pca"
-        split: tuple | None = None
+        split: str | None = None
+        max_parts: int = 16
+        split_tol: float = 0.01
+        split_keep: int = 30
         tube_substeps: int = 0
         engine: str = "fused"
         lift_independent: bool = False
@@ -501,17 +528,9 @@ class STTReach(Method):
                 raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {self.ball_input!r}")
             if self.reduction not in REDUCTIONS:
                 raise ProblemError(f"reduction must be one of {REDUCTIONS}; got {self.reduction!r}")
-            if isinstance(self.split, str):  # CLI: --set split=4,0.01
-                self.split = tuple(v for v in self.split.strip("()[] ").split(",") if v.strip())
-            if self.split is not None:
-                try:
-                    parts, thr = self.split
-                    parts, thr = int(parts), float(thr)
-                except (TypeError, ValueError):
-                    raise ProblemError(f"split must be (max_parts, threshold) or None; got {self.split!r}") from None
-                if parts < 1 or not thr > 0:
-                    raise ProblemError(f"split needs max_parts >= 1 and threshold > 0; got {self.split!r}")
-                self.split = (parts, thr)
+            self.split, self.max_parts, self.split_tol = check_split_options(
+                self.split, self.max_parts, self.split_tol)
+            self.split_keep = check_count("split_keep", self.split_keep, 0)
             self.tube_substeps = check_count("tube_substeps", self.tube_substeps, 0)
             if self.tube_substeps == 1:
                 raise ProblemError(f"tube_substeps must be 0 (off) or >= 2; got {self.tube_substeps!r}")
@@ -565,36 +584,46 @@ class STTReach(Method):
         sets: list[Any] = [self._assemble(parts)]
         tube: list[Any] = []
         eta_hist = np.zeros(K)
+        err_hist = np.zeros(K)
         gens = np.zeros(K + 1, dtype=int)
         gens[0] = sets[0].n_generators
         for k in range(K):
-            with timer("other"):
-                U = [input_pz(kind, model.n_u, n_thr, opt.ball_input) for _ in parts]
-            new_parts, done = [], []
-            stack = [(p, u) for p, u in zip(parts, U)]
-            while stack:
-                part, Uk = stack.pop()
-                phi, x1 = self._segment_phi(part, k, problem, timer, counts)
+            pending, new_parts, done = parts, [], []
+            while pending:  # breadth first: split the worst parts while the budget lasts
                 with timer("other"):
-                    dR = make_dependent(part.dR) if opt.lift_independent else part.dR
-                    dZ = dR.cartesian(Uk)
-                if opt.split is not None and opt.order >= 2:
+                    U = [input_pz(kind, model.n_u, n_thr, opt.ball_input) for _ in pending]
+                prepared = []
+                for part, Uk in zip(pending, U):
+                    phi, x1 = self._segment_phi(part, k, problem, timer, counts)
+                    with timer("other"):
+                        dR = make_dependent(part.dR) if opt.lift_independent else part.dR
+                        dZ = dR.cartesian(Uk)
+                    prepared.append([0.0, part, phi, x1, dZ])
+                if opt.split is not None:
                     with timer("splitting"):
-                        eta = nonlinearity_index(phi, dZ)
-                        eta_hist[k] = max(eta_hist[k], eta)
-                        n_now = len(new_parts) + len(stack) + 1
-                        if eta > opt.split[1] and n_now < opt.split[0] and part.dR.n_generators > 0:
-                            counts["splits"] += 1
-                            for child in self._split(part):
-                                stack.append((child, Uk))
-                            continue
-                try:
-                    dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk)
-                except (SolverError, SetError) as exc:
-                    raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
-                new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
-                part.dZ = dZ  # kept for the tube
-                done.append(part)
+                        errs = self._truncation_errors(prepared, k, problem)
+                        for rec, err in zip(prepared, errs):
+                            rec[0] = err
+                            eta_hist[k] = max(eta_hist[k], nonlinearity_index(rec[2], rec[4]))
+                    err_hist[k] = max(err_hist[k], max(errs))
+                room = opt.max_parts - len(new_parts) - len(pending)
+                worst = sorted((i for i, (err, part, *_) in enumerate(prepared)
+                                if err > opt.split_tol and part.dR.n_generators > 0),
+                               key=lambda i: -prepared[i][0])[:max(room, 0)]
+                pending = []
+                for i, (err, part, phi, x1, dZ) in enumerate(prepared):
+                    if i in worst:
+                        with timer("splitting"):
+                            pending.extend(self._split(part, phi))
+                        counts["splits"] += 1
+                        continue
+                    try:
+                        dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk)
+                    except (SolverError, SetError) as exc:
+                        raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
+                    new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
+                    part.dZ = dZ  # kept for the tube
+                    done.append(part)
             if opt.tube_substeps:
                 with timer("tube"):
                     tube.append(self._tube_segment(problem, k, parts_with_dz=done, new=new_parts))
@@ -611,6 +640,7 @@ class STTReach(Method):
         meta["parts"] = [len(s.parts) if isinstance(s, PZUnion) else 1 for s in sets]
         if opt.split is not None:
             meta["nonlinearity_index"] = eta_hist
+            meta["truncation_error"] = err_hist
         meta["reference"] = ref.states
         return ReachResult(times=grid, sets=sets, meta=meta, tubes=tube if opt.tube_substeps else None)
 
@@ -630,12 +660,32 @@ class STTReach(Method):
         counts["part_stts"] += 1
         return [ph[0] for ph in r.phi], r.states[-1]
 
-    def _split(self, part: _Part) -> list[_Part]:
-        """Split the part's deviation set along its largest dependent factor (exact) and re-centre
-        each half on its own reference state."""
-        dR = make_dependent(part.dR)
+    def _truncation_errors(self, prepared: list, k: int, problem: Problem) -> list[float]:
+        """Sampled truncation error of each part's step (:func:`ocreach.reach.stt_split.truncation_error`):
+        the samples of all parts are propagated over ``[t_k, t_{k+1}]`` (held controls) in one batch."""
+        from ocreach.flow import propagate
+        from ocreach.reach.stt_split import error_samples, truncation_error
+
+        opt, n_x = self.options, problem.model.n_x
+        S = [error_samples(dZ, seed=k) for _, _, _, _, dZ in prepared]
+        X0 = np.vstack([part.x_ref + s[:, :n_x] for (_, part, *_), s in zip(prepared, S)])
+        Uc = np.vstack([s[:, n_x:] for s in S])[:, None, :]
+        X1 = propagate(self._model, X0, Uc, problem.grid[k:k + 2], p=problem.params, rtol=opt.rtol,
+                       atol=opt.atol)[:, -1]
+        ends = np.cumsum([len(s) for s in S])[:-1]
+        return [truncation_error(phi, s, x - x1)
+                for (_, _, phi, x1, _), s, x in zip(prepared, S, np.split(X1, ends))]
+
+    def _split(self, part: _Part, phi: list[np.ndarray]) -> list[_Part]:
+        """Split the part's deviation set in two (``options.split``: exact along a factor, or the
+        halves of a PCA-reduced enclosure) and re-centre each half on its own reference state."""
+        from ocreach.reach.stt_split import split_box, split_factor
+
+        phi2 = phi[1] if len(phi) >= 2 else None
+        opt = self.options
+        halves = split_box(part.dR, phi2, opt.split_keep) if opt.split == "box" else split_factor(part.dR, phi2)
         out = []
-        for half in dR.split():
+        for half in halves:
             ih = half.interval_hull()
             centre = 0.5 * (np.asarray(ih.lo) + np.asarray(ih.hi))
             out.append(_Part(part.x_ref + centre, half - centre, nominal=False, depth=part.depth + 1))

@@ -159,6 +159,28 @@ def enclose_monomials(G: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndar
     return shift, np.hstack([0.5 * G[:, even], G[:, ~(even | const)]])
 
 
+def monomial_values(A: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """``prod_k A[:, k] ** E[k, i]`` (N, h) for factor values ``A`` (N, p) and exponents ``E`` (p, h).
+
+    Small problems use the direct power; large ones the magnitudes ``exp(log|A| @ E)`` (one matrix
+    product instead of an (N, p, h) array of powers) with the sign from the parity of the negative
+    factors with odd exponents; a zero factor with a positive exponent gives 0 (its log is
+    clamped far below any representable magnitude, 0 * log for zero exponents stays 0).
+    """
+    N, p = A.shape
+    h = E.shape[1]
+    if N * p * h <= 50_000:
+        return np.prod(A[:, :, None] ** E[None, :, :], axis=1)
+    Ef = E.astype(float)
+    absA = np.abs(A)
+    logA = np.where(absA > 0, np.log(np.where(absA > 0, absA, 1.0)), -1e4)
+    with np.errstate(under="ignore"):
+        mag = np.exp(logA @ Ef)
+    odd = (E % 2 == 1).astype(float)
+    neg = (A < 0).astype(float) @ odd
+    return np.where(neg % 2 == 1, -mag, mag)
+
+
 class PolyZonotope(SetBase):
     """Sparse polynomial zonotope ``<c, G, GI, E, id>`` (immutable, numpy-backed).
 
@@ -268,7 +290,7 @@ class PolyZonotope(SetBase):
             raise SetError(f"alpha must have last dimension p={self.n_factors}; got {np.shape(alpha)}")
         if self.n_factors == 0:
             return np.ones((A.shape[0], self.n_dependent))
-        return np.prod(A[:, :, None] ** self.E[None, :, :], axis=1)
+        return monomial_values(A, self.E)
 
     def evaluate(self, alpha: Any, beta: Any = None) -> np.ndarray:
         """The point(s) for dependent factors ``alpha`` ((p,) or (N, p)) and independent ``beta`` ((q,) or (N, q))."""
