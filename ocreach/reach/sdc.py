@@ -92,7 +92,7 @@ def third_interval(model):
                            [model.f, J, ca.jacobian(model.f, model.u), H, T])
 
     fun = model.cached(("sdc", "lin_third_fun"), build)
-    return interval_function(fun, model=model, key=("sdc", "lin_third"))
+    return interval_function(fun, model=model, key=("sdc", "lin_third"), native=True)
 
 
 class SDCError:

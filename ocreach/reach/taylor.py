@@ -302,7 +302,7 @@ def hessian_interval(model):
                            [model.f, ca.jacobian(model.f, model.x), ca.jacobian(model.f, v), H])
 
     fun = model.cached(("taylor", "lin_hess_fun"), build)
-    return interval_function(fun, model=model, key=("taylor", "lin_hess"))
+    return interval_function(fun, model=model, key=("taylor", "lin_hess"), native=True)
 
 
 def dense(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
