@@ -50,8 +50,10 @@ from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import (
     box_zonotope,
+    diag_columns,
     expm_terms,
     homogeneous_step,
+    input_generators,
     input_solution,
     pad,
     state_maps,
@@ -509,9 +511,9 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
         return StepFail(str(exc))
     R0 = Zonotope.trusted(R.c - xs, R.G)
     maps = state_maps(R0, et)
-    hs = homogeneous_step(R0, u_c, et, maps)
-    RU = input_solution(Ubase, et)
-    base_tube = zsum(hs.tube, RU)
+    hs = homogeneous_step(R0, u_c, et, maps, with_point=False)
+    base_tube = Zonotope.trusted(hs.tube.c, np.concatenate([hs.tube.G, input_generators(Gu, et)],
+                                                           axis=1))
     box_only = getattr(ctx.err, "box_only", False)  # the error model reads only the tube's box
     if box_only:  # then its radii suffice: |RU(box(L))| = (sum_i h/(i+1) |T_i| + E h) L
         r_base = np.abs(base_tube.G).sum(axis=1)
@@ -552,13 +554,15 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                         f"(last bound {np.array2string(need, precision=3)})", need)
     # final sets with the error set found on the tube (valid: every trajectory stays in the tube)
     u_c2 = u_c + err.c
-    W2 = Zonotope.trusted(np.zeros(n), np.hstack([Gu, err.G]))
+    W2G = np.concatenate([Gu, err.G], axis=1)
     hs2 = homogeneous_step(R0, u_c2, et, maps)
-    RU2 = input_solution(W2, et)
+    RU2G = input_generators(W2G, et)
     r_fp = step_rounding(et, R, xs, u_abs0 + np.abs(err.c), W_abs0 + np.abs(err.G).sum(axis=1),
-                         max(n_sum, W2.n_generators + Gv.shape[0] + 2))
-    point = pad(zsum(hs2.point, RU2, xs), r_fp)
-    tube = pad(zsum(hs2.tube, RU2, xs), r_fp)
+                         max(n_sum, W2G.shape[1] + Gv.shape[0] + 2))
+    # (point + R_W + x*) padded by the rounding bound, as one concatenation each
+    box_fp = diag_columns(r_fp)
+    point = Zonotope.trusted(hs2.point.c + xs, np.concatenate([hs2.point.G, RU2G, box_fp], axis=1))
+    tube = Zonotope.trusted(hs2.tube.c + xs, np.concatenate([hs2.tube.G, RU2G, box_fp], axis=1))
     if not all(np.all(np.isfinite(a)) for a in (point.c, point.G, tube.c, tube.G)):
         return StepFail("the step's sets are not finite", need)
     return StepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)
