@@ -69,8 +69,11 @@ static inline double UP(double x) {
 /* NaN-propagating min/max (np.minimum / np.maximum) */
 #define NMIN(a, b) ((isnan(a) || isnan(b)) ? NAN : ((a) < (b) ? (a) : (b)))
 #define NMAX(a, b) ((isnan(a) || isnan(b)) ? NAN : ((a) > (b) ? (a) : (b)))
-#define FMIN4(p0, p1, p2, p3) fmin(fmin(fmin(p0, p1), p2), p3)
-#define FMAX4(p0, p1, p2, p3) fmax(fmax(fmax(p0, p1), p2), p3)
+/* NaN-skipping min/max (C99 fmin/fmax, np.fmin/np.fmax), inlined */
+static inline double FMIN(double a, double b) { return (a < b || isnan(b)) ? a : b; }
+static inline double FMAX(double a, double b) { return (a > b || isnan(b)) ? a : b; }
+#define FMIN4(p0, p1, p2, p3) FMIN(FMIN(FMIN(p0, p1), p2), p3)
+#define FMAX4(p0, p1, p2, p3) FMAX(FMAX(FMAX(p0, p1), p2), p3)
 static const double FMAX_ = 1.7976931348623157e308;
 """
 

@@ -93,6 +93,8 @@ def _q(i: int) -> float:
     return v * (1 + 1e-12)
 
 
+#: machine epsilon ``2^-52`` (twice the unit round-off)
+_EPS = float(np.finfo(float).eps)
 #: ``i!`` as floats (``float(factorial(i))``, exact up to 22!, correctly rounded beyond)
 _FACT = [float(factorial(i)) for i in range(MAX_TERMS + 3)]
 #: ``_Q[i] = q_i`` of :func:`_q` for ``i >= 2`` (0 for ``i < 2``), up to the most terms used
@@ -129,7 +131,7 @@ def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
     E_row = P1.sum(axis=1) / _FACT[eta + 1] / (1.0 - a / (eta + 2))
     # plus the rounding of the computed T_i and their sums: (eta + 1)(n + 2) u sum_i (|A| h)^i / i!
     # (first-order error bound of the recursive products T_i = T_{i-1} A h / i and the sums)
-    u = np.finfo(float).eps
+    u = _EPS
     E = (np.repeat(E_row[:, None], n, axis=1) * (1 + 1e-10)
          + 2.0 * (eta + 1) * (n + 2) * u * S_abs + 1e-300)
     Tarr = np.array(T)

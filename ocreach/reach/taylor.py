@@ -342,18 +342,22 @@ def quadratic_interval(Hlo: np.ndarray, Hhi: np.ndarray, dlo: np.ndarray, dhi: n
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Interval of ``1/2 d^T H_i d`` for ``H_i in [Hlo_i, Hhi_i]`` (n_x, n_z, n_z) and ``d in [dlo, dhi]``
     (n_z,): interval products termwise, the squares on the diagonal; outward margin 1e-12 of the
-    magnitude (floating point of these few products)."""
-    plo = np.minimum.reduce([np.outer(dlo, dlo), np.outer(dlo, dhi), np.outer(dhi, dlo), np.outer(dhi, dhi)])
-    phi = np.maximum.reduce([np.outer(dlo, dlo), np.outer(dlo, dhi), np.outer(dhi, dlo), np.outer(dhi, dhi)])
-    mag = np.maximum(np.abs(dlo), np.abs(dhi))
-    mig = np.where((dlo <= 0) & (dhi >= 0), 0.0, np.minimum(np.abs(dlo), np.abs(dhi)))
+    magnitude (floating point of these few products).  The corner products of ``d_a d_b`` and of
+    ``H_iab [d_a d_b]`` are formed as one stacked array each (the same products; min/max exact)."""
+    D = np.stack([dlo, dhi])
+    P = (D[:, None, :, None] * D[None, :, None, :]).reshape(4, dlo.size, dlo.size)
+    Pp = np.stack([P.min(axis=0), P.max(axis=0)])      # [plo, phi]
+    absD = np.abs(D)
+    mag = absD.max(axis=0)
+    mig = np.where((dlo <= 0) & (dhi >= 0), 0.0, absD.min(axis=0))
     idx = np.arange(dlo.size)
-    plo[idx, idx] = mig**2
-    phi[idx, idx] = mag**2
-    cands = [Hlo * plo, Hlo * phi, Hhi * plo, Hhi * phi]
-    lo = 0.5 * np.minimum.reduce(cands).sum(axis=(1, 2))
-    hi = 0.5 * np.maximum.reduce(cands).sum(axis=(1, 2))
-    Hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))
+    Pp[0, idx, idx] = mig**2
+    Pp[1, idx, idx] = mag**2
+    Hs = np.stack([Hlo, Hhi])
+    cands = Hs[:, None] * Pp[None, :, None]          # [Hlo plo, Hlo phi, Hhi plo, Hhi phi]
+    lo = 0.5 * cands.min(axis=(0, 1)).sum(axis=(1, 2))
+    hi = 0.5 * cands.max(axis=(0, 1)).sum(axis=(1, 2))
+    Hmag = np.abs(Hs).max(axis=0)
     m = 0.5e-12 * (Hmag * np.outer(mag, mag)[None]).sum(axis=(1, 2))
     return lo - m - 1e-300, hi + m + 1e-300
 
@@ -406,9 +410,9 @@ class TaylorError:
         tlo, thi = t_box
         uc = vs[: nu]
         ts = vs[-1] if self.td else tlo
-        out = self.H([np.column_stack([xs, xlo]), np.column_stack([uc, ulo]), np.array([ts, tlo]),
+        out = self.H([np.stack([xs, xlo], axis=1), np.stack([uc, ulo], axis=1), np.array([ts, tlo]),
                       self.p],
-                     [np.column_stack([xs, xhi]), np.column_stack([uc, uhi]), np.array([ts, thi]),
+                     [np.stack([xs, xhi], axis=1), np.stack([uc, uhi], axis=1), np.array([ts, thi]),
                       self.p], check=False)
         Hlo, Hhi = out[3]
         Hlo = unflatten_hessian(Hlo[:, 1:], nx, self.n_z)[0]

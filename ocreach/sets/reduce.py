@@ -79,7 +79,8 @@ def box_generators(G: np.ndarray, method: str, extra: Any = None) -> np.ndarray:
 
 
 def _girard_metric(G: np.ndarray) -> np.ndarray:
-    return np.abs(G).sum(axis=0) - np.abs(G).max(axis=0, initial=0.0)
+    absG = np.abs(G)
+    return absG.sum(axis=0) - absG.max(axis=0, initial=0.0)
 
 
 def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> Zonotope:
@@ -101,7 +102,7 @@ def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> 
     if not np.isfinite(B).all():
         raise SetError("reduce: the box of the removed generators overflowed (generators near the "
                        "largest float)")
-    return Zonotope.trusted(Z.c, np.hstack([Z.G[:, keep], B]))  # Z is valid, B finite
+    return Zonotope.trusted(Z.c, np.concatenate([Z.G[:, keep], B], axis=1))  # Z valid, B finite
 
 
 def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope:
