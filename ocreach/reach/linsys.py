@@ -208,16 +208,23 @@ def pad(Z: Zonotope, r: np.ndarray) -> Zonotope:
     return Zonotope.trusted(Z.c, np.concatenate([Z.G, diag_columns(r)], axis=1))
 
 
+def set_abs(R: Zonotope, xs: np.ndarray) -> np.ndarray:
+    """``a_R = |c| + |x*| + sum_j |g_j|``: ``R - x*`` evaluated on absolute values (the factor of the
+    floating-point bound of :func:`step_rounding`)."""
+    return np.abs(R.c) + np.abs(np.asarray(xs, dtype=float)) + np.abs(R.G).sum(axis=1)
+
+
 def step_rounding(et: ExpmTerms, R: Zonotope, xs: np.ndarray, u_abs: np.ndarray,
-                  W_abs: np.ndarray, n_sum: int) -> np.ndarray:
+                  W_abs: np.ndarray, n_sum: int, aR: np.ndarray | None = None) -> np.ndarray:
     """Rigorous bound of the floating-point error of the time-point and time-interval sets of one
     step (module docstring, "Floating point") from the set ``R`` shifted by the linearisation
     point (the step maps ``R0 = R - x*`` and adds ``x*`` back; ``xs = 0`` if ``R`` is ``R0``),
     ``u_abs >= |u_c|_abs``, ``W_abs >= sum_j |w_j|_abs`` (the uncertain input's generators,
     absolutely evaluated), ``n_sum`` the most terms summed in one entry outside the matrix
-    products (generators in a radius, inputs in a generator)."""
+    products (generators in a radius, inputs in a generator); ``aR`` is :func:`set_abs` of ``R``
+    and ``xs`` if already computed (it does not change within a step)."""
     xs_abs = np.abs(np.asarray(xs, dtype=float))
-    aR = np.abs(R.c) + xs_abs + np.abs(R.G).sum(axis=1)
+    aR = set_abs(R, xs) if aR is None else aR
     h = et.h
     total = 2.0 * aR + 3.0 * (et.M @ (aR + h * (u_abs + W_abs))) + xs_abs
     k = 2 * R.dim + et.eta + int(n_sum) + 12

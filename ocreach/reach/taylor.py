@@ -56,8 +56,10 @@ from ocreach.reach.linsys import (
     input_generators,
     input_solution,
     pad,
+    set_abs,
     state_maps,
     step_rounding,
+    weighted_sum,
     zsum,
 )
 from ocreach.reach.result import ReachResult
@@ -501,7 +503,6 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     if ctx.W is not None:
         u_c = u_c + ctx.W.c
         Gu = np.hstack([Gu, ctx.W.G])
-    Ubase = Zonotope.trusted(np.zeros(n), Gu)
     # absolute values of the step's inputs for the floating-point bound (linsys.step_rounding)
     u_abs0 = np.abs(f0) + (np.abs(ctx.W.c) if ctx.W is not None else 0.0)
     W_abs0 = np.abs(Bv) @ np.abs(Gv).sum(axis=1)
@@ -521,15 +522,17 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     box_only = getattr(ctx.err, "box_only", False)  # the error model reads only the tube's box
     if box_only:  # then its radii suffice: |RU(box(L))| = (sum_i h/(i+1) |T_i| + E h) L
         r_base = np.abs(base_tube.G).sum(axis=1)
-        S_L = np.tensordot(h / np.arange(1, et.eta + 2), np.abs(et.T), axes=1) + et.E * h
+        S_L = weighted_sum(h / np.arange(1, et.eta + 2), np.abs(et.T).reshape(et.eta + 1, n * n),
+                           n) + et.E * h
     Vbox = (ctx.Ubox[0], ctx.Ubox[1])
     t_box = (t0, t0 + h)
     # warm start: the previous step's remainder, enlarged once (the loop then usually closes at once)
     Lbar = np.zeros(n) if L_guess is None else np.asarray(L_guess, dtype=float) * GROWTH
     err = None
     need = None
+    aR = set_abs(R, xs)   # the step's |R - x*| evaluated absolutely (linsys.step_rounding)
     for it in range(1, ctx.opts.max_iter + 1):
-        r_fp = step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum)
+        r_fp = step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum, aR=aR)
         if box_only:  # a box zonotope with the tube's interval hull (rounding: inflate_box)
             tube = Zonotope.trusted(base_tube.c + xs, np.diag(r_base + S_L @ Lbar + r_fp))
         else:
@@ -562,7 +565,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     hs2 = homogeneous_step(R0, u_c2, et, maps)
     RU2G = input_generators(W2G, et)
     r_fp = step_rounding(et, R, xs, u_abs0 + np.abs(err.c), W_abs0 + np.abs(err.G).sum(axis=1),
-                         max(n_sum, W2G.shape[1] + Gv.shape[0] + 2))
+                         max(n_sum, W2G.shape[1] + Gv.shape[0] + 2), aR=aR)
     # (point + R_W + x*) padded by the rounding bound, as one concatenation each
     box_fp = diag_columns(r_fp)
     point = Zonotope.trusted(hs2.point.c + xs, np.concatenate([hs2.point.G, RU2G, box_fp], axis=1))
