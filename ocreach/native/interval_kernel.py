@@ -3,8 +3,10 @@ one reachability step (the interval Hessian of ``taylor``, the third derivatives
 
 The numpy evaluator runs one group of like operations per numpy call; for two boxes its cost is
 the ~20-30 groups' call overhead (~0.35 ms for the earth-mars Hessian), not the arithmetic.  This
-module emits the same schedule as straight-line C, one box at a time, with the *same* bound of
-every operation as the numpy kernels in their ``np.nextafter`` mode (:mod:`ocreach.intervals`:
+module runs the same schedule, one operation and one box at a time, in a small C interpreter
+(``ocr_iv_eval``: one library for every Function, compiled once and cached on disk; a Function is
+a table of operation kinds and argument rows), with the *same* bound of every operation as the
+numpy kernels in their ``np.nextafter`` mode (:mod:`ocreach.intervals`:
 ``_add2``/``_sub2``/``_addsub2``, ``_mul2``/``_div2``/``_muldiv2``, ``_mulc``, ``_neg``,
 ``_twice``, ``_inv``, ``_sq``, ``_sqrt``, ``_assign``):
 
@@ -32,12 +34,11 @@ from __future__ import annotations
 
 import ctypes
 import warnings
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
 
-from ocreach.native.codegen import c_identifier
 from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library
 
 if TYPE_CHECKING:
@@ -46,10 +47,10 @@ if TYPE_CHECKING:
 __all__ = ["IntervalKernel", "build_interval_kernel"]
 
 #: compiler flags: no FMA contraction and no value-changing optimisation (every operation is the
-#: one IEEE operation whose rounding the bound covers); -O1 keeps the build of the largest
-#: generated sources (the spatial CR3BP third derivatives, ~6,000 operations) to a few seconds
-FLAGS = ("-O1", "-ffp-contract=off", "-fno-fast-math", "-fno-unsafe-math-optimizations")
+#: one IEEE operation whose rounding the bound covers)
+FLAGS = ("-O2", "-ffp-contract=off", "-fno-fast-math", "-fno-unsafe-math-optimizations")
 
+#: the C source of the interpreter
 _PRELUDE = r"""
 #include <math.h>
 #include <stdint.h>
@@ -75,51 +76,94 @@ static inline double FMAX(double a, double b) { return (a > b || isnan(b)) ? a :
 #define FMIN4(p0, p1, p2, p3) FMIN(FMIN(FMIN(p0, p1), p2), p3)
 #define FMAX4(p0, p1, p2, p3) FMAX(FMAX(FMAX(p0, p1), p2), p3)
 static const double FMAX_ = 1.7976931348623157e308;
+
+/* operation kinds (the order of KINDS in interval_kernel.py) */
+enum { K_ADD, K_SUB, K_MUL, K_MULC_CORNER, K_DIV, K_MULC_MIN, K_NEG, K_TWICE, K_INV, K_SQ, K_SQRT,
+       K_ASSIGN };
+
+/* Bounds of every value of the schedule, box by box.  Values 0 .. n_in-1: inputs (vin, lower
+   bounds then upper bounds, (2, n_in, nb)); n_in .. op0-1: constants; op0 + i: operation i,
+   kind[i] of values oa[i] (and ob[i]).  Output entry j is value out_row[j]; its lower bound goes
+   to out[out_lo[j] * nb + b], the upper to out[out_hi[j] * nb + b].  L, H: work arrays of
+   op0 + n_ops values.  Returns 1 if any bound is undefined (a divisor or inverse containing 0,
+   sqrt of negative numbers, a NaN), else 0. */
+int ocr_iv_eval(long nb, long n_in, long n_const, long n_ops, long n_out, const int *kind,
+                const int *oa, const int *ob, const double *consts, const double *vin,
+                const long *out_row, const long *out_lo, const long *out_hi, double *L, double *H,
+                double *out) {
+  int bad = 0;
+  const long op0 = n_in + n_const;
+  for (long b = 0; b < nb; ++b) {
+    for (long i = 0; i < n_in; ++i) { L[i] = vin[i * nb + b]; H[i] = vin[(n_in + i) * nb + b]; }
+    for (long i = 0; i < n_const; ++i) { L[n_in + i] = consts[i]; H[n_in + i] = consts[i]; }
+    for (long i = 0; i < n_ops; ++i) {
+      const double al = L[oa[i]], ah = H[oa[i]];
+      const double bl = ob[i] >= 0 ? L[ob[i]] : 0.0, bh = ob[i] >= 0 ? H[ob[i]] : 0.0;
+      double lo, hi;
+      switch (kind[i]) {
+        case K_ADD: {  /* exact where an addend or the sum is 0 */
+          double s = al + bl, t = ah + bh;
+          lo = (al == 0 || bl == 0 || s == 0) ? s : DN(s);
+          hi = (ah == 0 || bh == 0 || t == 0) ? t : UP(t);
+          break;
+        }
+        case K_SUB: {
+          double s = al - bh, t = ah - bl;
+          lo = (al == 0 || bh == 0 || s == 0) ? s : DN(s);
+          hi = (ah == 0 || bl == 0 || t == 0) ? t : UP(t);
+          break;
+        }
+        case K_MUL: case K_MULC_CORNER: {
+          double p0 = al * bl, p1 = al * bh, p2 = ah * bl, p3 = ah * bh;
+          lo = DN(FMIN4(p0, p1, p2, p3));
+          hi = UP(FMAX4(p0, p1, p2, p3));
+          if (kind[i] == K_MUL && ((al == 0 && ah == 0) || (bl == 0 && bh == 0))) { lo = 0.0; hi = 0.0; }
+          break;
+        }
+        case K_DIV: {
+          if (bl <= 0 && bh >= 0) bad = 1;
+          double p0 = al / bl, p1 = al / bh, p2 = ah / bl, p3 = ah / bh;
+          lo = DN(FMIN4(p0, p1, p2, p3));
+          hi = UP(FMAX4(p0, p1, p2, p3));
+          break;
+        }
+        case K_MULC_MIN: {
+          double p = al * bl, q = ah * bl;
+          lo = DN(NMIN(p, q));
+          hi = UP(NMAX(p, q));
+          break;
+        }
+        case K_NEG: lo = -ah; hi = -al; break;
+        case K_TWICE: lo = NMIN(2.0 * al, FMAX_); hi = NMAX(2.0 * ah, -FMAX_); break;
+        case K_INV:
+          if (al <= 0 && ah >= 0) bad = 1;
+          lo = DN(1.0 / ah); hi = UP(1.0 / al);
+          break;
+        case K_SQ: {
+          double fa = fabs(al), fb = fabs(ah);
+          double mig = (al <= 0 && ah >= 0) ? 0.0 : NMIN(fa, fb), mag = NMAX(fa, fb);
+          lo = NMAX(DN(mig * mig), 0.0); hi = UP(mag * mag);
+          break;
+        }
+        case K_SQRT:
+          if (al < 0) bad = 1;
+          lo = NMAX(DN(sqrt(al)), 0.0); hi = UP(sqrt(ah));
+          break;
+        case K_ASSIGN: lo = al; hi = ah; break;
+        default: return 2;
+      }
+      L[op0 + i] = lo;
+      H[op0 + i] = hi;
+      if (isnan(lo) || isnan(hi)) bad = 1;
+    }
+    for (long j = 0; j < n_out; ++j) {
+      out[out_lo[j] * nb + b] = L[out_row[j]];
+      out[out_hi[j] * nb + b] = H[out_row[j]];
+    }
+  }
+  return bad;
+}
 """
-
-
-def _entry_code(kind: str, o: int, a: int, b: int | None) -> list[str]:
-    """C statements bounding one operation: value ``o`` from values ``a`` (and ``b``); ``L``/``H``
-    are the lower/upper bound arrays, ``bad`` collects the failures (module docstring)."""
-    al, ah, ol, oh = f"L[{a}]", f"H[{a}]", f"L[{o}]", f"H[{o}]"
-    bl, bh = (f"L[{b}]", f"H[{b}]") if b is not None else ("", "")
-    if kind in ("add", "sub"):
-        if kind == "add":
-            return [f"{{ double s = {al} + {bl}; {ol} = ({al} == 0 || {bl} == 0 || s == 0) ? s : DN(s); "
-                    f"double t = {ah} + {bh}; {oh} = ({ah} == 0 || {bh} == 0 || t == 0) ? t : UP(t); }}"]
-        return [f"{{ double s = {al} - {bh}; {ol} = ({al} == 0 || {bh} == 0 || s == 0) ? s : DN(s); "
-                f"double t = {ah} - {bl}; {oh} = ({ah} == 0 || {bl} == 0 || t == 0) ? t : UP(t); }}"]
-    if kind in ("mul", "mulc_corner"):
-        body = (f"double p0 = {al} * {bl}, p1 = {al} * {bh}, p2 = {ah} * {bl}, p3 = {ah} * {bh}; "
-                f"{ol} = DN(FMIN4(p0, p1, p2, p3)); {oh} = UP(FMAX4(p0, p1, p2, p3));")
-        if kind == "mul":
-            body += (f" if (({al} == 0 && {ah} == 0) || ({bl} == 0 && {bh} == 0)) "
-                     f"{{ {ol} = 0.0; {oh} = 0.0; }}")
-        return ["{ " + body + " }"]
-    if kind == "div":
-        return [f"if ({bl} <= 0 && {bh} >= 0) bad = 1;",
-                f"{{ double p0 = {al} / {bl}, p1 = {al} / {bh}, p2 = {ah} / {bl}, p3 = {ah} / {bh}; "
-                f"{ol} = DN(FMIN4(p0, p1, p2, p3)); {oh} = UP(FMAX4(p0, p1, p2, p3)); }}"]
-    if kind == "mulc_min":
-        return [f"{{ double p = {al} * {bl}, q = {ah} * {bl}; {ol} = DN(NMIN(p, q)); "
-                f"{oh} = UP(NMAX(p, q)); }}"]
-    if kind == "neg":
-        return [f"{ol} = -{ah}; {oh} = -{al};"]
-    if kind == "twice":
-        return [f"{ol} = NMIN(2.0 * {al}, FMAX_); {oh} = NMAX(2.0 * {ah}, -FMAX_);"]
-    if kind == "inv":
-        return [f"if ({al} <= 0 && {ah} >= 0) bad = 1;",
-                f"{ol} = DN(1.0 / {ah}); {oh} = UP(1.0 / {al});"]
-    if kind == "sq":
-        return [f"{{ double fa = fabs({al}), fb = fabs({ah}); "
-                f"double mig = ({al} <= 0 && {ah} >= 0) ? 0.0 : NMIN(fa, fb); double mag = NMAX(fa, fb); "
-                f"{ol} = NMAX(DN(mig * mig), 0.0); {oh} = UP(mag * mag); }}"]
-    if kind == "sqrt":
-        return [f"if ({al} < 0) bad = 1;",
-                f"{ol} = NMAX(DN(sqrt({al})), 0.0); {oh} = UP(sqrt({ah}));"]
-    if kind == "assign":
-        return [f"{ol} = {al}; {oh} = {ah};"]
-    raise ValueError(kind)
 
 
 def _entries(ivf: IntervalFunction) -> list[tuple[str, int, int, int | None]] | None:
@@ -148,49 +192,59 @@ def _entries(ivf: IntervalFunction) -> list[tuple[str, int, int, int | None]] | 
     return out
 
 
-def kernel_source(ivf: IntervalFunction, entries: list, cname: str) -> str | None:
-    """C source of ``int cname(long nb, const double *vin, double *out)`` (see
-    :class:`IntervalKernel`), or None if a constant is not finite."""
-    consts = ivf._const_vals.ravel()
-    if not np.all(np.isfinite(consts)):
-        return None
-    n_in = int(ivf._const_rows.start)
-    nv = ivf.n_values
-    lines = [_PRELUDE, f"int {cname}(long nb, const double *vin, double *out) {{",
-             f"  double L[{nv}], H[{nv}];", "  int bad = 0;",
-             "  for (long b = 0; b < nb; ++b) {"]
-    for i in range(n_in):
-        lines.append(f"    L[{i}] = vin[{i} * nb + b]; H[{i}] = vin[({n_in} + {i}) * nb + b];")
-    for k, v in enumerate(consts):
-        r = n_in + k
-        lines.append(f"    L[{r}] = {float(v).hex()}; H[{r}] = {float(v).hex()};")
-    for kind, o, a, b in entries:
-        lines.extend("    " + s for s in _entry_code(kind, o, a, b))
-    op0 = ivf._op_start
-    lines.append(f"    for (int k = {op0}; k < {nv}; ++k) if (isnan(L[k]) || isnan(H[k])) bad = 1;")
-    off = 0
-    for rows, dense, k in zip(ivf._out_rows, ivf._out_dense, ivf._out_numel):
-        for r, d in zip(rows, dense):
-            lines.append(f"    out[({off} + {int(d)}) * nb + b] = L[{int(r)}]; "
-                         f"out[({off + k} + {int(d)}) * nb + b] = H[{int(r)}];")
-        off += 2 * k
-    lines += ["  }", "  return bad;", "}", ""]
-    return "\n".join(lines)
+#: the operation kinds, in the order of the C enum
+KINDS = ("add", "sub", "mul", "mulc_corner", "div", "mulc_min", "neg", "twice", "inv", "sq", "sqrt",
+         "assign")
+
+_LIB: dict[str, Any] = {}
+
+
+def _library():
+    """The compiled interpreter (one small library for every Function, cached on disk)."""
+    if "fn" not in _LIB:
+        lib = compile_source("ocr_interval_eval", {"iv.c": _PRELUDE.encode()}, "iv.c", FLAGS)
+        dll = load_library(lib)
+        fn = dll.ocr_iv_eval
+        fn.argtypes = [ctypes.c_long] * 5 + [ctypes.c_void_p] * 11
+        fn.restype = ctypes.c_int
+        _LIB["dll"], _LIB["fn"] = dll, fn
+    return _LIB["fn"]
 
 
 class IntervalKernel:
-    """The compiled evaluation of one :class:`~ocreach.intervals.IntervalFunction`.
+    """The compiled evaluation of one :class:`~ocreach.intervals.IntervalFunction`: its schedule
+    as tables (kind, argument rows) run by the C interpreter ``ocr_iv_eval``.
 
     ``kernel(los, his, B)`` (the evaluator's input lists after its shape handling) returns the
     list of ``(lo, hi)`` outputs of shape ``(numel, B)``, or None when the kernel flags a failure
     (the caller then runs the numpy evaluator, which reports it)."""
 
-    def __init__(self, ivf: IntervalFunction, fn):
+    def __init__(self, ivf: IntervalFunction, entries: list, fn):
         self._fn = fn
         self._in_gather = ivf._in_gather
         self._n_in = int(ivf._const_rows.start)
+        self._consts = np.ascontiguousarray(ivf._const_vals.ravel(), dtype=float)
+        op0 = ivf._op_start
+        if [e[1] for e in entries] != list(range(op0, op0 + len(entries))):
+            raise ValueError("interval kernel: the operations are not in row order")
+        code = {k: i for i, k in enumerate(KINDS)}
+        self._kind = np.asarray([code[e[0]] for e in entries], dtype=np.intc)
+        self._oa = np.asarray([e[2] for e in entries], dtype=np.intc)
+        self._ob = np.asarray([-1 if e[3] is None else e[3] for e in entries], dtype=np.intc)
+        self._n_values = ivf.n_values
         self._numel = list(ivf._out_numel)
         self._size = 2 * sum(self._numel)
+        rows, los, his, off = [], [], [], 0
+        for r, d, k in zip(ivf._out_rows, ivf._out_dense, ivf._out_numel):
+            rows.append(r)
+            los.append(off + d)
+            his.append(off + k + d)
+            off += 2 * k
+        self._out_row, self._out_lo, self._out_hi = (np.ascontiguousarray(np.concatenate(a), dtype=np.int_)
+                                                     for a in (rows, los, his))
+        self._sizes = (self._n_in, self._consts.size, self._kind.size, self._out_row.size)
+        self._ptrs = tuple(a.ctypes.data for a in (self._kind, self._oa, self._ob, self._consts))
+        self._out_ptrs = tuple(a.ctypes.data for a in (self._out_row, self._out_lo, self._out_hi))
 
     def __call__(self, los, his, B: int):
         vin = np.empty((2, self._n_in, B))
@@ -199,7 +253,10 @@ class IntervalKernel:
                 vin[0, rows] = los[i][idx]
                 vin[1, rows] = his[i][idx]
         out = np.zeros(self._size * B)
-        if self._fn(B, vin.ctypes.data, out.ctypes.data) != 0:
+        work = np.empty(2 * self._n_values)
+        flag = self._fn(B, *self._sizes, *self._ptrs, vin.ctypes.data, *self._out_ptrs,
+                        work.ctypes.data, work.ctypes.data + 8 * self._n_values, out.ctypes.data)
+        if flag != 0:
             return None
         res, off = [], 0
         for k in self._numel:
@@ -210,27 +267,17 @@ class IntervalKernel:
 
 
 def build_interval_kernel(ivf: IntervalFunction) -> IntervalKernel | None:
-    """Compile ``ivf`` (cached on disk); None if compilation is off, an op is not one of the
-    correctly rounded ones (module docstring) or the compiler fails (with a warning)."""
+    """The kernel of ``ivf``; None if compilation is off, an op is not one of the correctly rounded
+    ones (module docstring), a constant is not finite, or the compiler fails (with a warning)."""
     if not jit_enabled():
         return None
     entries = _entries(ivf)
-    if entries is None:
-        return None
-    cname = "ocr_iv_" + c_identifier(ivf.name)
-    src = kernel_source(ivf, entries, cname)
-    if src is None:
+    if entries is None or not np.all(np.isfinite(ivf._const_vals)):
         return None
     try:
-        lib = compile_source(cname, {"iv.c": src.encode()}, "iv.c", FLAGS)
-        dll = load_library(lib)
+        fn = _library()
     except COMPILE_ERRORS as exc:
-        warnings.warn(f"ocreach.native: compiling the interval kernel of {ivf.name} failed ({exc}); "
-                      "using the numpy evaluator (same bounds, slower)", RuntimeWarning, stacklevel=3)
+        warnings.warn(f"ocreach.native: compiling the interval kernel failed ({exc}); using the "
+                      "numpy evaluator (same bounds, slower)", RuntimeWarning, stacklevel=3)
         return None
-    fn = getattr(dll, cname)
-    fn.argtypes = [ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p]
-    fn.restype = ctypes.c_int
-    kernel = IntervalKernel(ivf, fn)
-    kernel._dll = dll  # keep the library loaded
-    return kernel
+    return IntervalKernel(ivf, entries, fn)
