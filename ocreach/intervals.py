@@ -716,8 +716,8 @@ class IntervalFunction:
     to 0, so the Hessian of a kinked ``f`` alone would silently give a wrong remainder.
 
     ``native``: ``True`` evaluates Functions made of the correctly rounded operations
-    (``+ - * /``, ``sq``, ``sqrt``, ``inv``, ``neg``, ``twice``) in a compiled C interpreter, one box at a time
-    (:mod:`ocreach.native.interval_kernel`: the bounds of the ``nextafter`` mode, bit for bit,
+    (``+ - * /``, ``sq``, ``sqrt``, ``inv``, ``neg``, ``twice``) in a compiled C interpreter, one
+    box at a time (:mod:`ocreach.native.interval_kernel`: the bounds of the ``nextafter`` mode,
     ~20x faster for the few boxes of a reachability step); any failure re-runs the numpy
     evaluator, which reports it.  Without a compiler, or for other operations, numpy is used.
     """
