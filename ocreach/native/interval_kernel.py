@@ -87,16 +87,16 @@ enum { K_ADD, K_SUB, K_MUL, K_MULC_CORNER, K_DIV, K_MULC_MIN, K_NEG, K_TWICE, K_
    to out[out_lo[j] * nb + b], the upper to out[out_hi[j] * nb + b].  L, H: work arrays of
    op0 + n_ops values.  Returns 1 if any bound is undefined (a divisor or inverse containing 0,
    sqrt of negative numbers, a NaN), else 0. */
-int ocr_iv_eval(long nb, long n_in, long n_const, long n_ops, long n_out, const int *kind,
-                const int *oa, const int *ob, const double *consts, const double *vin,
-                const long *out_row, const long *out_lo, const long *out_hi, double *L, double *H,
-                double *out) {
+int ocr_iv_eval(int64_t nb, int64_t n_in, int64_t n_const, int64_t n_ops, int64_t n_out,
+                const int32_t *kind, const int32_t *oa, const int32_t *ob, const double *consts,
+                const double *vin, const int64_t *out_row, const int64_t *out_lo,
+                const int64_t *out_hi, double *L, double *H, double *out) {
   int bad = 0;
-  const long op0 = n_in + n_const;
-  for (long b = 0; b < nb; ++b) {
-    for (long i = 0; i < n_in; ++i) { L[i] = vin[i * nb + b]; H[i] = vin[(n_in + i) * nb + b]; }
-    for (long i = 0; i < n_const; ++i) { L[n_in + i] = consts[i]; H[n_in + i] = consts[i]; }
-    for (long i = 0; i < n_ops; ++i) {
+  const int64_t op0 = n_in + n_const;
+  for (int64_t b = 0; b < nb; ++b) {
+    for (int64_t i = 0; i < n_in; ++i) { L[i] = vin[i * nb + b]; H[i] = vin[(n_in + i) * nb + b]; }
+    for (int64_t i = 0; i < n_const; ++i) { L[n_in + i] = consts[i]; H[n_in + i] = consts[i]; }
+    for (int64_t i = 0; i < n_ops; ++i) {
       const double al = L[oa[i]], ah = H[oa[i]];
       const double bl = ob[i] >= 0 ? L[ob[i]] : 0.0, bh = ob[i] >= 0 ? H[ob[i]] : 0.0;
       double lo, hi;
@@ -156,7 +156,7 @@ int ocr_iv_eval(long nb, long n_in, long n_const, long n_ops, long n_out, const 
       H[op0 + i] = hi;
       if (isnan(lo) || isnan(hi)) bad = 1;
     }
-    for (long j = 0; j < n_out; ++j) {
+    for (int64_t j = 0; j < n_out; ++j) {
       out[out_lo[j] * nb + b] = L[out_row[j]];
       out[out_hi[j] * nb + b] = H[out_row[j]];
     }
@@ -205,7 +205,7 @@ def _library():
         lib = compile_source("ocr_interval_eval", {"iv.c": _PRELUDE.encode()}, "iv.c", FLAGS)
         dll = load_library(lib)
         fn = dll.ocr_iv_eval
-        fn.argtypes = [ctypes.c_long] * 5 + [ctypes.c_void_p] * 11
+        fn.argtypes = [ctypes.c_int64] * 5 + [ctypes.c_void_p] * 11
         fn.restype = ctypes.c_int
         _LIB["dll"], _LIB["fn"] = dll, fn
     return _LIB["fn"]
@@ -228,9 +228,9 @@ class IntervalKernel:
         if [e[1] for e in entries] != list(range(op0, op0 + len(entries))):
             raise ValueError("interval kernel: the operations are not in row order")
         code = {k: i for i, k in enumerate(KINDS)}
-        self._kind = np.asarray([code[e[0]] for e in entries], dtype=np.intc)
-        self._oa = np.asarray([e[2] for e in entries], dtype=np.intc)
-        self._ob = np.asarray([-1 if e[3] is None else e[3] for e in entries], dtype=np.intc)
+        self._kind = np.asarray([code[e[0]] for e in entries], dtype=np.int32)
+        self._oa = np.asarray([e[2] for e in entries], dtype=np.int32)
+        self._ob = np.asarray([-1 if e[3] is None else e[3] for e in entries], dtype=np.int32)
         self._n_values = ivf.n_values
         self._numel = list(ivf._out_numel)
         self._size = 2 * sum(self._numel)
@@ -240,8 +240,8 @@ class IntervalKernel:
             los.append(off + d)
             his.append(off + k + d)
             off += 2 * k
-        self._out_row, self._out_lo, self._out_hi = (np.ascontiguousarray(np.concatenate(a), dtype=np.int_)
-                                                     for a in (rows, los, his))
+        self._out_row, self._out_lo, self._out_hi = (
+            np.ascontiguousarray(np.concatenate(a), dtype=np.int64) for a in (rows, los, his))
         self._sizes = (self._n_in, self._consts.size, self._kind.size, self._out_row.size)
         self._ptrs = tuple(a.ctypes.data for a in (self._kind, self._oa, self._ob, self._consts))
         self._out_ptrs = tuple(a.ctypes.data for a in (self._out_row, self._out_lo, self._out_hi))
