@@ -54,13 +54,11 @@ from ocreach.reach.linsys import (
     expm_terms,
     homogeneous_step,
     input_generators,
-    input_solution,
     pad,
     set_abs,
     state_maps,
     step_rounding,
     weighted_sum,
-    zsum,
 )
 from ocreach.reach.result import ReachResult
 from ocreach.sets.interval import Interval
@@ -536,8 +534,9 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
         if box_only:  # a box zonotope with the tube's interval hull (rounding: inflate_box)
             tube = Zonotope.trusted(base_tube.c + xs, np.diag(r_base + S_L @ Lbar + r_fp))
         else:
-            tube = zsum(base_tube, input_solution(box_zonotope(np.zeros(n), Lbar), et), xs)
-            tube = pad(tube, r_fp)
+            # base tube + R_W(box(Lbar)) + x*, padded by r_fp, as one concatenation
+            tube = Zonotope.trusted(base_tube.c + 0.0 + xs, np.concatenate(
+                [base_tube.G, input_generators(diag_columns(Lbar), et), diag_columns(r_fp)], axis=1))
         if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
             return StepFail("the tube is not finite", need)
         try:
