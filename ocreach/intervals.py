@@ -714,9 +714,16 @@ class IntervalFunction:
     of ``f`` keeps one smooth branch on the box, which a derivative-based bound (a Lagrange
     remainder from the Hessian) needs -- CasADi differentiates ``fabs`` to ``sign`` and ``sign``
     to 0, so the Hessian of a kinked ``f`` alone would silently give a wrong remainder.
+
+    ``native``: ``True`` evaluates Functions made of the correctly rounded operations
+    (``+ - * /``, ``sq``, ``sqrt``, ``inv``, ``neg``, ``twice``) in a compiled C interpreter, one
+    box at a time (:mod:`ocreach.native.interval_kernel`: the bounds of the ``nextafter`` mode,
+    ~20x faster for the few boxes of a reachability step); any failure re-runs the numpy
+    evaluator, which reports it.  Without a compiler, or for other operations, numpy is used.
     """
 
-    def __init__(self, fun: ca.Function, *, undecided: str = "error", kinks: str = "bound"):
+    def __init__(self, fun: ca.Function, *, undecided: str = "error", kinks: str = "bound",
+                 native: bool = False):
         if undecided not in UNDECIDED:
             raise ProblemError(f"undecided must be one of {UNDECIDED}; got {undecided!r}")
         if kinks not in KINKS:
@@ -811,6 +818,7 @@ class IntervalFunction:
             start = int(op_row[batch[0]])
             self._groups.append(_Group(op, start, start + len(batch), a, b,
                                        np.asarray([node_instr[i] for i in batch], dtype=np.int64)))
+        self._group_neg = group_neg
         self._starts = np.asarray([g.start for g in self._groups], dtype=np.int64)
         self._plan = [(g, _KERNELS[g.op][1], isinstance(g.a, slice), isinstance(g.b, slice),
                        functools.partial(_addsub2, neg=neg) if g.op == _OP_ADDSUB
@@ -835,6 +843,11 @@ class IntervalFunction:
         self._out_dense = [np.asarray([d for (o, d, v) in outputs if o == i], dtype=np.int64)
                            for i in range(self.n_out)]
         self.n_ops = len(node_op)
+        if not isinstance(native, (bool, np.bool_)):
+            raise ProblemError(f"native must be True or False; got {native!r}")
+        #: the compiled kernel (:mod:`ocreach.native.interval_kernel`), built on the first call
+        #: when ``native=True``; False when not wanted or not available
+        self._native: Any = None if native else False
 
     # ------------------------------------------------------------------ evaluation
     @property
@@ -898,6 +911,14 @@ class IntervalFunction:
         inputs (shapes, finiteness, ``lo <= hi``) for internal callers that pass float arrays of
         the right shapes; non-finite results are still reported by the NaN guard and the caller."""
         los, his, B = self._check_inputs(lo, hi) if check else self._trusted_inputs(lo, hi)
+        if self._native is None:
+            from ocreach.native.interval_kernel import build_interval_kernel
+            self._native = build_interval_kernel(self) or False
+        if self._native:
+            res = self._native(los, his, B)
+            if res is not None:
+                return res
+            # a flagged failure (domain error, NaN): numpy reports it (or bounds it its own way)
         outs = [(np.zeros((k, B)), np.zeros((k, B))) for k in self._out_numel]
         cache_chunk = int(np.clip(CHUNK_GROUP_ELEMS // max(self._max_group, 1), 256, 2048))
         chunk = max(1, min(B, cache_chunk, CHUNK_BYTES // (16 * max(self.n_values, 1))))
@@ -994,13 +1015,16 @@ class IntervalFunction:
 
 
 def interval_function(fun: ca.Function, *, model: Any = None, key: Any = None,
-                      undecided: str = "error", kinks: str = "bound") -> IntervalFunction:
+                      undecided: str = "error", kinks: str = "bound",
+                      native: bool = False) -> IntervalFunction:
     """:class:`IntervalFunction` of ``fun``, cached through ``model.cached`` when ``model`` is
-    given (``key`` defaults to the Function's name)."""
+    given (``key`` defaults to the Function's name); ``native=True`` evaluates it in compiled C
+    where it can (:mod:`ocreach.native.interval_kernel`, the same bounds)."""
     if model is None:
-        return IntervalFunction(fun, undecided=undecided, kinks=kinks)
-    k = ("intervals", key if key is not None else fun.name(), undecided, kinks)
-    return model.cached(k, lambda: IntervalFunction(fun, undecided=undecided, kinks=kinks))
+        return IntervalFunction(fun, undecided=undecided, kinks=kinks, native=native)
+    k = ("intervals", key if key is not None else fun.name(), undecided, kinks, native)
+    return model.cached(k, lambda: IntervalFunction(fun, undecided=undecided, kinks=kinks,
+                                                    native=native))
 
 
 # ---------------------------------------------------------------------------- sub-box splitting

@@ -10,7 +10,9 @@
   (native driver over one or two threads, NumPy fallback);
 * :mod:`ocreach.native.batch_eval` - row-wise evaluation of a CasADi Function over a batch in C;
 * :mod:`ocreach.native.mc_kernel` - the fused stochastic Monte Carlo kernel (Jain et al. Eq. 1);
-* :mod:`ocreach.native.cut_kernel` - the fused CUT moment recursion (Jain et al. Eq. 6, 9-15).
+* :mod:`ocreach.native.cut_kernel` - the fused CUT moment recursion (Jain et al. Eq. 6, 9-15);
+* :mod:`ocreach.native.interval_kernel` - a C interpreter of the interval evaluator's schedule
+  (:mod:`ocreach.intervals`, ``native=True``) for the few boxes of a ``taylor``/``sdc`` step.
 
 A new kernel gets its own module here, builds its sources with :func:`generate_c` and loads
 them with :func:`compile_source`; without a C compiler (or with ``OCREACH_JIT=0``) every caller

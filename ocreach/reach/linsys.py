@@ -93,6 +93,8 @@ def _q(i: int) -> float:
     return v * (1 + 1e-12)
 
 
+#: machine epsilon ``2^-52`` (twice the unit round-off)
+_EPS = float(np.finfo(float).eps)
 #: ``i!`` as floats (``float(factorial(i))``, exact up to 22!, correctly rounded beyond)
 _FACT = [float(factorial(i)) for i in range(MAX_TERMS + 3)]
 #: ``_Q[i] = q_i`` of :func:`_q` for ``i >= 2`` (0 for ``i < 2``), up to the most terms used
@@ -129,22 +131,23 @@ def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
     E_row = P1.sum(axis=1) / _FACT[eta + 1] / (1.0 - a / (eta + 2))
     # plus the rounding of the computed T_i and their sums: (eta + 1)(n + 2) u sum_i (|A| h)^i / i!
     # (first-order error bound of the recursive products T_i = T_{i-1} A h / i and the sums)
-    u = np.finfo(float).eps
+    u = _EPS
     E = (np.repeat(E_row[:, None], n, axis=1) * (1 + 1e-10)
          + 2.0 * (eta + 1) * (n + 2) * u * S_abs + 1e-300)
     Tarr = np.array(T)
     absT = np.abs(Tarr)
     Phi = Tarr.sum(axis=0)
-    # weighted sums of the T_i as one tensordot each: Gamma = h sum T_i / (i+1),
+    # weighted sums of the T_i as one matrix product each: Gamma = h sum T_i / (i+1),
     # F = sum_{i>=2} [q_i, 0] T_i, F~ = sum_{i>=1} [q_{i+1}, 0] h/(i+1) T_i (as midpoint/radius)
     inv = 1.0 / np.arange(1, eta + 2)
     wF = 0.5 * _Q[: eta + 1]               # _Q[i] = q_i (0 for i < 2)
     wFt = 0.5 * _Q[1: eta + 2] * (h * inv)  # 0.5 q_{i+1} h / (i+1)
-    Gamma = np.tensordot(h * inv, Tarr, axes=1)
-    F_mid = np.tensordot(wF, Tarr, axes=1)
-    F_rad = E + np.tensordot(np.abs(wF), absT, axes=1)
-    Ft_mid = np.tensordot(wFt, Tarr, axes=1)
-    Ft_rad = E * h + np.tensordot(np.abs(wFt), absT, axes=1)
+    Tflat, absTflat = Tarr.reshape(eta + 1, n * n), absT.reshape(eta + 1, n * n)
+    Gamma = weighted_sum(h * inv, Tflat, n)
+    F_mid = weighted_sum(wF, Tflat, n)
+    F_rad = E + weighted_sum(np.abs(wF), absTflat, n)
+    Ft_mid = weighted_sum(wFt, Tflat, n)
+    Ft_rad = E * h + weighted_sum(np.abs(wFt), absTflat, n)
     # the computed F_mid, Ft_mid carry the rounding of their sums (<= eta + 3 operations, abs value
     # <= F_rad): the radii are widened by that bound and rounded up
     k = eta + 4
@@ -153,6 +156,17 @@ def expm_terms(A: np.ndarray, h: float) -> ExpmTerms:
     M = up(absT.sum(axis=0), eta + 1) + E
     return ExpmTerms(h=float(h), eta=eta, T=Tarr, E=E, Phi=Phi, Gamma=Gamma, F_mid=F_mid,
                      F_rad=F_rad, Ft_mid=Ft_mid, Ft_rad=Ft_rad, M=M)
+
+
+def weighted_sum(w: np.ndarray, Tflat: np.ndarray, n: int) -> np.ndarray:
+    """``sum_i w_i T_i`` for ``Tflat`` the ``(k, n n)`` rows of the ``T_i``: the one matrix product
+    ``np.tensordot(w, T, axes=1)`` makes (bit for bit the same), without its Python overhead."""
+    return np.dot(w.reshape(1, -1), Tflat).reshape(n, n)
+
+
+def diag_columns(r: np.ndarray) -> np.ndarray:
+    """The box generators ``diag(r)`` without the zero columns."""
+    return np.diag(r)[:, r > 0]
 
 
 def abs_extent(Z: Zonotope) -> np.ndarray:
@@ -169,9 +183,8 @@ def box_zonotope(c: np.ndarray, r: np.ndarray) -> Zonotope:
 
 def interval_matrix_times(M_mid: np.ndarray, M_rad: np.ndarray, Z: Zonotope) -> Zonotope:
     """Enclosure of ``{M x : M in [M_mid -+ M_rad], x in Z}``: ``M_mid Z + box(M_rad |Z|)``."""
-    core = Zonotope.trusted(M_mid @ Z.c, M_mid @ Z.G)
     r = M_rad @ abs_extent(Z)
-    return Zonotope.trusted(core.c, np.hstack([core.G, np.diag(r)[:, r > 0]]))
+    return Zonotope.trusted(M_mid @ Z.c, np.concatenate([M_mid @ Z.G, diag_columns(r)], axis=1))
 
 
 def zsum(*parts: Zonotope | np.ndarray) -> Zonotope:
@@ -186,25 +199,32 @@ def zsum(*parts: Zonotope | np.ndarray) -> Zonotope:
     c = cs[0]
     for v in cs[1:]:
         c = c + v
-    return Zonotope.trusted(np.asarray(c, dtype=float), np.hstack(Gs))
+    return Zonotope.trusted(np.asarray(c, dtype=float), np.concatenate(Gs, axis=1))
 
 
 def pad(Z: Zonotope, r: np.ndarray) -> Zonotope:
     """``Z`` plus the box of radii ``r`` (a rounding bound, :func:`step_rounding`)."""
     r = np.asarray(r, dtype=float)
-    return Zonotope.trusted(Z.c, np.hstack([Z.G, np.diag(r)[:, r > 0]]))
+    return Zonotope.trusted(Z.c, np.concatenate([Z.G, diag_columns(r)], axis=1))
+
+
+def set_abs(R: Zonotope, xs: np.ndarray) -> np.ndarray:
+    """``a_R = |c| + |x*| + sum_j |g_j|``: ``R - x*`` evaluated on absolute values (the factor of the
+    floating-point bound of :func:`step_rounding`)."""
+    return np.abs(R.c) + np.abs(np.asarray(xs, dtype=float)) + np.abs(R.G).sum(axis=1)
 
 
 def step_rounding(et: ExpmTerms, R: Zonotope, xs: np.ndarray, u_abs: np.ndarray,
-                  W_abs: np.ndarray, n_sum: int) -> np.ndarray:
+                  W_abs: np.ndarray, n_sum: int, aR: np.ndarray | None = None) -> np.ndarray:
     """Rigorous bound of the floating-point error of the time-point and time-interval sets of one
     step (module docstring, "Floating point") from the set ``R`` shifted by the linearisation
     point (the step maps ``R0 = R - x*`` and adds ``x*`` back; ``xs = 0`` if ``R`` is ``R0``),
     ``u_abs >= |u_c|_abs``, ``W_abs >= sum_j |w_j|_abs`` (the uncertain input's generators,
     absolutely evaluated), ``n_sum`` the most terms summed in one entry outside the matrix
-    products (generators in a radius, inputs in a generator)."""
+    products (generators in a radius, inputs in a generator); ``aR`` is :func:`set_abs` of ``R``
+    and ``xs`` if already computed (it does not change within a step)."""
     xs_abs = np.abs(np.asarray(xs, dtype=float))
-    aR = np.abs(R.c) + xs_abs + np.abs(R.G).sum(axis=1)
+    aR = set_abs(R, xs) if aR is None else aR
     h = et.h
     total = 2.0 * aR + 3.0 * (et.M @ (aR + h * (u_abs + W_abs))) + xs_abs
     k = 2 * R.dim + et.eta + int(n_sum) + 12
@@ -217,23 +237,28 @@ def input_solution(W: Zonotope, et: ExpmTerms) -> Zonotope:
     if np.any(W.c != 0):
         raise SolverError("input_solution: the uncertain input set must be centred at 0 "
                           "(move the centre into the constant input u_c)")
-    n = W.dim
-    if W.n_generators == 0:
-        return Zonotope.trusted(np.zeros(n), np.zeros((n, 0)))
+    return Zonotope.trusted(np.zeros(W.dim), input_generators(W.G, et))
+
+
+def input_generators(WG: np.ndarray, et: ExpmTerms) -> np.ndarray:
+    """Generators of :func:`input_solution` for the uncertain input's generators ``WG``
+    (centre 0): ``h/(i+1) T_i WG`` for ``i = 0..eta`` side by side, then the box ``E h sum |w_j|``."""
+    n = WG.shape[0]
+    if WG.shape[1] == 0:
+        return np.zeros((n, 0))
     h = et.h
     # blocks h/(i+1) T_i W.G for i = 0..eta, side by side (one batched product)
-    TG = (et.T @ W.G) * (h / np.arange(1, et.eta + 2))[:, None, None]
+    TG = (et.T @ WG) * (h / np.arange(1, et.eta + 2))[:, None, None]
     blocks = TG.transpose(1, 0, 2).reshape(n, -1)
-    r = (et.E * h) @ np.abs(W.G).sum(axis=1)
-    G = np.hstack([blocks, np.diag(r)[:, r > 0]])
-    return Zonotope.trusted(np.zeros(n), G)
+    r = (et.E * h) @ np.abs(WG).sum(axis=1)
+    return np.concatenate([blocks, diag_columns(r)], axis=1)
 
 
 @dataclass(frozen=True)
 class LinearStep:
     """Time-point set ``point`` (at ``h``) and time-interval set ``tube`` (over ``[0, h]``)."""
 
-    point: Zonotope
+    point: Zonotope | None
     tube: Zonotope
 
 
@@ -253,27 +278,31 @@ def state_maps(R0: Zonotope, et: ExpmTerms) -> StateMaps:
 
 
 def homogeneous_step(R0: Zonotope, u_c: np.ndarray, et: ExpmTerms,
-                     maps: StateMaps | None = None) -> LinearStep:
+                     maps: StateMaps | None = None, with_point: bool = True) -> LinearStep:
     """The part of the step without the uncertain input: ``e^{A h} R0 + Gamma(h) u_c`` and
     ``CH(R0, Phi_T R0 + Gamma_T u_c) + F R0 + F~ u_c`` (module docstring); ``maps`` are
-    :func:`state_maps` of ``R0`` if already computed."""
+    :func:`state_maps` of ``R0`` if already computed; ``with_point=False`` leaves the time-point
+    set out (``point`` is None) when only the tube is needed."""
     u_c = np.asarray(u_c, dtype=float)
     h = et.h
     maps = state_maps(R0, et) if maps is None else maps
     # time point: Phi_T R0 + [-E, E] R0 + Gamma_T u_c + [-E h, E h] u_c
     PR = maps.PR
-    r_pt = maps.ER + (et.E * h) @ np.abs(u_c)
     c_end = PR.c + et.Gamma @ u_c
-    point = Zonotope.trusted(c_end, np.hstack([PR.G, np.diag(r_pt)[:, r_pt > 0]]))
+    point = None
+    if with_point:
+        r_pt = maps.ER + (et.E * h) @ np.abs(u_c)
+        point = Zonotope.trusted(c_end, np.concatenate([PR.G, diag_columns(r_pt)], axis=1))
     # time interval: convex hull of R0 and Phi_T R0 + Gamma_T u_c with common factors
     c1, G1 = R0.c, R0.G
     c2, G2 = c_end, PR.G
     ch_c = 0.5 * (c1 + c2)
-    ch_G = np.hstack([0.5 * (G1 + G2), 0.5 * (c1 - c2)[:, None], 0.5 * (G1 - G2)])
     FR = maps.FR
     Ftu_c = et.Ft_mid @ u_c
     Ftu_r = et.Ft_rad @ np.abs(u_c)
-    tube = Zonotope.trusted(ch_c + FR.c + Ftu_c, np.hstack([ch_G, FR.G, np.diag(Ftu_r)[:, Ftu_r > 0]]))
+    tube = Zonotope.trusted(ch_c + FR.c + Ftu_c,
+                            np.concatenate([0.5 * (G1 + G2), 0.5 * (c1 - c2)[:, None],
+                                            0.5 * (G1 - G2), FR.G, diag_columns(Ftu_r)], axis=1))
     return LinearStep(point=point, tube=tube)
 
 

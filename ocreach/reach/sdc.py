@@ -43,7 +43,7 @@ from ocreach.errors import ProblemError, check_count
 from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
-from ocreach.reach.linsys import box_zonotope, pad
+from ocreach.reach.linsys import pad
 from ocreach.reach.result import ReachResult
 from ocreach.reach.taylor import (
     ZonotopeOptions,
@@ -55,7 +55,7 @@ from ocreach.reach.taylor import (
     tube_box,
     unflatten_hessian,
 )
-from ocreach.sets.matzonotope import MatrixZonotope, matzonotope_times_zonotope
+from ocreach.sets.matzonotope import matzonotope_product
 from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.zonotope import Zonotope
 
@@ -92,7 +92,7 @@ def third_interval(model):
                            [model.f, J, ca.jacobian(model.f, model.u), H, T])
 
     fun = model.cached(("sdc", "lin_third_fun"), build)
-    return interval_function(fun, model=model, key=("sdc", "lin_third"))
+    return interval_function(fun, model=model, key=("sdc", "lin_third"), native=True)
 
 
 class SDCError:
@@ -142,9 +142,9 @@ class SDCError:
         # matrix zonotope of Eq. 21 about x*: centre sum_k dA_k c_k, generators sum_k dA_k g_kj
         C = np.tensordot(dA, D.c, axes=([2], [0]))
         Gs = np.einsum("ijk,kh->hij", dA, D.G)
-        MZ = MatrixZonotope(C, Gs)
-        Dx = D if self.base == "center" else D + xs
-        dev = matzonotope_times_zonotope(MZ, Dx)   # literal: (sum dA_k d_k) x, x = x* + d
+        Dx_c = D.c if self.base == "center" else D.c + xs
+        # literal: (sum dA_k d_k) x, x = x* + d (matzonotope_times_zonotope on the arrays)
+        dev = Zonotope.trusted(*matzonotope_product(C, Gs, Dx_c, D.G))
         # rounding of C, Gs and the product: absolute value (sum_k |dA_k| a_D,k) a_Dx
         aD = np.abs(D.c) + np.abs(D.G).sum(axis=1)
         aDx = aD if self.base == "center" else aD + np.abs(xs)
@@ -159,9 +159,9 @@ class SDCError:
             return dev
         gamma = up(gamma, 1)
         ulo, uhi = Vbox
-        out = self.T([np.column_stack([xs, xlo]), np.column_stack([u, ulo]),
+        out = self.T([np.stack([xs, xlo], axis=1), np.stack([u, ulo], axis=1),
                       np.array([t_box[0], t_box[0]]), self.p],
-                     [np.column_stack([xs, xhi]), np.column_stack([u, uhi]),
+                     [np.stack([xs, xhi], axis=1), np.stack([u, uhi], axis=1),
                       np.array([t_box[0], t_box[1]]), self.p], check=False)
         Tlo, Thi = out[4]
         Tmag = np.maximum(np.abs(Tlo[:, 1]), np.abs(Thi[:, 1])).reshape(n, n, n, n)  # (l, i, j, k)
@@ -175,7 +175,7 @@ class SDCError:
         r = r + np.einsum("ijk,j,k->i", rdA, gamma, gamma)
         gv = up(np.maximum(np.abs(ulo - u), np.abs(uhi - u)), 1)
         r = up(r + eval_error(out[:3], lin, gamma, gv), n * n + 4)
-        return dev + box_zonotope(np.zeros(n), r)
+        return pad(dev, r)
 
     def split_scores(self, Z: Zonotope) -> np.ndarray:
         if self.hmag is None:

@@ -50,13 +50,15 @@ from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import (
     box_zonotope,
+    diag_columns,
     expm_terms,
     homogeneous_step,
-    input_solution,
+    input_generators,
     pad,
+    set_abs,
     state_maps,
     step_rounding,
-    zsum,
+    weighted_sum,
 )
 from ocreach.reach.result import ReachResult
 from ocreach.sets.interval import Interval
@@ -302,7 +304,7 @@ def hessian_interval(model):
                            [model.f, ca.jacobian(model.f, model.x), ca.jacobian(model.f, v), H])
 
     fun = model.cached(("taylor", "lin_hess_fun"), build)
-    return interval_function(fun, model=model, key=("taylor", "lin_hess"))
+    return interval_function(fun, model=model, key=("taylor", "lin_hess"), native=True)
 
 
 def dense(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
@@ -340,18 +342,22 @@ def quadratic_interval(Hlo: np.ndarray, Hhi: np.ndarray, dlo: np.ndarray, dhi: n
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Interval of ``1/2 d^T H_i d`` for ``H_i in [Hlo_i, Hhi_i]`` (n_x, n_z, n_z) and ``d in [dlo, dhi]``
     (n_z,): interval products termwise, the squares on the diagonal; outward margin 1e-12 of the
-    magnitude (floating point of these few products)."""
-    plo = np.minimum.reduce([np.outer(dlo, dlo), np.outer(dlo, dhi), np.outer(dhi, dlo), np.outer(dhi, dhi)])
-    phi = np.maximum.reduce([np.outer(dlo, dlo), np.outer(dlo, dhi), np.outer(dhi, dlo), np.outer(dhi, dhi)])
-    mag = np.maximum(np.abs(dlo), np.abs(dhi))
-    mig = np.where((dlo <= 0) & (dhi >= 0), 0.0, np.minimum(np.abs(dlo), np.abs(dhi)))
+    magnitude (floating point of these few products).  The corner products of ``d_a d_b`` and of
+    ``H_iab [d_a d_b]`` are formed as one stacked array each (the same products; min/max exact)."""
+    D = np.stack([dlo, dhi])
+    P = (D[:, None, :, None] * D[None, :, None, :]).reshape(4, dlo.size, dlo.size)
+    Pp = np.stack([P.min(axis=0), P.max(axis=0)])      # [plo, phi]
+    absD = np.abs(D)
+    mag = absD.max(axis=0)
+    mig = np.where((dlo <= 0) & (dhi >= 0), 0.0, absD.min(axis=0))
     idx = np.arange(dlo.size)
-    plo[idx, idx] = mig**2
-    phi[idx, idx] = mag**2
-    cands = [Hlo * plo, Hlo * phi, Hhi * plo, Hhi * phi]
-    lo = 0.5 * np.minimum.reduce(cands).sum(axis=(1, 2))
-    hi = 0.5 * np.maximum.reduce(cands).sum(axis=(1, 2))
-    Hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))
+    Pp[0, idx, idx] = mig**2
+    Pp[1, idx, idx] = mag**2
+    Hs = np.stack([Hlo, Hhi])
+    cands = Hs[:, None] * Pp[None, :, None]          # [Hlo plo, Hlo phi, Hhi plo, Hhi phi]
+    lo = 0.5 * cands.min(axis=(0, 1)).sum(axis=(1, 2))
+    hi = 0.5 * cands.max(axis=(0, 1)).sum(axis=(1, 2))
+    Hmag = np.abs(Hs).max(axis=0)
     m = 0.5e-12 * (Hmag * np.outer(mag, mag)[None]).sum(axis=(1, 2))
     return lo - m - 1e-300, hi + m + 1e-300
 
@@ -404,9 +410,9 @@ class TaylorError:
         tlo, thi = t_box
         uc = vs[: nu]
         ts = vs[-1] if self.td else tlo
-        out = self.H([np.column_stack([xs, xlo]), np.column_stack([uc, ulo]), np.array([ts, tlo]),
+        out = self.H([np.stack([xs, xlo], axis=1), np.stack([uc, ulo], axis=1), np.array([ts, tlo]),
                       self.p],
-                     [np.column_stack([xs, xhi]), np.column_stack([uc, uhi]), np.array([ts, thi]),
+                     [np.stack([xs, xhi], axis=1), np.stack([uc, uhi], axis=1), np.array([ts, thi]),
                       self.p], check=False)
         Hlo, Hhi = out[3]
         Hlo = unflatten_hessian(Hlo[:, 1:], nx, self.n_z)[0]
@@ -495,7 +501,6 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     if ctx.W is not None:
         u_c = u_c + ctx.W.c
         Gu = np.hstack([Gu, ctx.W.G])
-    Ubase = Zonotope.trusted(np.zeros(n), Gu)
     # absolute values of the step's inputs for the floating-point bound (linsys.step_rounding)
     u_abs0 = np.abs(f0) + (np.abs(ctx.W.c) if ctx.W is not None else 0.0)
     W_abs0 = np.abs(Bv) @ np.abs(Gv).sum(axis=1)
@@ -509,26 +514,29 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
         return StepFail(str(exc))
     R0 = Zonotope.trusted(R.c - xs, R.G)
     maps = state_maps(R0, et)
-    hs = homogeneous_step(R0, u_c, et, maps)
-    RU = input_solution(Ubase, et)
-    base_tube = zsum(hs.tube, RU)
+    hs = homogeneous_step(R0, u_c, et, maps, with_point=False)
+    base_tube = Zonotope.trusted(hs.tube.c, np.concatenate([hs.tube.G, input_generators(Gu, et)],
+                                                           axis=1))
     box_only = getattr(ctx.err, "box_only", False)  # the error model reads only the tube's box
     if box_only:  # then its radii suffice: |RU(box(L))| = (sum_i h/(i+1) |T_i| + E h) L
         r_base = np.abs(base_tube.G).sum(axis=1)
-        S_L = np.tensordot(h / np.arange(1, et.eta + 2), np.abs(et.T), axes=1) + et.E * h
+        S_L = weighted_sum(h / np.arange(1, et.eta + 2), np.abs(et.T).reshape(et.eta + 1, n * n),
+                           n) + et.E * h
     Vbox = (ctx.Ubox[0], ctx.Ubox[1])
     t_box = (t0, t0 + h)
     # warm start: the previous step's remainder, enlarged once (the loop then usually closes at once)
     Lbar = np.zeros(n) if L_guess is None else np.asarray(L_guess, dtype=float) * GROWTH
     err = None
     need = None
+    aR = set_abs(R, xs)   # the step's |R - x*| evaluated absolutely (linsys.step_rounding)
     for it in range(1, ctx.opts.max_iter + 1):
-        r_fp = step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum)
+        r_fp = step_rounding(et, R, xs, u_abs0, W_abs0 + Lbar, n_sum, aR=aR)
         if box_only:  # a box zonotope with the tube's interval hull (rounding: inflate_box)
             tube = Zonotope.trusted(base_tube.c + xs, np.diag(r_base + S_L @ Lbar + r_fp))
         else:
-            tube = zsum(base_tube, input_solution(box_zonotope(np.zeros(n), Lbar), et), xs)
-            tube = pad(tube, r_fp)
+            # base tube + R_W(box(Lbar)) + x*, padded by r_fp, as one concatenation
+            tube = Zonotope.trusted(base_tube.c + 0.0 + xs, np.concatenate(
+                [base_tube.G, input_generators(diag_columns(Lbar), et), diag_columns(r_fp)], axis=1))
         if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
             return StepFail("the tube is not finite", need)
         try:
@@ -552,13 +560,15 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                         f"(last bound {np.array2string(need, precision=3)})", need)
     # final sets with the error set found on the tube (valid: every trajectory stays in the tube)
     u_c2 = u_c + err.c
-    W2 = Zonotope.trusted(np.zeros(n), np.hstack([Gu, err.G]))
+    W2G = np.concatenate([Gu, err.G], axis=1)
     hs2 = homogeneous_step(R0, u_c2, et, maps)
-    RU2 = input_solution(W2, et)
+    RU2G = input_generators(W2G, et)
     r_fp = step_rounding(et, R, xs, u_abs0 + np.abs(err.c), W_abs0 + np.abs(err.G).sum(axis=1),
-                         max(n_sum, W2.n_generators + Gv.shape[0] + 2))
-    point = pad(zsum(hs2.point, RU2, xs), r_fp)
-    tube = pad(zsum(hs2.tube, RU2, xs), r_fp)
+                         max(n_sum, W2G.shape[1] + Gv.shape[0] + 2), aR=aR)
+    # (point + R_W + x*) padded by the rounding bound, as one concatenation each
+    box_fp = diag_columns(r_fp)
+    point = Zonotope.trusted(hs2.point.c + xs, np.concatenate([hs2.point.G, RU2G, box_fp], axis=1))
+    tube = Zonotope.trusted(hs2.tube.c + xs, np.concatenate([hs2.tube.G, RU2G, box_fp], axis=1))
     if not all(np.all(np.isfinite(a)) for a in (point.c, point.G, tube.c, tube.G)):
         return StepFail("the step's sets are not finite", need)
     return StepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)

@@ -96,7 +96,16 @@ def matzonotope_times_zonotope(MZ: MatrixZonotope, Z) -> Zonotope:  # noqa: F821
     m, n = MZ.shape
     if Z.dim != n:
         raise SetError(f"MatrixZonotope @ Zonotope: matrix has {n} columns, zonotope dimension {Z.dim}")
-    Ac = MZ.G @ Z.c  # (q, m)
-    AG = np.einsum("jmn,nh->mjh", MZ.G, Z.G).reshape(m, -1)
-    G = np.hstack([MZ.C @ Z.G, Ac.T, AG])
-    return Zonotope(MZ.C @ Z.c, G).remove_zero_generators()
+    return Zonotope(*matzonotope_product(MZ.C, MZ.G, Z.c, Z.G))
+
+
+def matzonotope_product(C: np.ndarray, Gs: np.ndarray, c: np.ndarray, G: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and generators (zero generators removed) of :func:`matzonotope_times_zonotope` for
+    the arrays of a matrix zonotope ``(C (m, n), Gs (q, m, n))`` and a zonotope ``(c, G)``, without
+    the set objects' validation (for the inner loop of ``sdc``, whose inputs are checked)."""
+    m = C.shape[0]
+    Ac = Gs @ c  # (q, m)
+    AG = np.einsum("jmn,nh->mjh", Gs, G).reshape(m, -1)
+    Gout = np.concatenate([C @ G, Ac.T, AG], axis=1)
+    return C @ c, Gout[:, np.any(Gout != 0, axis=0)]   # a NaN column is kept (never hidden)

@@ -32,7 +32,8 @@ def _check_method(method: str) -> str:
     return method
 
 
-def box_generators(G: np.ndarray, method: str, extra: Any = None) -> np.ndarray:
+def box_generators(G: np.ndarray, method: str, extra: Any = None,
+                   abs_G: np.ndarray | None = None) -> np.ndarray:
     """Generators (n, <=n) of a parallelotope enclosing ``{G xi : ||xi||_inf <= 1}``, rigorously
     against floating point (:mod:`ocreach.sets.rounding`).
 
@@ -48,11 +49,13 @@ def box_generators(G: np.ndarray, method: str, extra: Any = None) -> np.ndarray:
     order-3 products the fused STT step prunes, :mod:`ocreach.reach.stt_products`).  The
     rounding of those sums themselves is not bounded: the STT sets they serve are not
     guaranteed enclosures (Foss et al.), unlike the zonotopes of ``taylor``/``sdc``.
+
+    ``abs_G``: ``|G|`` if the caller has it (the same values; saves recomputing it).
     """
     n, h = G.shape
     if h == 0 and extra is None:
         return np.zeros((n, 0))
-    absG = np.abs(G).sum(axis=1)
+    absG = (np.abs(G) if abs_G is None else abs_G).sum(axis=1)
     absX = absG if extra is None else absG + extra.absum
     k = h if extra is None else h + 1  # roundings along the sums
     if method == "girard":
@@ -78,8 +81,9 @@ def box_generators(G: np.ndarray, method: str, extra: Any = None) -> np.ndarray:
     return B[:, np.any(B != 0, axis=0)]
 
 
-def _girard_metric(G: np.ndarray) -> np.ndarray:
-    return np.abs(G).sum(axis=0) - np.abs(G).max(axis=0, initial=0.0)
+def _girard_metric(absG: np.ndarray) -> np.ndarray:
+    """Girard's metric ``||g||_1 - ||g||_inf`` of every generator, from ``|G|``."""
+    return absG.sum(axis=0) - absG.max(axis=0, initial=0.0)
 
 
 def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> Zonotope:
@@ -94,14 +98,19 @@ def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> 
     if h <= h_max:
         return Z
     n_keep = h_max - n
-    metric = _girard_metric(Z.G) if method == "girard" else np.linalg.norm(Z.G, axis=0)
+    absG = np.abs(Z.G)
+    metric = _girard_metric(absG) if method == "girard" else np.linalg.norm(Z.G, axis=0)
     order_idx = np.argsort(-metric, kind="stable")
     keep, drop = order_idx[:n_keep], order_idx[n_keep:]
-    B = box_generators(Z.G[:, drop], method)
+    if method == "girard":  # the box reads only |G|: no copy of the dropped generators
+        absD = absG[:, drop]
+        B = box_generators(absD, method, abs_G=absD)
+    else:
+        B = box_generators(Z.G[:, drop], method, abs_G=absG[:, drop])
     if not np.isfinite(B).all():
         raise SetError("reduce: the box of the removed generators overflowed (generators near the "
                        "largest float)")
-    return Zonotope.trusted(Z.c, np.hstack([Z.G[:, keep], B]))  # Z is valid, B finite
+    return Zonotope.trusted(Z.c, np.concatenate([Z.G[:, keep], B], axis=1))  # Z valid, B finite
 
 
 def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope:
