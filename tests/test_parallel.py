@@ -1,6 +1,8 @@
 """Thread settings of ocreach.parallel: kernel threads and the BLAS limit around reach()."""
 from __future__ import annotations
 
+import sys
+
 import pytest
 from threadpoolctl import threadpool_info
 
@@ -43,3 +45,20 @@ def test_default_threads_from_environment(monkeypatch):
     monkeypatch.setenv("OCREACH_BLAS_THREADS", "0")
     with pytest.raises(ProblemError, match="OCREACH_BLAS_THREADS must be an integer >= 1"):
         parallel.blas_default()
+
+
+def test_blas_limit_keeps_its_controller_until_a_module_is_imported(monkeypatch):
+    """The threadpoolctl controller (a scan of the loaded libraries, ~4 ms) is built once and
+    again after an import, which may have loaded another BLAS; the limit holds either way."""
+    import types
+
+    with parallel.blas_limit(1):
+        assert _blas_threads() <= {1}
+    first = parallel._controller[1]
+    with parallel.blas_limit(1):
+        assert _blas_threads() <= {1}
+    assert parallel._controller[1] is first
+    monkeypatch.setitem(sys.modules, "ocreach_test_new_module", types.ModuleType("ocreach_test_new_module"))
+    with parallel.blas_limit(1):
+        assert _blas_threads() <= {1}
+    assert parallel._controller[1] is not first
