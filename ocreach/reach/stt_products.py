@@ -154,3 +154,159 @@ class Order3Products:
             X = U.T @ (self._cache[b] if b < len(self._cache) else self._pruned(j, i0, i1)[0])
             out += np.abs(X, out=X).sum(axis=1)
         return out
+
+
+class BoundedOrder3Products(Order3Products):
+    """The order-3 products of :class:`Order3Products` with the pruned ones never formed.
+
+    Only the kept products are formed (row blocks of the kept staircase, whose widths stay within
+    a factor 2, so at most about twice the kept count); the pruned ones enter the box through
+    bounds computed per pair ``(i, j)``, ``i <= j``, from ``A_ij = T3[g_i, g_j, .]`` (n, nz) and
+    suffix sums over the sorted generators (the pruned ``k`` of a pair are the suffix
+    ``k >= s_ij``, plus possibly ``k = j``, whose product is formed):
+
+    * ``gram`` exact: ``sum_{k >= s} x x^T = A_ij (sum_{k >= s} g_k g_k^T) A_ij^T``;
+    * ``sum_{k >= s} |D^T x| <= min(|D^T A_ij| sum_{k >= s} |g_k|,
+      ||D^T A_ij||_2 sum_{k >= s} ||g_k||_2)`` per direction (triangle inequality,
+      Cauchy-Schwarz) for the box's directions ``D`` (``U`` in :meth:`proj_abs`, the unit vectors
+      for ``absum``), so the box of :func:`ocreach.sets.reduce.box_generators` still contains
+      every pruned product.
+
+    Cost ``O(H^2 n nz^2)`` for the bounds instead of ``O(H^3 n nz)`` for forming every product;
+    the box is looser than the exact one by what the triangle inequality loses on the pruned
+    products (docs/stt.md, "Pruned order-3 products").
+    """
+
+    #: pair terms ``A_ij`` formed at once (floats), bounding the memory of the pair passes
+    PAIR_FLOATS = 1 << 22
+
+    def __init__(self, T3: np.ndarray, Ga: np.ndarray, thr: float, chunk: int):
+        super().__init__(T3, Ga, thr, chunk)
+        G, H = self.G, self.H
+        nz = G.shape[0]
+        # suffix sums over the sorted generators: X[m] = sum_{k >= m} ...  (X[H] = 0)
+        self._Q = np.zeros((H + 1, nz, nz))
+        self._Q[:-1] = np.cumsum(np.einsum("ak,bk->kab", G, G)[::-1], axis=0)[::-1]
+        self._S = np.zeros((H + 1, nz))
+        self._S[:-1] = np.cumsum(np.abs(G).T[::-1], axis=0)[::-1]
+        self._N = np.zeros(H + 1)
+        self._N[:-1] = np.cumsum(self.gn[::-1])[::-1]
+        # every pair i <= j, grouped by j: pairs of j are off[j]..off[j+1]-1 with i = 0..j
+        self._off = np.concatenate([[0], np.cumsum(np.arange(1, H + 1))])
+        J = np.repeat(np.arange(H), np.arange(1, H + 1))
+        I = np.arange(J.size) - self._off[J]
+        self._lo, self._cnt = self._ranges(I, J)
+
+    def _ranges(self, I: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per pair: first kept column offset ``lo`` (0, or 1 when ``k = j`` is pruned) and the
+        number ``cnt`` of kept ``k > j`` (offsets ``lo..cnt`` kept; the same rule as
+        :meth:`Order3Products._kept_positions`)."""
+        if self.thr <= 0.0:
+            return np.zeros(I.size, dtype=np.int64), self.H - 1 - J
+        gn = self.gn
+        a = gn[I] * gn[J] * self.scale
+        diag = I == J
+        m_in, m_0 = np.where(diag, 3.0, 6.0), np.where(diag, 1.0, 3.0)
+        with np.errstate(divide="ignore"):
+            n_ge = np.searchsorted(self.neg, -(self.thr / (m_in * a)), side="right")  # gn_k >= t
+        cnt = np.maximum(n_ge - J - 1, 0)
+        lo = np.where(a * m_0 * gn[J] >= self.thr, 0, 1)
+        return lo.astype(np.int64), cnt.astype(np.int64)
+
+    # -- kept products: only the staircase is formed ---------------------------------------------
+    def kept(self, absum: bool = False) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """As :meth:`Order3Products.kept`; ``gram``, ``absum`` and ``count`` of the pruned
+        products come from the pair bounds (``absum`` always)."""
+        G, off = self.G, self._off
+        width = self._cnt + 1
+        width[(self._lo == 1) & (self._cnt == 0)] = 0          # nothing kept in the row
+        for j in range(self.H):
+            wj = width[off[j]:off[j + 1]]                        # non-increasing in i
+            if wj[0] == 0:
+                continue
+            nrows = int(np.count_nonzero(wj))
+            i = 0
+            while i < nrows:                                     # rows of widths within 2x
+                W = int(wj[i])
+                i1 = min(nrows, i + max(1, self.chunk // W), int(np.searchsorted(-2 * wj, -W - 1)))
+                i1 = max(i1, i + 1)
+                lo, cnt = self._lo[off[j] + i:off[j] + i1], self._cnt[off[j] + i:off[j] + i1]
+                B = np.matmul(G[:, i:i1].T[None], self.M[j] @ G[:, j:j + W])   # (n, rows, W)
+                B[:, :, 0] *= 0.5
+                if i1 == j + 1:
+                    B[:, -1, 1:] *= 0.5
+                    B[:, -1, 0] *= 1.0 / 3.0
+                length = cnt + 1 - lo
+                start = np.cumsum(length) - length
+                r = np.repeat(np.arange(i1 - i), length)
+                keep = r * W + np.repeat(lo - start, length) + np.arange(r.size)
+                ii, kk = i + keep // W, j + keep % W
+                yield (B.reshape(self.n, -1)[:, keep],
+                       np.vstack([self.perm[ii], np.full(keep.size, self.perm[j]), self.perm[kk]]))
+                i = i1
+        self.absum = self._pair_bounds(np.eye(self.n), gram=True)
+
+    # -- pruned products: bounds per pair -------------------------------------------------------
+    def _pair_chunks(self) -> Iterator[tuple[np.ndarray, ...]]:
+        """``(A, J, rf, s, cf)`` over the pairs with a pruned product, in chunks of middle
+        indices: ``A_ij`` (P, n, nz) (with the factor 6 of :attr:`M`), middle index, row factor
+        (1/2 at ``i = j``), first pruned ``k > j`` (``H``: none) and the factor of a pruned
+        ``k = j`` product (0 if kept, 1/2, 1/6 at ``i = j``)."""
+        H, off, G = self.H, self._off, self.G
+        per_pair = self.n * G.shape[0] * 2
+        j0 = 0
+        while j0 < H:
+            j1 = j0 + 1
+            while j1 < H and (j1 + 1 - j0) * (j1 + 1) * per_pair <= self.PAIR_FLOATS:
+                j1 += 1
+            sl = slice(off[j0], off[j1])
+            J = np.repeat(np.arange(j0, j1), np.arange(j0 + 1, j1 + 1))
+            I = np.arange(off[j0], off[j1]) - off[J]
+            lo, s = self._lo[sl], J + 1 + self._cnt[sl]
+            pick = np.flatnonzero((s < H) | (lo == 1))
+            if pick.size:
+                I, J, lo, s = I[pick], J[pick], lo[pick], s[pick]
+                Afull = np.einsum("ai,jmac->jimc", G[:, :j1], self.M[j0:j1], optimize=True)
+                A = Afull[J - j0, I]
+                diag = I == J
+                rf = np.where(diag, 0.5, 1.0)
+                cf = np.where(lo == 1, np.where(diag, 1.0 / 6.0, 0.5), 0.0)
+                yield A, J, rf, s, cf
+            j0 = j1
+
+    def _pair_bounds(self, D: np.ndarray, gram: bool = False) -> np.ndarray:
+        """``sum |D^T x|`` bounded over the pruned products (and ``gram``, ``count`` if asked)."""
+        out = np.zeros(D.shape[1])
+        Dt = np.ascontiguousarray(D.T)
+        for A, J, rf, s, cf in self._pair_chunks():
+            V = np.matmul(Dt[None], A)                                    # (P, d, nz)
+            b1 = np.einsum("pdc,pc->pd", np.abs(V), self._S[s])          # S[H] = 0: no tail
+            b2 = np.linalg.norm(V, axis=2) * self._N[s][:, None]
+            x0 = np.einsum("pdc,cp->pd", V, self.G[:, J])                 # the k = j product
+            out += rf @ np.minimum(b1, b2) + cf @ np.abs(x0)
+            if gram:
+                At = A * rf[:, None, None]
+                AQ = np.matmul(At, self._Q[s])                            # (P, n, nz)
+                self.gram += np.einsum("pmc,pnc->mn", AQ, At, optimize=True)
+                X0 = np.einsum("pmc,cp->pm", A, self.G[:, J]) * cf[:, None]
+                self.gram += X0.T @ X0
+                self.count += int((self.H - s).sum() + np.count_nonzero(cf))
+        return out
+
+    def proj_abs(self, U: np.ndarray) -> np.ndarray:
+        """An upper bound of ``sum_x |U^T x|`` over the pruned products (never formed)."""
+        if self.count == 0:
+            return np.zeros(U.shape[1])
+        return self._pair_bounds(U)
+
+
+def order3_products(T3: np.ndarray, Ga: np.ndarray, thr: float, chunk: int,
+                    pruned_box: str = "exact") -> Order3Products:
+    """The order-3 products with the pruned ones boxed ``"exact"`` (:class:`Order3Products`,
+    every product formed) or by ``"bound"`` (:class:`BoundedOrder3Products`, only the kept ones
+    formed)."""
+    if pruned_box == "exact":
+        return Order3Products(T3, Ga, thr, chunk)
+    if pruned_box == "bound":
+        return BoundedOrder3Products(T3, Ga, thr, chunk)
+    raise ValueError(f"pruned_box must be 'exact' or 'bound'; got {pruned_box!r}")
