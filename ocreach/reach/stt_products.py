@@ -84,39 +84,42 @@ class Order3Products:
             for i0 in range(0, j + 1, rows):
                 yield j, i0, min(i0 + rows, j + 1)
 
-    def _block(self, j: int, i0: int, i1: int) -> tuple[np.ndarray, np.ndarray]:
-        """Products of rows ``i0..i1-1`` (flat (n, rows * w), w = H - j) and the kept positions."""
-        G, H, n = self.G, self.H, self.n
-        w, rows = H - j, i1 - i0
-        B = np.matmul(G[:, i0:i1].T[None], self.M[j] @ G[:, j:])  # (n, rows, w)
+    def _rect(self, j: int, i0: int, i1: int, W: int) -> np.ndarray:
+        """Products (n, rows, W) of rows ``i0..i1-1`` and columns ``j..j+W-1`` of the rectangle
+        of middle index ``j``, with their multiplicities."""
+        B = np.matmul(self.G[:, i0:i1].T[None], self.M[j] @ self.G[:, j:j + W])
         B[:, :, 0] *= 0.5
         if i1 == j + 1:
             B[:, -1, 1:] *= 0.5
             B[:, -1, 0] *= 1.0 / 3.0
-        return B.reshape(n, rows * w), self._kept_positions(j, i0, i1)
+        return B
 
-    def _kept_positions(self, j: int, i0: int, i1: int) -> np.ndarray:
-        """Flat positions (row-major in the block) of the products whose bound reaches ``thr``.
+    def _block(self, j: int, i0: int, i1: int) -> tuple[np.ndarray, np.ndarray]:
+        """Products of rows ``i0..i1-1`` (flat (n, rows * w), w = H - j) and the kept positions."""
+        w = self.H - j
+        B = self._rect(j, i0, i1, w)
+        I = np.arange(i0, i1)
+        return B.reshape(self.n, -1), _positions(*self._ranges(I, np.full(I.size, j)), w)
+
+    def _ranges(self, I: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per row ``(i, j)``, ``i <= j``: the kept columns are the offsets ``lo..cnt`` from
+        ``k = j`` (``lo`` = 1 when ``k = j`` is pruned; ``cnt`` kept ``k > j``).
 
         The generators are sorted by decreasing norm, so in row ``i`` the kept products
-        ``k > j`` are the first ``cnt_i`` columns after the first, and if the first column
+        ``k > j`` are the first ``cnt`` columns after the first, and if the first column
         (``k = j``, the largest |g_k|) is pruned they still follow it: a row keeps one range."""
-        w, rows = self.H - j, i1 - i0
         if self.thr <= 0.0:
-            return np.arange(rows * w)
+            return np.zeros(I.size, dtype=np.int64), self.H - 1 - J
         gn = self.gn
-        a = gn[i0:i1] * (gn[j] * self.scale)                    # bound per row without mult and g_k
-        m_in = np.full(rows, 6.0)                               # mult of k > j; 3 in the row i = j
-        m_0 = np.full(rows, 3.0)                                # mult of k = j; 1 at i = j = k
-        if i1 == j + 1:
-            m_in[-1], m_0[-1] = 3.0, 1.0
+        a = gn[I] * gn[J] * self.scale                  # bound per row without mult and g_k
+        diag = I == J
+        m_in = np.where(diag, 3.0, 6.0)                 # mult of k > j; 3 in the row i = j
+        m_0 = np.where(diag, 1.0, 3.0)                  # mult of k = j; 1 at i = j = k
         with np.errstate(divide="ignore"):
-            cnt = np.searchsorted(self.neg[j + 1:], -(self.thr / (m_in * a)), side="right")
-        lo = np.where(a * m_0 * gn[j] >= self.thr, 0, 1)
-        length = cnt + 1 - lo
-        start = np.cumsum(length) - length
-        r = np.repeat(np.arange(rows), length)
-        return r * w + np.repeat(lo - start, length) + np.arange(r.size)
+            n_ge = np.searchsorted(self.neg, -(self.thr / (m_in * a)), side="right")  # gn_k >= t
+        cnt = np.maximum(n_ge - J - 1, 0)
+        lo = np.where(a * m_0 * gn[J] >= self.thr, 0, 1)
+        return lo.astype(np.int64), cnt.astype(np.int64)
 
     def _pruned(self, j: int, i0: int, i1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         B, keep = self._block(j, i0, i1)
@@ -179,6 +182,9 @@ class BoundedOrder3Products(Order3Products):
 
     #: pair terms ``A_ij`` formed at once (floats), bounding the memory of the pair passes
     PAIR_FLOATS = 1 << 22
+    #: pair terms kept from the first pass for the second (floats; 8 M = 64 MB, every pair up to
+    #: H ~ 1,000 on a 2-row image with 3 factors)
+    PAIR_CACHE_FLOATS = 1 << 23
 
     def __init__(self, T3: np.ndarray, Ga: np.ndarray, thr: float, chunk: int):
         super().__init__(T3, Ga, thr, chunk)
@@ -196,28 +202,13 @@ class BoundedOrder3Products(Order3Products):
         J = np.repeat(np.arange(H), np.arange(1, H + 1))
         I = np.arange(J.size) - self._off[J]
         self._lo, self._cnt = self._ranges(I, J)
-
-    def _ranges(self, I: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per pair: first kept column offset ``lo`` (0, or 1 when ``k = j`` is pruned) and the
-        number ``cnt`` of kept ``k > j`` (offsets ``lo..cnt`` kept; the same rule as
-        :meth:`Order3Products._kept_positions`)."""
-        if self.thr <= 0.0:
-            return np.zeros(I.size, dtype=np.int64), self.H - 1 - J
-        gn = self.gn
-        a = gn[I] * gn[J] * self.scale
-        diag = I == J
-        m_in, m_0 = np.where(diag, 3.0, 6.0), np.where(diag, 1.0, 3.0)
-        with np.errstate(divide="ignore"):
-            n_ge = np.searchsorted(self.neg, -(self.thr / (m_in * a)), side="right")  # gn_k >= t
-        cnt = np.maximum(n_ge - J - 1, 0)
-        lo = np.where(a * m_0 * gn[J] >= self.thr, 0, 1)
-        return lo.astype(np.int64), cnt.astype(np.int64)
+        self._pair_cache: list[tuple[np.ndarray, ...]] | None = None
 
     # -- kept products: only the staircase is formed ---------------------------------------------
     def kept(self, absum: bool = False) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """As :meth:`Order3Products.kept`; ``gram``, ``absum`` and ``count`` of the pruned
         products come from the pair bounds (``absum`` always)."""
-        G, off = self.G, self._off
+        off = self._off
         width = self._cnt + 1
         width[(self._lo == 1) & (self._cnt == 0)] = 0          # nothing kept in the row
         for j in range(self.H):
@@ -230,16 +221,9 @@ class BoundedOrder3Products(Order3Products):
                 W = int(wj[i])
                 i1 = min(nrows, i + max(1, self.chunk // W), int(np.searchsorted(-2 * wj, -W - 1)))
                 i1 = max(i1, i + 1)
-                lo, cnt = self._lo[off[j] + i:off[j] + i1], self._cnt[off[j] + i:off[j] + i1]
-                B = np.matmul(G[:, i:i1].T[None], self.M[j] @ G[:, j:j + W])   # (n, rows, W)
-                B[:, :, 0] *= 0.5
-                if i1 == j + 1:
-                    B[:, -1, 1:] *= 0.5
-                    B[:, -1, 0] *= 1.0 / 3.0
-                length = cnt + 1 - lo
-                start = np.cumsum(length) - length
-                r = np.repeat(np.arange(i1 - i), length)
-                keep = r * W + np.repeat(lo - start, length) + np.arange(r.size)
+                sl = slice(off[j] + i, off[j] + i1)
+                B = self._rect(j, i, i1, W)
+                keep = _positions(self._lo[sl], self._cnt[sl], W)
                 ii, kk = i + keep // W, j + keep % W
                 yield (B.reshape(self.n, -1)[:, keep],
                        np.vstack([self.perm[ii], np.full(keep.size, self.perm[j]), self.perm[kk]]))
@@ -248,10 +232,25 @@ class BoundedOrder3Products(Order3Products):
 
     # -- pruned products: bounds per pair -------------------------------------------------------
     def _pair_chunks(self) -> Iterator[tuple[np.ndarray, ...]]:
-        """``(A, J, rf, s, cf)`` over the pairs with a pruned product, in chunks of middle
-        indices: ``A_ij`` (P, n, nz) (with the factor 6 of :attr:`M`), middle index, row factor
-        (1/2 at ``i = j``), first pruned ``k > j`` (``H``: none) and the factor of a pruned
-        ``k = j`` product (0 if kept, 1/2, 1/6 at ``i = j``)."""
+        """``(A, rf, cf, s, gJ)`` over the pairs with a pruned product, in chunks of middle
+        indices: ``A_ij`` (n, P, nz) (with the factor 6 of :attr:`M`), row factor (1/2 at
+        ``i = j``), the factor of a pruned ``k = j`` product (0 if kept, 1/2, 1/6 at ``i = j``),
+        first pruned ``k > j`` (``H``: none) and ``g_j`` (P, nz).  The first pass keeps them for the
+        second when they fit in :attr:`PAIR_CACHE_FLOATS`."""
+        if self._pair_cache is not None:
+            yield from self._pair_cache
+            return
+        cache: list[tuple[np.ndarray, ...]] | None = []
+        for chunk in self._pair_terms():
+            if cache is not None:
+                cache.append(chunk)
+                if sum(c[0].size for c in cache) > self.PAIR_CACHE_FLOATS:
+                    cache = None
+            yield chunk
+        self._pair_cache = cache
+
+    def _pair_terms(self) -> Iterator[tuple[np.ndarray, ...]]:
+        """The chunks of :meth:`_pair_chunks`, computed."""
         H, off, G = self.H, self._off, self.G
         per_pair = self.n * G.shape[0] * 2
         j0 = 0
@@ -266,30 +265,32 @@ class BoundedOrder3Products(Order3Products):
             pick = np.flatnonzero((s < H) | (lo == 1))
             if pick.size:
                 I, J, lo, s = I[pick], J[pick], lo[pick], s[pick]
-                Afull = np.einsum("ai,jmac->jimc", G[:, :j1], self.M[j0:j1], optimize=True)
-                A = Afull[J - j0, I]
+                Afull = np.einsum("ai,jmac->mjic", G[:, :j1], self.M[j0:j1], optimize=True)
+                A = Afull[:, J - j0, I]                                   # (n, P, nz)
                 diag = I == J
                 rf = np.where(diag, 0.5, 1.0)
                 cf = np.where(lo == 1, np.where(diag, 1.0 / 6.0, 0.5), 0.0)
-                yield A, J, rf, s, cf
+                yield A, rf, cf, s, np.ascontiguousarray(G[:, J].T)
             j0 = j1
 
     def _pair_bounds(self, D: np.ndarray, gram: bool = False) -> np.ndarray:
         """``sum |D^T x|`` bounded over the pruned products (and ``gram``, ``count`` if asked)."""
         out = np.zeros(D.shape[1])
         Dt = np.ascontiguousarray(D.T)
-        for A, J, rf, s, cf in self._pair_chunks():
-            V = np.matmul(Dt[None], A)                                    # (P, d, nz)
-            b1 = np.einsum("pdc,pc->pd", np.abs(V), self._S[s])          # S[H] = 0: no tail
-            b2 = np.linalg.norm(V, axis=2) * self._N[s][:, None]
-            x0 = np.einsum("pdc,cp->pd", V, self.G[:, J])                 # the k = j product
-            out += rf @ np.minimum(b1, b2) + cf @ np.abs(x0)
+        n, d = self.n, Dt.shape[0]
+        for A, rf, cf, s, gJ in self._pair_chunks():
+            P, nz = A.shape[1:]
+            V = (Dt @ A.reshape(n, -1)).reshape(d, P, nz)
+            b1 = np.einsum("dpc,pc->dp", np.abs(V), self._S[s])          # S[H] = 0: no tail
+            b2 = np.sqrt(np.einsum("dpc,dpc->dp", V, V)) * self._N[s]
+            x0 = np.einsum("dpc,pc->dp", V, gJ)                            # the k = j product
+            out += np.minimum(b1, b2) @ rf + np.abs(x0) @ cf
             if gram:
-                At = A * rf[:, None, None]
-                AQ = np.matmul(At, self._Q[s])                            # (P, n, nz)
-                self.gram += np.einsum("pmc,pnc->mn", AQ, At, optimize=True)
-                X0 = np.einsum("pmc,cp->pm", A, self.G[:, J]) * cf[:, None]
-                self.gram += X0.T @ X0
+                At = A * rf[:, None]
+                AQ = np.einsum("mpc,pcd->mpd", At, self._Q[s])            # (n, P, nz)
+                self.gram += AQ.reshape(n, -1) @ At.reshape(n, -1).T
+                X0 = np.einsum("mpc,pc->mp", A, gJ) * cf
+                self.gram += X0 @ X0.T
                 self.count += int((self.H - s).sum() + np.count_nonzero(cf))
         return out
 
@@ -298,6 +299,14 @@ class BoundedOrder3Products(Order3Products):
         if self.count == 0:
             return np.zeros(U.shape[1])
         return self._pair_bounds(U)
+
+
+def _positions(lo: np.ndarray, cnt: np.ndarray, W: int) -> np.ndarray:
+    """Flat positions (row-major, ``W`` columns) of the kept offsets ``lo..cnt`` of each row."""
+    length = cnt + 1 - lo
+    start = np.cumsum(length) - length
+    r = np.repeat(np.arange(lo.size), length)
+    return r * W + np.repeat(lo - start, length) + np.arange(r.size)
 
 
 def order3_products(T3: np.ndarray, Ga: np.ndarray, thr: float, chunk: int,
