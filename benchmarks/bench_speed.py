@@ -442,7 +442,14 @@ at 55 % of a core) the default environment used 1.27x the CPU time of `OPENBLAS_
 paired, but the same 0.66 s median as the default); in a 3-round check minutes later (load 3.7)
 the default used 1.1-1.2x, and limiting BLAS once at process start instead of inside every
 `reach()` did not change that.  Some extra work of a process whose OpenBLAS was started with 2
-threads remains even under the 1-thread limit; its cause is not found (open).
+threads remained under the 1-thread limit (its mechanism inside OpenBLAS is not identified; the
+worker threads themselves used no CPU time, per-call costs of small products were the same).  Since
+then `import ocreach` before numpy starts OpenBLAS with the limit's thread count
+(`parallel.preset_blas_env`: `OPENBLAS_NUM_THREADS` is set unless the environment sets a count), so
+in this benchmark's workers, which import ocreach first, the default environment and
+`OPENBLAS_NUM_THREADS=1` are the same process state; a program that imports numpy before ocreach
+keeps the old state.  Single processes are noisy in CPU time too: the same setting gave 0.51-0.69 s
+per run in consecutive processes (the two vCPUs share a core), hence the pairing and the medians.
 
 Earlier single-shot runs of this comparison (medians of 9 runs per setting, not paired) gave 0.76
 (load 16), 1.58 (load 15), 0.98 (load 2.4), and 0.88 and 1.34 minutes apart at load 0.2: the

@@ -17,6 +17,12 @@ Two knobs, both without any change of results:
   the environment would have started.
 
 ``with parallel.settings(threads=2, blas_threads=1): ...`` sets both for a block of code.
+
+The limit alone does not give back all of single-threaded BLAS: a process whose OpenBLAS started
+with 2 threads spent 1.1-1.3x the CPU time of one started with ``OPENBLAS_NUM_THREADS=1`` on
+``stt``/``dro`` even under the 1-thread limit (docs/benchmarks.md, "Speed and memory").  So
+``import ocreach`` before numpy starts OpenBLAS with :func:`blas_default` threads
+(:func:`preset_blas_env`), unless the environment already says how many.
 """
 from __future__ import annotations
 
@@ -28,8 +34,8 @@ from collections.abc import Iterator
 
 from ocreach.errors import ProblemError, check_count
 
-__all__ = ["blas_default", "blas_info", "blas_limit", "default_threads", "env_count", "set_threads",
-           "settings", "threads"]
+__all__ = ["blas_default", "blas_info", "blas_limit", "default_threads", "env_count", "preset_blas_env",
+           "set_threads", "settings", "threads"]
 
 _state = threading.local()
 
@@ -96,6 +102,25 @@ def _thread_pools():
     if cached is None or cached[0] != n_modules:
         cached = _controller = (n_modules, ThreadpoolController())
     return cached[1]
+
+
+#: environment variables through which OpenBLAS takes its thread count at start (in this order)
+OPENBLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def preset_blas_env() -> bool:
+    """Set ``OPENBLAS_NUM_THREADS`` to :func:`blas_default` if numpy (and so OpenBLAS) is not
+    loaded yet and none of :data:`OPENBLAS_THREAD_VARS` is set; returns whether it did.  Called
+    first thing by ``import ocreach``.  The variable is inherited by child processes; with numpy
+    already imported it is too late and nothing changes (the limit inside ``reach()`` still
+    holds).  A bad ``OCREACH_BLAS_THREADS`` is left to be reported where the limit is used."""
+    if "numpy" in sys.modules or any(os.environ.get(v) for v in OPENBLAS_THREAD_VARS):
+        return False
+    try:
+        os.environ["OPENBLAS_NUM_THREADS"] = str(blas_default())
+    except ProblemError:
+        return False
+    return True
 
 
 @contextlib.contextmanager
