@@ -324,7 +324,8 @@ def order3_scaling(h_values=(200, 400, 800), boxes=("exact", "bound"), timeout: 
 # ----------------------------------------------------------------------------- report
 _SETTING_ROWS = {
     "blas1": "`OPENBLAS_NUM_THREADS=1` (no BLAS threads at all)",
-    "default": "default environment (`reach()` limits BLAS to 1 thread via threadpoolctl)",
+    "default": ("default environment (`import ocreach` first starts OpenBLAS with 1 thread; "
+                "`reach()` limits BLAS to 1 via threadpoolctl)"),
     "unlimited": "default environment, limit lifted (`OCREACH_BLAS_THREADS=2`: before issue #16)",
     "kernel1": "default environment, one native kernel thread (`OCREACH_THREADS=1`)",
 }
@@ -408,7 +409,8 @@ hull: docs/validation.md, "Pruned order-3 products bounded instead of formed".""
 
 def markdown(env: dict, s: dict, m: dict, o3: list[dict] | None) -> str:
     blas = "; ".join(f"{b['internal_api']} {b['version']} ({b['threading_layer']}, "
-                     f"{b['architecture']}, {b['num_threads']} threads by default)" for b in env["blas"])
+                     f"{b['architecture']}, {b['num_threads']} threads by default with numpy imported "
+                     "before ocreach)" for b in env["blas"])
     v = next((r for r in o3 or [] if r["h"] == 800 and r["box"] == "exact"), None)
     vrow = (f"| vdp order-3 `stt`, h_max 800 | {v['peak_kb'] / 1024:.0f} MB peak, {v['wall']:.0f} s | "
             "target < 2 GB |" if v else "| vdp order-3 `stt`, h_max 800 | not run here (`--order3`; "
