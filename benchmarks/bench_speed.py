@@ -435,8 +435,8 @@ threadpoolctl controller and rebuilds it only after an import, 0.06 ms per call;
 OpenBLAS: numpy's and scipy's (`scipy_openblas`) are both loaded and both set to 1 thread inside
 `reach()` (threadpoolctl reports both); (3) thread pools created at import: each OpenBLAS starts
 its one extra worker thread when loaded (3 threads in a process that imported numpy and scipy,
-1 with `OPENBLAS_NUM_THREADS=1`); whether they stay idle under the limit is not verified (see
-below); (4) the native kernel threads: the STT generation they run
+1 with `OPENBLAS_NUM_THREADS=1`); under the limit they used no CPU time over 5 runs (per-thread
+`/proc` counters); (4) the native kernel threads: the STT generation they run
 is ~0.003 s of `stt` on `dro` (STT section), and `OCREACH_THREADS=1` does not change the CPU
 time (row above).  Yet in the run of 2026-12-02 02:33 UTC (8 rounds, load 1.3-3.4, the spinner
 at 55 % of a core) the default environment used 1.27x the CPU time of `OPENBLAS_NUM_THREADS=1`
@@ -451,7 +451,7 @@ then `import ocreach` before numpy starts OpenBLAS with the limit's thread count
 in this benchmark's workers, which import ocreach first, the default environment and
 `OPENBLAS_NUM_THREADS=1` are the same process state; a program that imports numpy before ocreach
 keeps the old state.  Single processes are noisy in CPU time too: the same setting gave 0.51-0.69 s
-per run in consecutive processes (the two vCPUs share a core), hence the pairing and the medians.
+per run in consecutive processes (the two vCPUs share resources), hence the pairing and the medians.
 
 Earlier single-shot runs of this comparison (medians of 9 runs per setting, not paired) gave 0.76
 (load 16), 1.58 (load 15), 0.98 (load 2.4), and 0.88 and 1.34 minutes apart at load 0.2: the
