@@ -20,6 +20,11 @@ being merged (:func:`ocreach.reach.stt.fused_step`).  Materialising all of them 
 
 Peak memory is then ``O(chunk)`` for the blocks, ``CACHE_BYTES`` for the pruned products of the
 first blocks (``CACHE_BLOCKS * chunk`` products; the second pass reuses them) and the kept products (a few percent).
+
+The time still grows with the products formed (~H^3 / 6 per step; 99.7 % of them pruned on vdp).
+:class:`BoundedOrder3Products` (option ``pruned_box="bound"``) forms only the kept ones and boxes
+the pruned ones from per-pair bounds, ``O(H^2)`` per step, at the cost of a slightly looser box
+(docs/stt.md, "Pruned order-3 products").
 """
 from __future__ import annotations
 
