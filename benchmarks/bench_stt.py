@@ -122,7 +122,10 @@ def memory_markdown(mem: list[dict]) -> list[str]:
                     "from a 128 MB budget) and the pruned ones are not stored beyond the first eight",
                     "blocks' worth: the reduction's box takes their Gram matrix and a second pass for",
                     "`sum |U^T x|` (docs/stt.md), so the time still grows with the number of products",
-                    "formed (~H^3 / 6) but the memory does not.", ""]
+                    "formed (~H^3 / 6) but the memory does not.  Option `pruned_box=\"bound\"` forms",
+                    "only the kept products and bounds the pruned ones per generator pair (time and",
+                    "tightness: docs/stt.md, \"Pruned order-3 products\"; docs/benchmarks.md, \"Speed",
+                    "and memory\").", ""]
 
 
 def markdown(rows: list[dict], ratio: dict, eng: dict, mem: list[dict] | None = None,
@@ -170,7 +173,7 @@ def markdown(rows: list[dict], ratio: dict, eng: dict, mem: list[dict] | None = 
               "C(H+2, 3) ~ 1.4 M products of the H ~ 200 generators of dZ (Foss Eq. 22); the fused",
               "step evaluates them in blocks of the middle index (one BLAS product per block),",
               "skips merging for products whose norm bound is < 1e-3 of the h_max-th largest",
-              "generator (they go straight to the reduction's box; ~95 % of them on vdp), sorts",
+              "generator (they go straight to the reduction's box; 99.7 % of them over a vdp run), sorts",
               "the rest by a 64-bit monomial hash, and forms exponent rows only for the kept",
               "generators.  Remaining cost: forming the products (twice for the pruned ones, whose",
               "PCA box needs a second pass), the sort of the kept ones, and the PCA box of the",

@@ -1,9 +1,9 @@
 """Tightness of the STT sets measured with the exact polynomial-zonotope queries (issue 12).
 
     python examples/stt_tightness.py [--problem dro|vdp] [--input ball|box] [--order 2] [--h-max 400]
-                                     [--reduction pca|girard]
+                                     [--reduction pca|girard] [--pruned-box exact|bound]
                                      [--ball-input auto|zonotope|zonotope-coarse|pz] [--dirs 64] [--mc 20000]
-                                     [--out docs/figures]
+                                     [--out docs/figures] [--tag _h800]
 
 Truth: the support function of the true reachable set by direct multiple shooting
 (:func:`ocreach.reach.direct.transcription_support`, piecewise-constant controls on the grid, the
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 
@@ -68,10 +69,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--order", type=int, default=2)
     ap.add_argument("--h-max", type=int, default=400)
     ap.add_argument("--reduction", default="pca")
+    ap.add_argument("--pruned-box", default="exact", choices=("exact", "bound"))
     ap.add_argument("--ball-input", default="auto")
     ap.add_argument("--dirs", type=int, default=64)
     ap.add_argument("--mc", type=int, default=20000)
     ap.add_argument("--out", default="docs/figures")
+    ap.add_argument("--tag", default="", help="appended to the output file name (e.g. _h800)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     p = get_problem(a.problem)
@@ -81,14 +84,15 @@ def main(argv=None) -> dict:
     dirs = circle_directions(a.dirs)
     truth = truth_support(p, planes, dirs, out / f"stt_truth_{a.problem}_{a.input}.json")
     opts = dict(order=a.order, h_max=a.h_max, input_set=a.input, reduction=a.reduction,
-                ball_input=a.ball_input)
+                ball_input=a.ball_input, pruned_box=a.pruned_box)
     ocreach.reach(p, "stt", **opts)  # warm-up
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = ocreach.reach(p, "stt", **opts)
-    runtime = time.perf_counter() - t0
+    runtime, cpu = time.perf_counter() - t0, time.process_time() - c0
     mc = MonteCarlo(samples=a.mc, seed=11, mix=(0.3, 0.2, 0.5)).solve(p).points[-1]
     S = res.sets[-1]
-    report = {"problem": a.problem, "input": a.input, "options": opts, "runtime_warm_s": runtime}
+    report = {"problem": a.problem, "input": a.input, "options": opts, "runtime_warm_s": runtime,
+              "runtime_warm_cpu_s": cpu, "load_average": os.getloadavg()}
     for tag, dims in planes.items():
         P = S.project(dims)
         ht = np.asarray(truth[tag])
@@ -120,7 +124,8 @@ def main(argv=None) -> dict:
     print(f"stt runtime (warm): {runtime:.3f} s")
     atomic_write_text(out / f"stt_tightness_{a.problem}_{a.input}"
                       f"{'-' + a.ball_input if a.input == 'ball' else ''}_o{a.order}"
-                      f"{'' if a.reduction == 'pca' else '_' + a.reduction}.json", json.dumps(report, indent=2))
+                      f"{'' if a.reduction == 'pca' else '_' + a.reduction}"
+                      f"{'' if a.pruned_box == 'exact' else '_bound'}{a.tag}.json", json.dumps(report, indent=2))
     return report
 
 

@@ -8,6 +8,7 @@ Public API::
     r.support([1, 0, 0, 0])
     ocreach.compare(p, ["mc", "ode"])
 """
+from ocreach import _blas_start  # noqa: F401  (first, before numpy loads OpenBLAS)
 from ocreach.compare import compare
 from ocreach.errors import OcreachError, ProblemError, SetError, SolverError, UnknownNameError
 from ocreach.flow import integrate_batch, propagate, stm, stt

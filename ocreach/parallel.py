@@ -17,18 +17,25 @@ Two knobs, both without any change of results:
   the environment would have started.
 
 ``with parallel.settings(threads=2, blas_threads=1): ...`` sets both for a block of code.
+
+The limit alone does not give back all of single-threaded BLAS: a process whose OpenBLAS started
+with 2 threads spent 1.1-1.3x the CPU time of one started with ``OPENBLAS_NUM_THREADS=1`` on
+``stt``/``dro`` even under the 1-thread limit (docs/benchmarks.md, "Speed and memory").  So
+``import ocreach`` before numpy starts OpenBLAS with :func:`blas_default` threads
+(:func:`preset_blas_env`), unless the environment already says how many.
 """
 from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import threading
 from collections.abc import Iterator
 
 from ocreach.errors import ProblemError, check_count
 
-__all__ = ["blas_default", "blas_info", "blas_limit", "default_threads", "env_count", "set_threads",
-           "settings", "threads"]
+__all__ = ["blas_default", "blas_info", "blas_limit", "default_threads", "env_count", "preset_blas_env",
+           "set_threads", "settings", "threads"]
 
 _state = threading.local()
 
@@ -80,14 +87,48 @@ def blas_default() -> int:
     return 1 if env is None else env
 
 
+_controller: tuple[int, object] | None = None   # (len(sys.modules) when built, controller)
+
+
+def _thread_pools():
+    """threadpoolctl's controller of the loaded thread pools.  Building one scans the loaded
+    shared libraries (~4 ms, about 1 % of a 0.5 s ``reach``), so it is kept and built again only
+    when modules have been imported since (a new extension module can bring its own BLAS)."""
+    global _controller
+    from threadpoolctl import ThreadpoolController
+
+    n_modules = len(sys.modules)
+    cached = _controller
+    if cached is None or cached[0] != n_modules:
+        cached = _controller = (n_modules, ThreadpoolController())
+    return cached[1]
+
+
+#: environment variables through which OpenBLAS takes its thread count at start (in this order)
+OPENBLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def preset_blas_env() -> bool:
+    """Set ``OPENBLAS_NUM_THREADS`` to :func:`blas_default` if numpy (and so OpenBLAS) is not
+    loaded yet and none of :data:`OPENBLAS_THREAD_VARS` is set; returns whether it did.  Called
+    first thing by ``import ocreach``.  The variable is inherited by child processes; with numpy
+    already imported it is too late and nothing changes (the limit inside ``reach()`` still
+    holds).  A bad ``OCREACH_BLAS_THREADS`` is left to be reported where the limit is used."""
+    if "numpy" in sys.modules or any(os.environ.get(v) for v in OPENBLAS_THREAD_VARS):
+        return False
+    try:
+        os.environ["OPENBLAS_NUM_THREADS"] = str(blas_default())
+    except ProblemError:
+        return False
+    return True
+
+
 @contextlib.contextmanager
 def blas_limit(limit: int | None = None) -> Iterator[None]:
     """Limit the BLAS thread pools (OpenBLAS, MKL, BLIS) to ``limit`` threads (default
     :func:`blas_default`) inside the block; restores them afterwards."""
-    from threadpoolctl import threadpool_limits
-
     limit = blas_default() if limit is None else _check("blas_threads", limit)
-    with threadpool_limits(limits=limit, user_api="blas"):
+    with _thread_pools().limit(limits=limit, user_api="blas"):
         yield
 
 

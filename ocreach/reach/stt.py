@@ -54,6 +54,7 @@ if TYPE_CHECKING:
 
 INPUT_SETS = ("box", "ball")
 BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz")
+PRUNED_BOXES = ("exact", "bound")
 #: generators of the zonotope ball input per input dimension, ``ball_input="zonotope"``: support
 #: over the unit sphere in [1, 1.03] (exact, :func:`ocreach.sets.zonotope_support_range`):
 #: 2-D a regular 16-gon (<= 1.0196), 3-D 30 spread directions (<= 1.0269); other dimensions 2 n
@@ -238,15 +239,16 @@ def nonlinearity_index(phi: Sequence[np.ndarray], dZ: PolyZonotope, samples: int
 
 
 def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str, engine: str,
-             timer: Timer, counts: dict[str, int], chunk: int = 0) -> PolyZonotope:
+             timer: Timer, counts: dict[str, int], chunk: int = 0,
+             pruned_box: str = "exact") -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` (Foss Eq. 18-19, Alg. 1 lines 6-9).
 
     ``engine="library"``: the set library's ``tensor_map`` per order, exact sums and
     ``reduce_pz``; ``engine="fused"``: :func:`fused_step` (same set, faster; ``chunk`` bounds
-    its memory).
+    its memory, ``pruned_box`` chooses how its pruned order-3 products are boxed).
     """
     if engine == "fused":
-        return fused_step(phi, dZ, h_max, method, timer, counts, chunk=chunk)
+        return fused_step(phi, dZ, h_max, method, timer, counts, chunk=chunk, pruned_box=pruned_box)
     from ocreach.sets import tensor_map
 
     with timer("tensor_maps"):
@@ -292,7 +294,7 @@ def _bitmask(B: np.ndarray) -> np.ndarray:
 
 def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str = "pca",
                timer: Timer | None = None, counts: dict[str, int] | None = None,
-               prune: float = 1e-3, chunk: int = 0) -> PolyZonotope:
+               prune: float = 1e-3, chunk: int = 0, pruned_box: str = "exact") -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` in one vectorised pass (Foss Eq. 18, 21-22).
 
     Same result as the set library's ``tensor_map`` per order, exact sum and ``reduce_pz`` (checked
@@ -307,13 +309,14 @@ def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: 
     three) generators, and the exponent matrix is built only for the kept generators.
     Independent generators are treated as in ``tensor_map`` (temporary factors, every product
     containing one becomes independent; all-even ones shift the centre by half).
-    ``prune``: see :func:`_fused_generate` (0 = merge every product).
+    ``prune``, ``pruned_box``: see :func:`_fused_generate` (0 = merge every product).
     ``timer`` gets the phases ``tensor_maps`` (generation and merging) and ``reductions``.
     """
     timer = timer or Timer()
     with np.errstate(over="ignore", invalid="ignore"):
         with timer("tensor_maps"):
-            out = _fused_generate(phi, dZ, h_max, prune, chunk, absum=method == "girard")
+            out = _fused_generate(phi, dZ, h_max, prune, chunk, absum=method == "girard",
+                                  pruned_box=pruned_box)
         Gm, pruned = out[0], out[-1]
         # |G| > 1e150: G G^T of the PCA reduction overflows (SVD fails) -- the same divergence
         big = Gm.size and np.abs(Gm).max() > 1e150
@@ -331,7 +334,8 @@ def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: 
     return res[0]
 
 
-def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0, absum: bool = False):
+def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0, absum: bool = False,
+                    pruned_box: str = "exact"):
     """Generators, merged, of ``sum_j 1/j! Phi^(j)[x]dZ`` with their classification bits.
 
     Every product is named by three indices into the augmented generators (index 0, the centre,
@@ -340,9 +344,11 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     the ``h_max``-th largest order-1/2 generator is not merged but goes into the reduction's box
     (through :class:`ocreach.reach.stt_products.Order3Products`, returned as ``pruned``): sound
     (a sum of boxed generators is enclosed by the box of the parts), it only skips sorting the
-    tiny ones.
+    tiny ones.  ``pruned_box="exact"`` forms every pruned product for the exact box of them,
+    ``"bound"`` never forms them and bounds them (looser box, time ~ the kept products):
+    :func:`ocreach.reach.stt_products.order3_products`.
     """
-    from ocreach.reach.stt_products import PRUNE_MIN_PRODUCTS, Order3Products, default_chunk, n_products
+    from ocreach.reach.stt_products import PRUNE_MIN_PRODUCTS, default_chunk, n_products, order3_products
     from ocreach.sets.polyzonotope import merge_monomials, monomial_keys, sym_tensor
 
     n_ord = len(phi)
@@ -372,7 +378,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
         if prune > 0 and n_products(H) > PRUNE_MIN_PRODUCTS and h_max > 0:
             small = np.concatenate([np.linalg.norm(c, axis=0) for c in cols])
             thr = prune * np.partition(small, -min(h_max, small.size))[-min(h_max, small.size)]
-        prod = Order3Products(sym_tensor(phi[2]) / 6.0, Ga, thr, chunk)
+        prod = order3_products(sym_tensor(phi[2]) / 6.0, Ga, thr, chunk, pruned_box)
         merged, waiting = 0, sum(t.shape[1] for t in tris)
         for vals, tri in prod.kept(absum):
             cols.append(vals)
@@ -499,6 +505,11 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         blocks kept for the second pass -- plus the kept products); 0 = from a 128 MB budget
         per block
         (:func:`ocreach.reach.stt_products.default_chunk`).  Changes only round-off.
+        ``pruned_box`` ["exact"]: how the fused engine boxes the order-3 products it prunes
+        (most of them at large ``h_max``): ``"exact"`` forms every one for the exact PCA/Girard
+        box of them (time ~ all ``C(H + 2, 3)`` products), ``"bound"`` never forms them and
+        bounds them per generator pair (time ~ the kept products; a looser box, still
+        containing every pruned product: docs/stt.md).
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """
 
@@ -515,6 +526,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         engine: str = "fused"
         lift_independent: bool = False
         chunk: int = 0
+        pruned_box: str = "exact"
         rtol: float = 1e-10
         atol: float = 1e-12
 
@@ -537,6 +549,8 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
             if self.engine not in ("fused", "library"):
                 raise ProblemError(f"engine must be 'fused' or 'library'; got {self.engine!r}")
             self.chunk = check_count("chunk", self.chunk, 0)
+            if self.pruned_box not in PRUNED_BOXES:
+                raise ProblemError(f"pruned_box must be one of {PRUNED_BOXES}; got {self.pruned_box!r}")
             self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
             self.lift_independent = bool(self.lift_independent)
 
@@ -618,7 +632,8 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
                         counts["splits"] += 1
                         continue
                     try:
-                        dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk)
+                        dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk,
+                                       opt.pruned_box)
                     except (SolverError, SetError) as exc:
                         raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
                     new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
