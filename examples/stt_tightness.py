@@ -69,7 +69,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--order", type=int, default=2)
     ap.add_argument("--h-max", type=int, default=400)
     ap.add_argument("--reduction", default="pca")
-    ap.add_argument("--pruned-box", default="exact", choices=("exact", "bound"))
+    ap.add_argument("--pruned-box", default="bound", choices=("exact", "bound"))
     ap.add_argument("--ball-input", default="auto")
     ap.add_argument("--dirs", type=int, default=64)
     ap.add_argument("--mc", type=int, default=20000)
@@ -125,7 +125,7 @@ def main(argv=None) -> dict:
     atomic_write_text(out / f"stt_tightness_{a.problem}_{a.input}"
                       f"{'-' + a.ball_input if a.input == 'ball' else ''}_o{a.order}"
                       f"{'' if a.reduction == 'pca' else '_' + a.reduction}"
-                      f"{'' if a.pruned_box == 'exact' else '_bound'}{a.tag}.json", json.dumps(report, indent=2))
+                      f"{'' if a.pruned_box == 'exact' or a.order < 3 else '_bound'}{a.tag}.json", json.dumps(report, indent=2))
     return report
 
 
