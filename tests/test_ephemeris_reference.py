@@ -15,7 +15,7 @@ from ocreach.control.simulate import SimOptions, simulate
 from ocreach.control.station_keeping import delta_v_si
 from ocreach.errors import ProblemError, SolverError
 from ocreach.problem import get_problem
-from ocreach.shooting import min_norm_update
+from ocreach.shooting import min_norm_update, multiple_shooting
 
 
 @pytest.fixture(scope="module")
@@ -139,3 +139,21 @@ def test_a_trajectory_that_left_the_orbit_is_refused():
         correct_orbit(halo, 11, arcs_per_rev=2, use_cache=False)
     with pytest.raises(ProblemError, match="max_distance_ratio"):
         correct_orbit(halo, 1, max_distance_ratio=1.0, use_cache=False)
+
+
+def test_bad_numeric_options_get_a_clear_error(nrho):
+    """Options of the wrong type or range name the parameter (ProblemError), never a numpy
+    TypeError from ``np.isfinite`` nor a SolverError for an iteration budget of 0."""
+    cases = [(dict(max_distance_ratio="two"), "max_distance_ratio"),
+             (dict(max_distance_ratio=None), "max_distance_ratio"),
+             (dict(patch_phase=None), "patch_phase"), (dict(patch_phase="x"), "patch_phase"),
+             (dict(patch_phase=1.0), "patch_phase"), (dict(max_iter=0), "max_iter"),
+             (dict(max_iter="a"), "max_iter"), (dict(tol="x"), "tol")]
+    for opts, word in cases:
+        with pytest.raises(ProblemError, match=word):
+            correct_orbit(nrho, 1, use_cache=False, **opts)
+    for bad in ("x", None, float("nan"), True):
+        with pytest.raises(ProblemError, match="revolutions"):
+            ephemeris_reference(nrho, bad)
+    with pytest.raises(ProblemError, match="max_iter"):
+        multiple_shooting(None, np.zeros(2), np.zeros((2, 6)), np.zeros(2), max_iter=0)

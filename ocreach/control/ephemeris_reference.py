@@ -59,7 +59,7 @@ import numpy as np
 
 from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, EphemerisPlant
 from ocreach.control.reference import TrackingReference, reference_from_problem, verified_substeps
-from ocreach.errors import ProblemError, SolverError, check_count, check_positive
+from ocreach.errors import ProblemError, SolverError, check_count, check_positive, check_real
 from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting
 
 log = logging.getLogger("ocreach.control.ephemeris_reference")
@@ -245,13 +245,15 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
 
     revolutions = _check_revolutions(revolutions)
     arcs = check_count("arcs_per_rev", arcs_per_rev, 1)
-    check_positive("tol (defect tolerance)", tol)
-    if isinstance(max_distance_ratio, bool) or not np.isfinite(max_distance_ratio) \
-            or max_distance_ratio <= 1:
+    tol = check_positive("tol (defect tolerance)", tol)
+    max_iter = check_count("max_iter (Newton iterations)", max_iter, 1)
+    if check_real("max_distance_ratio", max_distance_ratio) <= 1:
         raise ProblemError(f"max_distance_ratio must be a number > 1; got {max_distance_ratio!r}")
-    if isinstance(patch_phase, bool) or not np.isfinite(patch_phase) or not 0 <= patch_phase < 1:
+    max_distance_ratio = float(max_distance_ratio)
+    if not 0 <= check_real("patch_phase", patch_phase) < 1:
         raise ProblemError(f"patch_phase (fraction of a patch interval) must be in [0, 1); got "
                            f"{patch_phase!r}")
+    patch_phase = float(patch_phase)
     if problem.reference is None:
         raise ProblemError(f"an ephemeris-corrected reference needs a periodic CR3BP reference "
                            f"orbit as its seed; problem {problem.id!r} has none")
@@ -305,8 +307,9 @@ def ephemeris_reference(problem, revolutions: float, *, epoch: Any = DEFAULT_EPO
     error <= 1e-6, :func:`~ocreach.control.reference.verified_substeps`).  Returns
     ``(reference, orbit)``; ``orbit.plant`` is the plant it is an orbit of.
     """
-    if isinstance(revolutions, bool) or not np.isfinite(revolutions) or revolutions <= 0:
+    if check_real("revolutions", revolutions) <= 0:
         raise ProblemError(f"revolutions must be a number > 0; got {revolutions!r}")
+    revolutions = float(revolutions)
     extra = check_count("lookahead_revolutions", lookahead_revolutions, 0)
     total = int(np.ceil(revolutions)) + extra
     orbit = correct_orbit(problem, total, epoch=epoch, bodies=bodies, dt=dt, **correct_options)
