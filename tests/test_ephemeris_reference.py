@@ -157,3 +157,22 @@ def test_bad_numeric_options_get_a_clear_error(nrho):
             ephemeris_reference(nrho, bad)
     with pytest.raises(ProblemError, match="max_iter"):
         multiple_shooting(None, np.zeros(2), np.zeros((2, 6)), np.zeros(2), max_iter=0)
+
+
+def test_cache_entry_that_is_not_an_orbit_of_the_current_dynamics_is_recomputed(nrho, tmp_path,
+                                                                                monkeypatch):
+    """The cache key holds the settings, not the dynamics' code: a stored orbit whose patch points
+    no longer satisfy the dynamics (here one moved by 1e-6 DU, its stored defects left small, as
+    after a change of the model) is re-checked on load and recomputed, not returned."""
+    import ocreach.control.ephemeris_reference as mod
+
+    monkeypatch.setattr(mod, "cache_folder", lambda: tmp_path)
+    a = correct_orbit(nrho, 1)
+    npz = next(tmp_path.glob("*.npz"))
+    with np.load(npz, allow_pickle=False) as data:
+        arrays = {k: np.array(data[k]) for k in data.files}
+    arrays["states"][2, 0] += 1e-6
+    np.savez(npz, **arrays)
+    b = correct_orbit(nrho, 1)
+    assert b.max_defect <= DEFECT_TOL
+    np.testing.assert_allclose(b.states, a.states, rtol=0, atol=1e-10)

@@ -42,7 +42,9 @@ trajectory of the plant's own equations, over many revolutions from a given epoc
 The corrected patch points are cached on disk (``$OCREACH_CACHE_DIR/ephemeris_reference``, default
 ``~/.cache/ocreach``): one ``.npz`` of arrays (loaded with ``allow_pickle=False``) and a ``.json``
 of settings and convergence history, written atomically, keyed by problem, orbit, epoch,
-revolutions, patch points, bodies and tolerance.
+revolutions, patch points, bodies and tolerance.  The key does not cover the dynamics' code, so
+a cached orbit is used only if its arc-end defects, re-integrated in this run's dynamics, are
+still within ``tol``; otherwise it is recomputed.
 """
 from __future__ import annotations
 
@@ -60,7 +62,7 @@ import numpy as np
 from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, EphemerisPlant
 from ocreach.control.reference import TrackingReference, reference_from_problem, verified_substeps
 from ocreach.errors import ProblemError, SolverError, check_count, check_positive, check_real
-from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting
+from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting, patch_defects
 
 log = logging.getLogger("ocreach.control.ephemeris_reference")
 
@@ -273,9 +275,16 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
     name, settings = _cache_key(problem, cr, epoch_jd, revolutions, arcs, patch_phase,
                                 tuple(plant.bodies), tol, frame_acceleration, max_distance_ratio)
     cached = _cache_load(name, settings, steps.size) if use_cache else None
-    if cached is not None:
-        return EphemerisOrbit(cached["times"], cached["states"], cached["defects"],
-                              cached["steps"].astype(int), cr.dt, cached["meta"], plant)
+    if cached is not None and np.array_equal(cached["steps"], steps):
+        # the key holds the settings, not the dynamics' code: re-check the stored patch points
+        # in the dynamics of this run (one batch of arcs) before trusting them
+        F_now, _ = patch_defects(model, times, cached["states"], cr.params)
+        if float(np.max(np.abs(F_now))) <= tol:
+            return EphemerisOrbit(times, cached["states"], F_now, steps, cr.dt, cached["meta"],
+                                  plant)
+        log.warning("cached ephemeris reference %s does not satisfy the current dynamics "
+                    "(largest defect %.3g > tol %g): recomputed", name,
+                    float(np.max(np.abs(F_now))), tol)
     seed = cr.state(steps % M)
     X, F, history = multiple_shooting(model, times, seed, cr.params, tol=tol, max_iter=max_iter)
     shift = X - seed
