@@ -55,7 +55,8 @@ import logging
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -63,6 +64,9 @@ from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, Ephem
 from ocreach.control.reference import TrackingReference, reference_from_problem, verified_substeps
 from ocreach.errors import ProblemError, SolverError, check_count, check_positive, check_real
 from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting, patch_defects
+
+if TYPE_CHECKING:
+    from ocreach.problem import Problem
 
 log = logging.getLogger("ocreach.control.ephemeris_reference")
 
@@ -159,7 +163,7 @@ def _check_revolutions(revolutions) -> int:
     return int(revolutions)
 
 
-def _cache_key(problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, float],
+def _cache_key(problem: Problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, float],
                revolutions: int, arcs: int, phase: float, bodies: tuple[str, ...], tol: float,
                frame_acceleration: str, distance_ratio: float) -> tuple[str, dict]:
     settings = {
@@ -178,14 +182,14 @@ def _cache_key(problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, flo
     return name, settings
 
 
-def cache_folder():
+def cache_folder() -> Path:
     """Folder of the cached orbits: ``$OCREACH_CACHE_DIR/ephemeris_reference``."""
     from ocreach.native.compile import cache_dir
 
     return cache_dir("ephemeris_reference")
 
 
-def _cache_paths(name: str):
+def _cache_paths(name: str) -> tuple[Path, Path]:
     d = cache_folder()
     return d / f"{name}.npz", d / f"{name}.json"
 
@@ -230,7 +234,7 @@ def patch_steps(steps_per_rev: int, revolutions: int, arcs_per_rev: int,
     return steps[(steps >= 0) & (steps <= revolutions * M)]
 
 
-def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
+def correct_orbit(problem: Problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
                   bodies: Sequence[str] = DEFAULT_BODIES, arcs_per_rev: int = 4,
                   tol: float = DEFECT_TOL, max_iter: int = 30, dt: float | None = None,
                   frame_acceleration: str = "modelled", patch_phase: float = 0.5,
@@ -241,8 +245,10 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
     (default the problem's, rounded to divide the period as in
     :func:`~ocreach.control.reference.reference_from_problem`); ``max_distance_ratio``: the
     corrected orbit's closest and farthest distance from the Moon must be within this factor of
-    the CR3BP orbit's (:func:`check_same_orbit`); ``use_cache``: read and write the disk cache.  Raises :class:`ProblemError` on bad input (an epoch outside DE421 included) and
-    :class:`SolverError` if the correction does not converge."""
+    the CR3BP orbit's (:func:`check_same_orbit`); ``use_cache``: read and write the disk cache
+    (a cached orbit is re-checked in the current dynamics).  Raises :class:`ProblemError` on bad
+    input (an epoch outside DE421 included) and :class:`SolverError` if the correction does not
+    converge."""
     from ocreach.ephemeris import parse_epoch
 
     revolutions = _check_revolutions(revolutions)
@@ -303,7 +309,7 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
     return orbit
 
 
-def ephemeris_reference(problem, revolutions: float, *, epoch: Any = DEFAULT_EPOCH,
+def ephemeris_reference(problem: Problem, revolutions: float, *, epoch: Any = DEFAULT_EPOCH,
                         bodies: Sequence[str] = DEFAULT_BODIES, lookahead_revolutions: int = 1,
                         n_sub: int | str = "auto", dt: float | None = None,
                         **correct_options: Any) -> tuple[TrackingReference, EphemerisOrbit]:
