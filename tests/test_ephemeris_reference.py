@@ -89,6 +89,14 @@ def test_disk_cache_round_trip(nrho, tmp_path, monkeypatch):
     (tmp_path / files[1]).write_bytes(b"damaged")  # a damaged cache entry is recomputed
     c = correct_orbit(nrho, 1)
     np.testing.assert_allclose(c.states, a.states, rtol=0, atol=1e-12)
+    (tmp_path / files[0]).write_text("[]")  # valid JSON that is not a settings dict: recomputed
+    d = correct_orbit(nrho, 1)
+    np.testing.assert_allclose(d.states, a.states, rtol=0, atol=1e-12)
+    with np.load(tmp_path / files[1], allow_pickle=False) as data:  # arrays that are not numbers
+        arrays = {k: np.array(data[k]) for k in data.files}
+    np.savez(tmp_path / files[1], **{**arrays, "states": np.full(arrays["states"].shape, "x")})
+    e = correct_orbit(nrho, 1)
+    np.testing.assert_allclose(e.states, a.states, rtol=0, atol=1e-12)
 
 
 def test_non_convergence_is_reported(nrho):

@@ -202,10 +202,14 @@ def _cache_load(name: str, settings: dict, n_patch: int) -> dict | None:
             arrays = {k: np.asarray(data[k]) for k in ("times", "states", "defects", "steps")}
     except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # absent or damaged: recompute
         return None
-    ok = (meta.get("settings") == settings and arrays["states"].shape == (n_patch, 6)
-          and arrays["defects"].shape == (n_patch - 1, 6)
-          and all(np.all(np.isfinite(a)) for a in arrays.values())
-          and float(np.max(np.abs(arrays["defects"]))) <= settings["tol"])
+    try:  # a foreign or damaged entry (JSON not a dict, arrays not numbers) is recomputed
+        ok = (isinstance(meta, dict) and meta.get("settings") == settings
+              and arrays["states"].shape == (n_patch, 6)
+              and arrays["defects"].shape == (n_patch - 1, 6)
+              and all(np.all(np.isfinite(a)) for a in arrays.values())
+              and float(np.max(np.abs(arrays["defects"]))) <= settings["tol"])
+    except (TypeError, ValueError):
+        ok = False
     return {**arrays, "meta": meta} if ok else None
 
 
