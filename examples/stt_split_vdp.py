@@ -2,14 +2,16 @@
 
     python examples/stt_split_vdp.py
 
-For x0 +- 0.1 and x0 +- 0.3 (order 2, h_max = 100) prints, per option set, the warm runtime (second
-run), the number of parts at the end, the share of 6000 Monte Carlo endpoints inside the union of
-the parts' outlines, and the outline area over the MC hull.  The unsplit order-2 run diverges at
-x0 +- 0.3 (the method raises SolverError).
+For x0 +- 0.1 and x0 +- 0.3 (h_max = 100; order 2, and order 3 at +- 0.1) prints, per option set,
+the warm runtime (second run), the number of parts at the end, the share of 6000 Monte Carlo
+endpoints inside the union of the parts' outlines, and the outline area over the MC hull; first
+the load average and the BLAS/OpenMP thread variables (runtimes depend on both).  The unsplit
+order-2 run diverges at x0 +- 0.3 (the method raises SolverError).
 """
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 
 from ocreach.errors import SolverError
@@ -31,6 +33,8 @@ CASES = {
 
 
 def main() -> None:
+    threads = {v: os.environ.get(v) for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    print(f"load average {os.getloadavg()}, threads {threads}")
     base = get_problem("vdp")
     for width, rows in CASES.items():
         p = dataclasses.replace(base, initial_set=Interval(base.x0 - width, base.x0 + width))

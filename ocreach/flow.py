@@ -349,6 +349,20 @@ def stt(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike, order
     return STTResult(times=g, states=states, controls=U, phi=tuple(phi))
 
 
+def _batch_values(name: str, value: ArrayLike, n: int, size: int | None = None) -> np.ndarray:
+    """``value`` (a number or ``n`` numbers; exactly ``size`` if given) as a float array of length
+    ``n``; a clear :class:`ProblemError` naming ``name`` otherwise."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ProblemError(f"{name} must be numbers; got {value!r}") from None
+    allowed = (size,) if size is not None else (1, n)
+    if arr.ndim > 1 or arr.size not in allowed:
+        what = f"{size} numbers" if size is not None else f"a number or {n} numbers (one per arc)"
+        raise ProblemError(f"{name} must be {what}; got shape {arr.shape}")
+    return np.broadcast_to(arr.reshape(-1), (n,)).copy()
+
+
 def stm_batch(model: Model, X0: ArrayLike, t0: ArrayLike, t1: ArrayLike, u: ArrayLike | None = None,
               *, p: ArrayLike | None = None, rtol: float = 1e-10, atol: float = 1e-12,
               max_steps: int = 100000) -> tuple[np.ndarray, np.ndarray]:
@@ -363,12 +377,11 @@ def stm_batch(model: Model, X0: ArrayLike, t0: ArrayLike, t1: ArrayLike, u: Arra
     if X.ndim != 2:
         raise ProblemError(f"X0 must have shape (N, {model.n_x}); got {X.shape}")
     n = X.shape[0]
-    u = np.zeros(model.n_u) if u is None else np.asarray(u, dtype=float).reshape(model.n_u)
+    u = np.zeros(model.n_u) if u is None else _batch_values("u", u, model.n_u, model.n_u)
     P = np.broadcast_to(_params(model, p, None), (n, model.n_p))
     args = np.concatenate([np.broadcast_to(u, (n, model.n_u)), P], axis=1)
     Y1 = integrate_batch(stt_rhs(model, 1), _stt_initial(model, 1, X),
-                         np.broadcast_to(np.asarray(t0, float), (n,)).copy(),
-                         np.broadcast_to(np.asarray(t1, float), (n,)).copy(), args,
+                         _batch_values("t0", t0, n), _batch_values("t1", t1, n), args,
                          rtol=rtol, atol=atol, max_steps=max_steps)
     return Y1[:, :model.n_x], _stt_unpack(model, 1, Y1)[0][:, :, :model.n_x]
 

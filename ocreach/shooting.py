@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ocreach.errors import SolverError
+from ocreach.errors import SolverError, check_count
 from ocreach.model import Model
 
 #: Integrator tolerances of the arcs (DOP853).
@@ -54,6 +54,7 @@ def multiple_shooting(model: Model, times: np.ndarray, seed: np.ndarray, params:
     while it does not reduce ``|F|``.  Returns ``(states, defects, history)``, the history the
     largest defect per iteration.  Raises :class:`SolverError` if a step cannot reduce the
     defects or it does not converge in ``max_iter`` iterations."""
+    max_iter = check_count("max_iter (Newton iterations)", max_iter, 1)
     X = np.array(seed, float)
     F, Phi = patch_defects(model, times, X, params)
     history = [float(np.max(np.abs(F)))]

@@ -253,6 +253,12 @@ def test_stm_batch_arcs_match_the_single_arc_helper(dro_model):
         np.testing.assert_allclose(Phi[i], P, atol=1e-10)
     with pytest.raises(ProblemError, match="X0 must have shape"):
         flow.stm_batch(dro_model, X_DRO, 0.0, 1.0)
+    # times and control of the wrong shape or type name the parameter (were numpy errors)
+    for kw, word in [(dict(t0=[0.0, 1.0], t1=1.0), "t0"), (dict(t0=0.0, t1="a"), "t1"),
+                     (dict(t0=0.0, t1=np.ones((3, 1))), "t1"),
+                     (dict(t0=0.0, t1=1.0, u=[1.0, 2.0, 3.0]), "u")]:
+        with pytest.raises(ProblemError, match=word):
+            flow.stm_batch(dro_model, X0, **kw)
 
 
 # ----------------------------------------------------------------------------- heyoka

@@ -369,3 +369,21 @@ def test_monomial_values_large_batches_equal_the_direct_powers():
     assert A.size * E.shape[1] > 50_000  # the log-space branch
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-300)
     assert np.all(got[ref == 0] == 0)
+
+
+def test_monomial_values_large_batches_keep_nan_and_inf():
+    """A NaN factor value gives NaN monomials in the log-space branch too (it was read as a zero
+    factor: 0 instead of NaN, a silent NaN path), and inf follows the direct powers."""
+    from ocreach.sets.polyzonotope import monomial_values
+
+    rng = np.random.default_rng(6)
+    E = (rng.random((60, 400)) < 0.1) * rng.integers(1, 4, (60, 400))
+    A = rng.uniform(-1, 1, (30, 60))
+    A[0, :] = np.nan
+    A[1, 3] = np.inf
+    ref = np.prod(A[:, :, None] ** E[None], axis=1)
+    got = monomial_values(A, E)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+    assert np.isnan(got[0, E.sum(axis=0) > 0]).all()
+    np.testing.assert_allclose(got[2:], ref[2:], rtol=1e-12, atol=1e-300)
+    np.testing.assert_array_equal(got[1], ref[1])

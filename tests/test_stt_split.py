@@ -82,6 +82,12 @@ def test_split_box_halves_contain_the_part():
     halves = split_box(pz, None, keep=3)
     h = np.max([hv.support(D) for hv in halves], axis=0)
     assert np.all(h >= (x @ D.T).max(axis=0) - 1e-9)
+    # and point-wise: every sample lies in the zonotope enclosure of one half (a membership LP
+    # per point; the support check above only tests the convex hull of the union), while each
+    # half alone misses some of them (so the check can fail)
+    inside = [hv.contains(x) for hv in halves]
+    assert np.all(inside[0] | inside[1])
+    assert not inside[0].all() and not inside[1].all()
 
 
 def test_no_split_triggered_equals_unsplit():

@@ -42,7 +42,9 @@ trajectory of the plant's own equations, over many revolutions from a given epoc
 The corrected patch points are cached on disk (``$OCREACH_CACHE_DIR/ephemeris_reference``, default
 ``~/.cache/ocreach``): one ``.npz`` of arrays (loaded with ``allow_pickle=False``) and a ``.json``
 of settings and convergence history, written atomically, keyed by problem, orbit, epoch,
-revolutions, patch points, bodies and tolerance.
+revolutions, patch points, bodies and tolerance.  The key does not cover the dynamics' code, so
+a cached orbit is used only if its arc-end defects, re-integrated in this run's dynamics, are
+still within ``tol``; otherwise it is recomputed.
 """
 from __future__ import annotations
 
@@ -53,14 +55,18 @@ import logging
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, EphemerisPlant
 from ocreach.control.reference import TrackingReference, reference_from_problem, verified_substeps
-from ocreach.errors import ProblemError, SolverError, check_count, check_positive
-from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting
+from ocreach.errors import ProblemError, SolverError, check_count, check_positive, check_real
+from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting, patch_defects
+
+if TYPE_CHECKING:
+    from ocreach.problem import Problem
 
 log = logging.getLogger("ocreach.control.ephemeris_reference")
 
@@ -157,7 +163,7 @@ def _check_revolutions(revolutions) -> int:
     return int(revolutions)
 
 
-def _cache_key(problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, float],
+def _cache_key(problem: Problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, float],
                revolutions: int, arcs: int, phase: float, bodies: tuple[str, ...], tol: float,
                frame_acceleration: str, distance_ratio: float) -> tuple[str, dict]:
     settings = {
@@ -176,14 +182,14 @@ def _cache_key(problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, flo
     return name, settings
 
 
-def cache_folder():
+def cache_folder() -> Path:
     """Folder of the cached orbits: ``$OCREACH_CACHE_DIR/ephemeris_reference``."""
     from ocreach.native.compile import cache_dir
 
     return cache_dir("ephemeris_reference")
 
 
-def _cache_paths(name: str):
+def _cache_paths(name: str) -> tuple[Path, Path]:
     d = cache_folder()
     return d / f"{name}.npz", d / f"{name}.json"
 
@@ -196,10 +202,14 @@ def _cache_load(name: str, settings: dict, n_patch: int) -> dict | None:
             arrays = {k: np.asarray(data[k]) for k in ("times", "states", "defects", "steps")}
     except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # absent or damaged: recompute
         return None
-    ok = (meta.get("settings") == settings and arrays["states"].shape == (n_patch, 6)
-          and arrays["defects"].shape == (n_patch - 1, 6)
-          and all(np.all(np.isfinite(a)) for a in arrays.values())
-          and float(np.max(np.abs(arrays["defects"]))) <= settings["tol"])
+    try:  # a foreign or damaged entry (JSON not a dict, arrays not numbers) is recomputed
+        ok = (isinstance(meta, dict) and meta.get("settings") == settings
+              and arrays["states"].shape == (n_patch, 6)
+              and arrays["defects"].shape == (n_patch - 1, 6)
+              and all(np.all(np.isfinite(a)) for a in arrays.values())
+              and float(np.max(np.abs(arrays["defects"]))) <= settings["tol"])
+    except (TypeError, ValueError):
+        ok = False
     return {**arrays, "meta": meta} if ok else None
 
 
@@ -228,7 +238,7 @@ def patch_steps(steps_per_rev: int, revolutions: int, arcs_per_rev: int,
     return steps[(steps >= 0) & (steps <= revolutions * M)]
 
 
-def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
+def correct_orbit(problem: Problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
                   bodies: Sequence[str] = DEFAULT_BODIES, arcs_per_rev: int = 4,
                   tol: float = DEFECT_TOL, max_iter: int = 30, dt: float | None = None,
                   frame_acceleration: str = "modelled", patch_phase: float = 0.5,
@@ -239,19 +249,23 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
     (default the problem's, rounded to divide the period as in
     :func:`~ocreach.control.reference.reference_from_problem`); ``max_distance_ratio``: the
     corrected orbit's closest and farthest distance from the Moon must be within this factor of
-    the CR3BP orbit's (:func:`check_same_orbit`); ``use_cache``: read and write the disk cache.  Raises :class:`ProblemError` on bad input (an epoch outside DE421 included) and
-    :class:`SolverError` if the correction does not converge."""
+    the CR3BP orbit's (:func:`check_same_orbit`); ``use_cache``: read and write the disk cache
+    (a cached orbit is re-checked in the current dynamics).  Raises :class:`ProblemError` on bad
+    input (an epoch outside DE421 included) and :class:`SolverError` if the correction does not
+    converge."""
     from ocreach.ephemeris import parse_epoch
 
     revolutions = _check_revolutions(revolutions)
     arcs = check_count("arcs_per_rev", arcs_per_rev, 1)
-    check_positive("tol (defect tolerance)", tol)
-    if isinstance(max_distance_ratio, bool) or not np.isfinite(max_distance_ratio) \
-            or max_distance_ratio <= 1:
+    tol = check_positive("tol (defect tolerance)", tol)
+    max_iter = check_count("max_iter (Newton iterations)", max_iter, 1)
+    if check_real("max_distance_ratio", max_distance_ratio) <= 1:
         raise ProblemError(f"max_distance_ratio must be a number > 1; got {max_distance_ratio!r}")
-    if isinstance(patch_phase, bool) or not np.isfinite(patch_phase) or not 0 <= patch_phase < 1:
+    max_distance_ratio = float(max_distance_ratio)
+    if not 0 <= check_real("patch_phase", patch_phase) < 1:
         raise ProblemError(f"patch_phase (fraction of a patch interval) must be in [0, 1); got "
                            f"{patch_phase!r}")
+    patch_phase = float(patch_phase)
     if problem.reference is None:
         raise ProblemError(f"an ephemeris-corrected reference needs a periodic CR3BP reference "
                            f"orbit as its seed; problem {problem.id!r} has none")
@@ -271,9 +285,16 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
     name, settings = _cache_key(problem, cr, epoch_jd, revolutions, arcs, patch_phase,
                                 tuple(plant.bodies), tol, frame_acceleration, max_distance_ratio)
     cached = _cache_load(name, settings, steps.size) if use_cache else None
-    if cached is not None:
-        return EphemerisOrbit(cached["times"], cached["states"], cached["defects"],
-                              cached["steps"].astype(int), cr.dt, cached["meta"], plant)
+    if cached is not None and np.array_equal(cached["steps"], steps):
+        # the key holds the settings, not the dynamics' code: re-check the stored patch points
+        # in the dynamics of this run (one batch of arcs) before trusting them
+        F_now, _ = patch_defects(model, times, cached["states"], cr.params)
+        if float(np.max(np.abs(F_now))) <= tol:
+            return EphemerisOrbit(times, cached["states"], F_now, steps, cr.dt, cached["meta"],
+                                  plant)
+        log.warning("cached ephemeris reference %s does not satisfy the current dynamics "
+                    "(largest defect %.3g > tol %g): recomputed", name,
+                    float(np.max(np.abs(F_now))), tol)
     seed = cr.state(steps % M)
     X, F, history = multiple_shooting(model, times, seed, cr.params, tol=tol, max_iter=max_iter)
     shift = X - seed
@@ -292,7 +313,7 @@ def correct_orbit(problem, revolutions: int, *, epoch: Any = DEFAULT_EPOCH,
     return orbit
 
 
-def ephemeris_reference(problem, revolutions: float, *, epoch: Any = DEFAULT_EPOCH,
+def ephemeris_reference(problem: Problem, revolutions: float, *, epoch: Any = DEFAULT_EPOCH,
                         bodies: Sequence[str] = DEFAULT_BODIES, lookahead_revolutions: int = 1,
                         n_sub: int | str = "auto", dt: float | None = None,
                         **correct_options: Any) -> tuple[TrackingReference, EphemerisOrbit]:
@@ -305,8 +326,9 @@ def ephemeris_reference(problem, revolutions: float, *, epoch: Any = DEFAULT_EPO
     error <= 1e-6, :func:`~ocreach.control.reference.verified_substeps`).  Returns
     ``(reference, orbit)``; ``orbit.plant`` is the plant it is an orbit of.
     """
-    if isinstance(revolutions, bool) or not np.isfinite(revolutions) or revolutions <= 0:
+    if check_real("revolutions", revolutions) <= 0:
         raise ProblemError(f"revolutions must be a number > 0; got {revolutions!r}")
+    revolutions = float(revolutions)
     extra = check_count("lookahead_revolutions", lookahead_revolutions, 0)
     total = int(np.ceil(revolutions)) + extra
     orbit = correct_orbit(problem, total, epoch=epoch, bodies=bodies, dt=dt, **correct_options)

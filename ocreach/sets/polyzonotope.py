@@ -165,11 +165,12 @@ def monomial_values(A: np.ndarray, E: np.ndarray) -> np.ndarray:
     Small problems use the direct power; large ones the magnitudes ``exp(log|A| @ E)`` (one matrix
     product instead of an (N, p, h) array of powers) with the sign from the parity of the negative
     factors with odd exponents; a zero factor with a positive exponent gives 0 (its log is
-    clamped far below any representable magnitude, 0 * log for zero exponents stays 0).
+    clamped far below any representable magnitude, 0 * log for zero exponents stays 0).  Factor
+    values that are not finite take the direct power, so a NaN propagates as it does there.
     """
     N, p = A.shape
     h = E.shape[1]
-    if N * p * h <= 50_000:
+    if N * p * h <= 50_000 or not np.all(np.isfinite(A)):
         return np.prod(A[:, :, None] ** E[None, :, :], axis=1)
     Ef = E.astype(float)
     absA = np.abs(A)
