@@ -1,9 +1,9 @@
 """DE421 ephemeris plant for closed loops whose controllers predict with the CR3BP.
 
 The controllers (LQR, MPC, tubes) keep the CR3BP reference and its coordinates; only the plant
-changes.  It integrates the Moon-centred point-mass ephemeris model of Patel & Scheeres Eq. 11
-(:func:`ocreach.models.ephemeris.ephemeris_inertial`, ICRF axes, DE421 refit; default bodies Moon,
-Earth, Sun, third-body form of the frame acceleration) in the problem's units ``l*``, ``t*``, and
+changes.  It integrates the Moon-centred point-mass ephemeris model (Patel & Scheeres Eq. 11
+plus the indirect term of the Moon-centred frame; :func:`ocreach.models.ephemeris.ephemeris_inertial`,
+ICRF axes, DE421 refit; default bodies Moon, Earth, Sun, third-body form of the frame acceleration) in the problem's units ``l*``, ``t*``, and
 maps states through the CR3BP rotating frame *fixed at the epoch*:
 
 * at the epoch (reference time ``t_0``) the frame's axes ``C_0`` are the true Earth-Moon synodic
@@ -146,7 +146,7 @@ class EphemerisPlant:
         ``omega = e_z`` (1 rad/TU): ``ds/dt = v``,
         ``dv/dt = C(t)^T a(C(t) s, C(t)(v + omega x s), t - t_0) - 2 omega x v - omega x (omega x s)
         + a_max u``, with ``a`` the acceleration of the Moon-centred ICRF model (Patel & Scheeres
-        Eq. 11), called symbolically, so every derivative (STM, MPC) comes from the one CasADi
+        Eq. 11 plus the Moon-centred frame's indirect term), called symbolically, so every derivative (STM, MPC) comes from the one CasADi
         model.  It is the plant of :meth:`step` expressed in the controllers' coordinates (the
         dynamics of :mod:`ocreach.control.ephemeris_reference`).  Cached on the plant's model.
         """
@@ -179,8 +179,8 @@ class EphemerisPlant:
             control_names=["ux", "uy", "uz"], param_names=["mu", "a_max"], thrust_param="a_max",
             control_set=self.kind if self.kind in ("ball", "box") else "ball", units=units,
             state_units=units.state_labels(3),
-            description=(f"DE421 point masses {list(self.bodies)} (Moon-centred, Patel & Scheeres "
-                         f"Eq. 11) in the CR3BP rotating frame fixed at epoch {self.epoch} TDB"))
+            description=(f"DE421 point masses {list(self.bodies)} (Moon-centred: Patel & Scheeres "
+                         f"Eq. 11 plus the frame's indirect term) in the CR3BP rotating frame fixed at epoch {self.epoch} TDB"))
 
     def step(self, x: np.ndarray, u: np.ndarray, w: np.ndarray, t0: float, dt: float) -> np.ndarray:
         f = self.model.f_fun
@@ -205,7 +205,7 @@ class EphemerisPlant:
         return {"plant": "ephemeris", "epoch": str(self.epoch), "bodies": list(self.bodies),
                 "circular": self.circular, "frame_acceleration": self.frame_acceleration,
                 "span_days": self.span_days,
-                "frame": "Moon-centred ICRF point masses (Patel & Scheeres Eq. 11, DE421 refit); "
+                "frame": "Moon-centred ICRF point masses (Patel & Scheeres Eq. 11 plus the Moon-centred frame's indirect term, DE421 refit); "
                          "CR3BP states through the rotating frame fixed at the epoch (true "
                          "Earth-Moon synodic axes at t0, uniform rotation 1 rad/TU)",
                 "mu_de421": float(gm_m / (gm_e + gm_m))}
