@@ -305,9 +305,12 @@ class EventTriggeredMPC(MPCWrapper):
 
     def predicted_gauge(self, k: int, x: np.ndarray) -> float:
         """Gauge in the next refresh's tube of ``x_ref(r) + Phi(r, k) (x - x_ref(k))``, ``r`` the
-        next refresh step after ``k`` and ``Phi`` the product of the reference's one-step STMs."""
+        next refresh step after ``k`` and ``Phi`` the product of the reference's one-step STMs
+        (along a non-periodic reference, after the last refresh: the tubes' last step)."""
         sched, ref = self.schedule, self.schedule.reference
         r = sched.next_refresh(sched.refresh_step(k))
+        if sched.starts is not None:
+            r = min(r, sched.end - 1)
         key = (k % ref.n_steps, r - k)  # Phi depends on the phase and the steps to go
         if key not in self._to_refresh:
             ref.linearize()
@@ -375,7 +378,7 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
     (``refresh_step``, the steps ``[first, end)`` it was active for, the same in revolutions,
     ``source``, ``guaranteed``, and ``fallback_reason`` when a sound method failed and the
     linear tube stood in)."""
-    M = schedule.reference.n_steps
+    M = schedule.reference.revolution_steps
     out = []
     for r in schedule.refresh_steps(n_steps):
         t = schedule.tube(r)
@@ -387,6 +390,37 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
     return out
 
 
+def _ephemeris_schedule(problem, ref: TrackingReference, initial: Any, disturbance: Any,
+                        membership: str, phase: Any, source: str, interval: Any,
+                        options: dict | None, source_given: bool, n_p: int) -> TubeSchedule:
+    """Drift tubes along the ephemeris-corrected reference
+    (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`: refreshed at every
+    apolune and where the sound method stops, nothing re-used).  A sound source taken from the
+    problem's defaults (not given) becomes ``"<method>-or-linear"``: guaranteed where the method
+    encloses, the linearised tube (labelled) where it cannot."""
+    from ocreach.control.ephemeris_tubes import along_reference_schedule
+
+    if membership not in MEMBERSHIPS:
+        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    if phase != "apolune":
+        raise ProblemError(f"phase along the ephemeris-corrected reference must be 'apolune' (the "
+                           f"tubes restart at every apolune); got {phase!r}")
+    if interval not in (None, "adaptive"):
+        raise ProblemError(f"tube_interval along the ephemeris-corrected reference must be None "
+                           f"or 'adaptive' (every apolune and where the sound method stops); "
+                           f"got {interval!r}")
+    if not source_given and source in ("taylor", "sdc"):
+        source = f"{source}-or-linear"
+    G0 = paper_initial_set(problem) if isinstance(initial, str) and initial == "paper" else initial
+    if isinstance(G0, str):
+        raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
+    # the run's steps and the last MPC window (n_p steps after the last solve)
+    end = min(ref.n_steps, ref.n_default + n_p + 1)
+    return along_reference_schedule(problem, ref, G0, disturbance, source,
+                                    wrap=as_box if membership == "box" else (lambda t: t),
+                                    options=options, end=end)
+
+
 def _check_reference_kind(reference: str, plant: str, controllers) -> None:
     """``reference`` of :func:`run_station_keeping`: a name in ``REFERENCES`` that fits the plant
     and the controllers."""
@@ -396,11 +430,6 @@ def _check_reference_kind(reference: str, plant: str, controllers) -> None:
         if plant != "ephemeris":
             raise ProblemError(f"reference='ephemeris' (the DE421-corrected orbit) needs "
                                f"plant='ephemeris'; got plant={plant!r}")
-        tubed = [c for c in controllers if c in TUBE_CONTROLLERS]
-        if tubed:
-            raise ProblemError(f"controllers {tubed} need the periodic CR3BP reference (tubes "
-                               f"refreshed every period); with reference='ephemeris' use "
-                               f"{[c for c in CONTROLLERS if c not in TUBE_CONTROLLERS]}")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -585,6 +614,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
     Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
     R = np.ones(problem.model.n_u) if R is None else R
+    source_given = tube_source is not None
     if tube_source is None:
         default = problem.extra.get("station_keeping") or {}
         tube_source = default.get("tube_source", "linear")
@@ -601,6 +631,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         ref, orbit = ephemeris_reference(problem, revolutions, epoch=epoch,
                                          bodies=ephemeris_bodies, dt=dt, n_sub=n_sub)
         schedule = None
+        if any(c in TUBE_CONTROLLERS for c in controllers):
+            schedule = _ephemeris_schedule(problem, ref, initial, disturbance, membership, phase,
+                                           tube_source, tube_interval, tube_options, source_given,
+                                           n_p)
     else:
         ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
         schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,
