@@ -472,7 +472,7 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference,
         on = un > 0
         activations = _edges(on)
     ks = np.arange(K + 1)
-    if schedule is None:  # no tube (the ephemeris-corrected reference): no gauge metrics
+    if schedule is None:  # no tube (no tube controller on the corrected reference): no gauges
         return _deviation_metrics(res, reference, problem, controller, dv, on, activations,
                                   None, None), None
     refresh = np.array([schedule.refresh_step(int(k)) for k in ks])
@@ -534,7 +534,7 @@ class StationKeepingRun:
     gauges: dict[str, np.ndarray | None]
     active: dict[str, np.ndarray]
     reference: TrackingReference
-    schedule: TubeSchedule | None  # None: no tube (the ephemeris-corrected reference)
+    schedule: TubeSchedule | None  # None: no tube (corrected reference, no tube controller)
     settings: dict = field(default_factory=dict)
     #: per controller with an anticipating trigger: the predicted gauge at the next refresh
     predicted_gauges: dict[str, np.ndarray] = field(default_factory=dict)
@@ -587,11 +587,16 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
     ``ephemeris_bodies`` from ``epoch`` = reference time 0, the CR3BP rotating frame fixed at the
     epoch); with ``reference="cr3bp"`` (default) the controllers, tubes and reference stay CR3BP
-    (the prediction model) either way.  ``reference="ephemeris"`` (with ``plant="ephemeris"``;
-    controllers ``mpc`` and ``lqr``): the DE421-corrected orbit of
-    :mod:`ocreach.control.ephemeris_reference` from ``epoch``, a natural orbit of the plant; the
-    LQR (finite-horizon, the reference is not periodic) and the MPC then linearise and predict
-    with the plant's own dynamics in the CR3BP frame fixed at the epoch, and there is no tube.
+    (the prediction model) either way.  ``reference="ephemeris"`` (with ``plant="ephemeris"``):
+    the DE421-corrected orbit of :mod:`ocreach.control.ephemeris_reference` from ``epoch``, a
+    natural orbit of the plant; the LQR (finite-horizon, the reference is not periodic), the MPCs
+    and the tubes then linearise and predict with the plant's own dynamics in the CR3BP frame
+    fixed at the epoch.  The tubes (only when ``event-mpc`` or ``tube-mpc`` runs) are computed
+    along the reference per refresh interval, nothing re-used
+    (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`; ``tube_interval`` None
+    or ``"adaptive"``, ``phase`` ``"apolune"``; the problem's default ``"taylor"`` becomes
+    ``"taylor-or-linear"``), and the tube MPC's margins and terminal set are computed over the
+    run's solve steps (:class:`~ocreach.control.tube_mpc.TubeMPC`).
     """
     from ocreach.control.report import PAPER_Q, paper_pattern
     from ocreach.control.tube_mpc import TubeMPC

@@ -17,7 +17,9 @@ the Pontryagin difference is exact: half widths minus the support function of ``
 axes, ``sum_j |E_i|_{dj}``.  The thrust margin uses the support of ``K E_i`` along the axes (box
 set) or ``sum_j ||K g_j||_2 >= max ||K e||_2`` (ball set), both sound for the zonotope ``E_i``.
 The margins depend only on the phase of the periodic reference and are computed once for all
-``M`` phases (vectorised).
+``M`` phases (vectorised).  Along a non-periodic reference (the ephemeris-corrected orbit) they
+are computed once for every solve step ``k = 0..S-1`` of the run (``S`` = the reference's
+``n_track``, at most ``M - N - 1``): a finite horizon, with the finite-horizon Riccati gains.
 
 **Terminal set** (``terminal_set=True``, default; Chisci et al. 2001 Sec. 3, Mayne et al. 2005
 Sec. 4): the last nominal deviation must lie in the LQR level set
@@ -35,7 +37,11 @@ Riccati identity ``P_j = Q + K^T R K + A_cl^T P_{j+1} A_cl``, so ``sqrt V`` cont
 candidate's terminal state by at most ``e = max sum_g ||P^{1/2} Phi_cl g||`` (the disturbance
 ``Bw W`` propagated over the horizon); the condition ``c sqrt(alpha) + e <= sqrt(alpha)`` is
 evaluated at setup (``terminal_robust``, with ``terminal_contraction`` ``c`` and
-``terminal_disturbance`` ``e``).  This argument is about the linearised error dynamics; the
+``terminal_disturbance`` ``e``).  The check needs no periodicity: ``alpha`` is the smallest over
+the start steps used, and ``c`` and ``e`` the largest over the steps ``j = k + N`` the terminal
+set is imposed at (every phase of a periodic reference; ``N..S-1+N`` along a non-periodic one,
+where the finite-horizon Riccati solution satisfies the same identity step by step), so the
+invariance holds for the run, not beyond it.  This argument is about the linearised error dynamics; the
 plant is nonlinear, the tube a linearisation (not a guaranteed enclosure).  The state and
 terminal constraints are softened by the MPC's penalised slack (the measured state may start
 outside ``X``) unless ``tube_slack=None``; only the hard form carries the guarantee.
