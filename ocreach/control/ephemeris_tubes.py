@@ -30,7 +30,13 @@ from typing import Any
 import numpy as np
 
 from ocreach.control.reference import TrackingReference
-from ocreach.control.tube import Tube, TubeSchedule, linear_drift_tube, sound_drift_partition
+from ocreach.control.tube import (
+    Tube,
+    TubeSchedule,
+    linear_drift_tube,
+    secondary_distance,
+    sound_drift_partition,
+)
 from ocreach.errors import ProblemError, SolverError
 
 #: tube sources accepted along a non-periodic reference
@@ -45,13 +51,7 @@ def apolune_steps(reference: TrackingReference, secondary: tuple[float, ...] | N
     the first revolution.  Returns the increasing steps (those within a quarter revolution of the
     reference's end are kept: the caller decides)."""
     M = reference.revolution_steps
-    if secondary is None:
-        if "mu" not in reference.model.param_names:
-            raise ProblemError("apolune_steps: give secondary=(x, y, z) for a model without 'mu'")
-        mu = reference.model.param("mu", reference.params)
-        secondary = (1.0 - mu, 0.0, 0.0)
-    s = np.asarray(secondary, float)
-    d = np.linalg.norm(reference.X[:, : s.size] - s, axis=1)
+    d = secondary_distance(reference, secondary, "apolune_steps")
     N = d.size
     out = [int(np.argmax(d[: min(M, N)]))]
     while True:

@@ -278,14 +278,20 @@ def apolune_phase(reference: TrackingReference, secondary: tuple[float, ...] | N
     ``(1 - mu, 0, 0)``; ``mu`` is the model's parameter of that name)."""
     if not reference.periodic:
         raise ProblemError(f"the apolune phase needs a periodic reference; '{reference.name}' is not")
+    return int(np.argmax(secondary_distance(reference, secondary, "apolune_phase")[:-1]))
+
+
+def secondary_distance(reference: TrackingReference, secondary: tuple[float, ...] | None,
+                       caller: str) -> np.ndarray:
+    """Distance of every reference state from the secondary (default, CR3BP: the Moon at
+    ``(1 - mu, 0, 0)``, ``mu`` the model's parameter of that name), (n_steps + 1,)."""
     if secondary is None:
         if "mu" not in reference.model.param_names:
-            raise ProblemError("apolune_phase: give secondary=(x, y, z) for a model without 'mu'")
+            raise ProblemError(f"{caller}: give secondary=(x, y, z) for a model without 'mu'")
         mu = reference.model.param("mu", reference.params)
         secondary = (1.0 - mu, 0.0, 0.0)
     s = np.asarray(secondary, float)
-    r = reference.X[:-1, : s.size] - s
-    return int(np.argmax(np.linalg.norm(r, axis=1)))
+    return np.linalg.norm(reference.X[:, : s.size] - s, axis=1)
 
 
 class TubeSchedule:
@@ -640,4 +646,4 @@ def _head(tube: Tube, n: int) -> Tube:
 
 __all__ = ["CasadiGauge", "Tube", "TubeSchedule", "apolune_phase", "casadi_gauge_constraints",
            "disturbance_input", "gauge", "linear_drift_tube", "reach_drift_tube",
-           "sound_drift_partition"]
+           "secondary_distance", "sound_drift_partition"]
