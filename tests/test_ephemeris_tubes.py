@@ -27,11 +27,13 @@ def eph(nrho):
 def test_tube_along_the_corrected_reference_contains_independent_drift(nrho, eph):
     """Zero-thrust samples from the corners and the inside of the initial deviation set,
     integrated with SciPy on the plant's own Moon-centred ICRF right-hand side (not the rotating
-    frame model the tube is computed in), stay in the guaranteed tube at every step."""
+    frame model, restricted to the interval, that the tube is computed in), stay in the
+    guaranteed tube at every step."""
     ref, orbit = eph
     end = 21
     G0 = paper_initial_set(nrho)
-    sched = along_reference_schedule(nrho, ref, G0, PAPER_W, "taylor", end=end)
+    sched = along_reference_schedule(nrho, ref, G0, PAPER_W, "taylor", end=end,
+                                     model_on=orbit.plant.frame_model_on)
     tubes = [sched.tube(int(r)) for r in sched.refresh_steps(end)]
     assert sched.refresh_step(0) == 0 and all(t.guaranteed for t in tubes)
     assert all("taylor" in t.source for t in tubes)
@@ -75,12 +77,50 @@ def test_event_and_tube_mpc_close_the_loop_on_the_corrected_reference(nrho):
 def test_fallback_is_labelled_and_a_strict_sound_source_refuses(nrho, eph):
     ref, _ = eph
     G0 = paper_initial_set(nrho)
-    why = "taylor refuses the model: not smooth"
-    (t,) = interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor-or-linear", {}, why)
+    why = "window reaches across a boundary of the blend of DE421 fit pieces 0 and 1"
+
+    def refused(t_lo, t_hi):
+        raise ProblemError(why)
+
+    (t,) = interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor-or-linear", {}, refused)
     assert (t.k0, len(t), t.guaranteed) == (3, 9, False)
     assert t.meta["fallback_reason"] == why and "linear" in t.source
     with pytest.raises(ProblemError, match="taylor-or-linear"):
-        interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor", {}, why)
+        interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor", {}, refused)
+
+
+def test_fit_window_is_the_same_function_without_if_else():
+    """The DE421 fit over 74 days has two pieces blended in time with if_else; restricted to a
+    window on one side of (or inside) the blend it is the same function with no if_else, and a
+    window across a blend boundary is refused."""
+    import casadi as ca
+
+    from ocreach.ephemeris import SECONDS_PER_DAY, ephemeris_fit
+
+    fit = ephemeris_fit(["earth", "moon", "sun"], "2026-01-01 00:00:00", 74.0)
+    assert len(fit.coefficients) == 2
+    e = fit.edges_days[1]
+    t = ca.SX.sym("t")
+
+    def fun(window=None):
+        return ca.Function("r", [t], [fit.position_expr("moon", t, "earth", window=window)])
+
+    def has_if_else(f):
+        return any(f.instruction_id(k) == ca.OP_IF_ELSE_ZERO for k in range(f.n_instructions()))
+
+    full = fun()
+    assert has_if_else(full)
+    for lo, hi in ((1.0, 8.0), (e - 0.5 * fit.blend_days, e + 0.5 * fit.blend_days),
+                   (e + 2 * fit.blend_days, e + 9.0)):
+        win = fun((lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY))
+        assert not has_if_else(win)
+        for d in np.linspace(lo, hi, 7):
+            np.testing.assert_array_equal(np.asarray(win(d * SECONDS_PER_DAY)),
+                                          np.asarray(full(d * SECONDS_PER_DAY)))
+    with pytest.raises(ProblemError, match="across a boundary"):
+        fun(((e - 2 * fit.blend_days) * SECONDS_PER_DAY, e * SECONDS_PER_DAY))
+    with pytest.raises(ProblemError, match="window"):
+        fun((2.0, 1.0))
 
 
 def test_non_periodic_schedule_refreshes_at_its_starts(eph):

@@ -25,6 +25,7 @@ interval falls back (docs/validation.md "DE421 ephemeris plant").
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -73,37 +74,55 @@ def refresh_starts(reference: TrackingReference, end: int) -> list[int]:
     return starts
 
 
-def sound_model_refusal(method: str, reference: TrackingReference) -> str | None:
-    """Why ``method`` (``taylor`` / ``sdc``) refuses the reference's model, or None."""
+def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
+                    model_on: Callable[[float, float], Any] | None) -> TrackingReference:
+    """The reference with the model the sound method runs on over steps ``a .. b``: its own, or
+    ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval without the
+    ``if_else`` between ephemeris fit pieces, e.g.
+    :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
+    :class:`ProblemError` saying why the method cannot run on it."""
+    import dataclasses
+
     from ocreach.reach.taylor import check_smooth
 
+    model = reference.model
+    if model_on is not None:
+        t_a, t_b = float(reference.time(a)), float(reference.time(b))
+        model = model_on(t_a - reference.dt, t_b + reference.dt)
     try:
-        check_smooth(reference.model)
+        check_smooth(model)
     except ProblemError as err:
-        return f"{method} refuses the model: " + " ".join(str(err).split())
-    return None
+        raise ProblemError(f"{method} refuses the model: " + " ".join(str(err).split())) from err
+    if model is reference.model:
+        return reference
+    return dataclasses.replace(reference, model=model, A=None, B=None, cache={})
 
 
 def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: Any,
                    disturbance: Any, source: str, options: dict,
-                   refusal: str | None) -> list[Tube]:
-    """Tubes covering steps ``a .. b - 1``: the sound partition (``taylor`` / ``sdc``), or the
-    linear tube (``linear``, or the fallback of ``*-or-linear`` with the reason)."""
+                   model_on: Callable[[float, float], Any] | None = None) -> list[Tube]:
+    """Tubes covering steps ``a .. b - 1``: the sound partition (``taylor`` / ``sdc``, on
+    :func:`sound_reference`), or the linear tube (``linear``, or the fallback of
+    ``*-or-linear`` with the reason)."""
     method = source.split("-")[0]
     if source != "linear":
-        reason = refusal
-        if reason is None:
+        try:
+            sound_ref = sound_reference(reference, a, b, method, model_on)
+        except ProblemError as err:
+            if source == method:
+                raise ProblemError(f"tube source {source!r} cannot enclose the drift along "
+                                   f"'{reference.name}' at steps {a}..{b}: {err}; use "
+                                   f"{method + '-or-linear'!r} (linearised tube where it "
+                                   f"cannot) or 'linear'") from err
+            reason = " ".join(str(err).split())[:300]
+        else:
             try:
-                return sound_drift_partition(problem, reference, a, b, G0, disturbance, method,
+                return sound_drift_partition(problem, sound_ref, a, b, G0, disturbance, method,
                                              max_tubes=b - a, **options)
             except SolverError as err:
                 if source == method:
                     raise
                 reason = " ".join(str(err).split())[:300]
-        elif source == method:
-            raise ProblemError(f"tube source {source!r} cannot enclose the drift along "
-                               f"'{reference.name}': {reason}; use {method + '-or-linear'!r} "
-                               f"(linearised tube where it cannot) or 'linear'")
     lin = linear_drift_tube(reference, a, b - a, G0, disturbance, problem.velocity_dims)
     if source == "linear":
         return [lin]
@@ -114,11 +133,14 @@ def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: An
 
 def along_reference_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
                              source: str, *, wrap=lambda t: t, options: dict | None = None,
-                             end: int | None = None) -> TubeSchedule:
+                             end: int | None = None,
+                             model_on: Callable[[float, float], Any] | None = None
+                             ) -> TubeSchedule:
     """A :class:`~ocreach.control.tube.TubeSchedule` of drift tubes along the non-periodic
     ``reference`` up to step ``end`` - 1 (default: its last step), refreshed at step 0, at every
     apolune and where the sound method stops (module docstring).  ``wrap`` maps each tube (e.g.
-    to its interval hull).  All tubes are computed here, once."""
+    to its interval hull); ``model_on``: the sound method's model per interval
+    (:func:`sound_reference`).  All tubes are computed here, once."""
     if reference.periodic:
         raise ProblemError(f"along_reference_schedule is for a non-periodic reference; "
                            f"'{reference.name}' is periodic (use drift_schedule)")
@@ -132,14 +154,14 @@ def along_reference_schedule(problem, reference: TrackingReference, G0: Any, dis
     from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS
 
     opts = {**ADAPTIVE_TUBE_OPTIONS, **(options or {})}
-    refusal = None if source == "linear" else sound_model_refusal(source.split("-")[0], reference)
     starts = refresh_starts(reference, end)
     tubes: dict[int, Tube] = {}
     for a, b in zip(starts, starts[1:] + [end], strict=True):
-        for t in interval_tubes(problem, reference, a, b, G0, disturbance, source, opts, refusal):
+        for t in interval_tubes(problem, reference, a, b, G0, disturbance, source, opts,
+                                model_on):
             tubes[t.k0] = wrap(t)
     return TubeSchedule(tubes.__getitem__, reference, starts=sorted(tubes), end=end)
 
 
 __all__ = ["SOURCES", "along_reference_schedule", "apolune_steps", "interval_tubes",
-           "refresh_starts", "sound_model_refusal"]
+           "refresh_starts", "sound_reference"]

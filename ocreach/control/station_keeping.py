@@ -392,12 +392,15 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
 
 def _ephemeris_schedule(problem, ref: TrackingReference, initial: Any, disturbance: Any,
                         membership: str, phase: Any, source: str, interval: Any,
-                        options: dict | None, source_given: bool, n_p: int) -> TubeSchedule:
+                        options: dict | None, source_given: bool, n_p: int,
+                        plant: EphemerisPlant) -> TubeSchedule:
     """Drift tubes along the ephemeris-corrected reference
     (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`: refreshed at every
     apolune and where the sound method stops, nothing re-used).  A sound source taken from the
     problem's defaults (not given) becomes ``"<method>-or-linear"``: guaranteed where the method
-    encloses, the linearised tube (labelled) where it cannot."""
+    encloses, the linearised tube (labelled) where it cannot.  The sound method runs on the
+    plant's frame model restricted to each interval (:meth:`EphemerisPlant.frame_model_on`: the
+    same function there, without the ``if_else`` between DE421 fit pieces)."""
     from ocreach.control.ephemeris_tubes import along_reference_schedule
 
     if membership not in MEMBERSHIPS:
@@ -418,7 +421,7 @@ def _ephemeris_schedule(problem, ref: TrackingReference, initial: Any, disturban
     end = min(ref.n_steps, ref.n_default + n_p + 1)
     return along_reference_schedule(problem, ref, G0, disturbance, source,
                                     wrap=as_box if membership == "box" else (lambda t: t),
-                                    options=options, end=end)
+                                    options=options, end=end, model_on=plant.frame_model_on)
 
 
 def _check_reference_kind(reference: str, plant: str, controllers) -> None:
@@ -639,7 +642,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         if any(c in TUBE_CONTROLLERS for c in controllers):
             schedule = _ephemeris_schedule(problem, ref, initial, disturbance, membership, phase,
                                            tube_source, tube_interval, tube_options, source_given,
-                                           n_p)
+                                           n_p, orbit.plant)
     else:
         ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
         schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,
