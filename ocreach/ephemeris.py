@@ -556,7 +556,10 @@ class CircularEarthMoon:
                 "emb": 0.0, "ssb": 0.0}[body]
 
     def position_expr(self, body: str, t: ca.SX | ca.MX, origin: str = "ssb", *,
-                      frame: str = "icrf") -> ca.SX | ca.MX:
+                      frame: str = "icrf", window: tuple[float, float] | None = None
+                      ) -> ca.SX | ca.MX:
+        """One smooth expression for all ``t`` (``window``, as in
+        :meth:`EphemerisFit.position_expr`, changes nothing)."""
         if check_body(frame, FRAMES, "frame") != "icrf":
             raise ProblemError(f"CircularEarthMoon supports frame='icrf' only; got frame={frame!r}")
         w = (self._share(body) - self._share(origin)) * self.a

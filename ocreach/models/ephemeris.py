@@ -281,7 +281,6 @@ def ephemeris_synodic(
 
     t = ca.SX.sym("t")
     ts = tu * t
-    win = None if window is None else (tu * float(window[0]), tu * float(window[1]))
     r = ca.SX.sym("r", 3)
     v = ca.SX.sym("v", 3)
     u = ca.SX.sym("u", 3)
