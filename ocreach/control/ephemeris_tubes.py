@@ -18,10 +18,12 @@ frame, :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model`):
   ``meta["fallback_reason"]`` the method's message, so metrics.json says per refresh interval
   which tube was used (:func:`~ocreach.control.station_keeping.tube_log`).
 
-The frame model selects and blends ephemeris fit pieces in time with ``if_else``
-(:mod:`ocreach.ephemeris`), which the Lagrange remainder of ``taylor`` / ``sdc`` refuses (its
-dynamics are not twice continuously differentiable as a CasADi expression), so on this model every
-interval falls back (docs/validation.md "DE421 ephemeris plant").
+The frame model of a long run joins two DE421 fit pieces in time with ``if_else``
+(:mod:`ocreach.ephemeris`), which the Lagrange remainder of ``taylor`` / ``sdc`` refuses, so the
+sound method runs per interval on ``model_on(t_a - dt, t_b + dt)``
+(:meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
+that window without the ``if_else``); an interval across the blend of two pieces falls back
+(docs/validation.md "DE421 ephemeris plant, corrected reference: event-triggered and tube MPC").
 """
 from __future__ import annotations
 
