@@ -424,7 +424,8 @@ class EphemerisFit:
 
     # ------------------------------------------------------------------ symbolic
     def position_expr(self, body: str, t: ca.SX | ca.MX, origin: str = "ssb", *,
-                      frame: str = "icrf") -> ca.SX | ca.MX:
+                      frame: str = "icrf", window: tuple[float, float] | None = None
+                      ) -> ca.SX | ca.MX:
         """CasADi expression (3x1, km) of the fitted position; ``t`` in seconds after the epoch.
 
         A polynomial in ``t`` on each piece, hence smooth to any order there; when the span has
@@ -432,7 +433,17 @@ class EphemerisFit:
         the degree-9 smoothstep (:data:`_SMOOTHSTEP`), so the expression is C^4 everywhere and
         ``ca.jacobian(expr, t)`` is the exact velocity of the fit.  Only valid inside the fitted
         interval.
+
+        ``window = (lo, hi)`` (seconds after the epoch): the expression only for ``lo <= t <= hi``,
+        the branch of every ``if_else`` that holds on the whole window taken directly, so it is the
+        same function there and has no ``if_else`` (a model a sound reachability method accepts).
+        A window that reaches across a branch boundary (the start or end of a blend) raises
+        :class:`ProblemError`.
         """
+        if window is not None:
+            w_lo, w_hi = (float(w) for w in window)
+            if not (np.isfinite(w_lo) and np.isfinite(w_hi) and w_lo <= w_hi):
+                raise ProblemError(f"window must be (lo, hi) seconds with lo <= hi; got {window!r}")
         vals = []
         for k, (lo, hi) in enumerate(self.piece_bounds_days):
             lo, hi = lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY
@@ -444,8 +455,21 @@ class EphemerisFit:
             e0 = (self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY
             e1 = (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY
             w = _smoothstep_expr((t - e0) / (e1 - e0))
-            out = ca.if_else(t < e0, out,
-                             ca.if_else(t < e1, out + w * (vals[k] - out), vals[k]))
+            if window is None:
+                out = ca.if_else(t < e0, out,
+                                 ca.if_else(t < e1, out + w * (vals[k] - out), vals[k]))
+            elif w_hi < e0:
+                pass
+            elif w_lo >= e0 and w_hi < e1:
+                out = out + w * (vals[k] - out)
+            elif w_lo >= e1:
+                out = vals[k]
+            else:
+                raise ProblemError(
+                    f"window [{w_lo / SECONDS_PER_DAY:.6g}, {w_hi / SECONDS_PER_DAY:.6g}] d reaches "
+                    f"across a boundary of the blend of DE421 fit pieces {k - 1} and {k} "
+                    f"([{e0 / SECONDS_PER_DAY:.6g}, {e1 / SECONDS_PER_DAY:.6g}] d): no single "
+                    f"smooth expression holds on it")
         R = self._rotation(frame)
         return out if R is None else ca.mtimes(ca.DM(R), out)
 
@@ -532,7 +556,10 @@ class CircularEarthMoon:
                 "emb": 0.0, "ssb": 0.0}[body]
 
     def position_expr(self, body: str, t: ca.SX | ca.MX, origin: str = "ssb", *,
-                      frame: str = "icrf") -> ca.SX | ca.MX:
+                      frame: str = "icrf", window: tuple[float, float] | None = None
+                      ) -> ca.SX | ca.MX:
+        """One smooth expression for all ``t`` (``window``, as in
+        :meth:`EphemerisFit.position_expr`, changes nothing)."""
         if check_body(frame, FRAMES, "frame") != "icrf":
             raise ProblemError(f"CircularEarthMoon supports frame='icrf' only; got frame={frame!r}")
         w = (self._share(body) - self._share(origin)) * self.a

@@ -171,9 +171,6 @@ def test_reference_option_bad_combinations(nrho):
                             reference="de440")
     with pytest.raises(ProblemError, match="needs plant='ephemeris'"):
         run_station_keeping(nrho, controllers=("lqr",), revolutions=1, reference="ephemeris")
-    with pytest.raises(ProblemError, match=r"\['event-mpc'\] need the periodic"):
-        run_station_keeping(nrho, controllers=("event-mpc", "lqr"), revolutions=1,
-                            plant="ephemeris", reference="ephemeris")
 
 
 def test_report_reference_option_on_the_command_line(tmp_path):

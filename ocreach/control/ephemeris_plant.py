@@ -152,7 +152,27 @@ class EphemerisPlant:
         """
         return self.model.cached(("cr3bp_frame_model", self.t0, self.mu), self._build_frame_model)
 
-    def _build_frame_model(self):
+    def frame_model_on(self, t_lo: float, t_hi: float):
+        """:meth:`frame_model` for reference times ``t_lo <= t <= t_hi`` only: the same function
+        there, without the ``if_else`` between DE421 fit pieces (``window`` of
+        :func:`~ocreach.models.ephemeris.ephemeris_inertial`), for sound reachability.  Raises
+        :class:`ProblemError` when the interval reaches across a boundary of a blend of pieces."""
+        from ocreach.models.ephemeris import ephemeris_inertial
+
+        if self.circular:  # the circular stand-in is one smooth expression already
+            return self.frame_model()
+        window = (float(t_lo) - self.t0, float(t_hi) - self.t0)
+
+        def build():
+            inertial = ephemeris_inertial(
+                self.bodies, "moon", self.epoch, self.span_days + 1.0, 1.0, 1.0, 1.0,
+                units=self.units, frame_acceleration=self.frame_acceleration,
+                ephemeris=self.ephemeris, window=window)
+            return self._build_frame_model(inertial, f"-window-{t_lo:.17g}-{t_hi:.17g}")
+
+        return self.model.cached(("cr3bp_frame_model", self.t0, self.mu, window), build)
+
+    def _build_frame_model(self, inertial=None, suffix: str = ""):
         import casadi as ca
 
         from ocreach.model import Model
@@ -168,13 +188,14 @@ class EphemerisPlant:
         C = ca.mtimes(ca.DM(self.C0), Rz)
         om_s = ca.vertcat(-s[1], s[0], 0)  # e_z x s
         y = ca.vertcat(ca.mtimes(C, s), ca.mtimes(C, v + om_s), 1)
-        a_in = self.model.f_fun(y, ca.DM.zeros(3), t - self.t0, ca.DM(self._p))[3:6]
+        inertial = self.model if inertial is None else inertial
+        a_in = inertial.f_fun(y, ca.DM.zeros(3), t - self.t0, ca.DM(self._p))[3:6]
         acc = (ca.mtimes(C.T, a_in) + ca.vertcat(2 * v[1] + s[0], -2 * v[0] + s[1], 0)
                + a_max * u)
         f = ca.cse(ca.vertcat(v, acc))
         units = self.units
         return Model.build(
-            "ephemeris-cr3bp-frame", x, u, f, t=t, p=ca.vertcat(mu, a_max),
+            "ephemeris-cr3bp-frame" + suffix, x, u, f, t=t, p=ca.vertcat(mu, a_max),
             p_default=[self.mu, self.a_max], state_names=["x", "y", "z", "vx", "vy", "vz"],
             control_names=["ux", "uy", "uz"], param_names=["mu", "a_max"], thrust_param="a_max",
             control_set=self.kind if self.kind in ("ball", "box") else "ball", units=units,

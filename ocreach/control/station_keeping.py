@@ -305,9 +305,12 @@ class EventTriggeredMPC(MPCWrapper):
 
     def predicted_gauge(self, k: int, x: np.ndarray) -> float:
         """Gauge in the next refresh's tube of ``x_ref(r) + Phi(r, k) (x - x_ref(k))``, ``r`` the
-        next refresh step after ``k`` and ``Phi`` the product of the reference's one-step STMs."""
+        next refresh step after ``k`` and ``Phi`` the product of the reference's one-step STMs
+        (along a non-periodic reference, after the last refresh: the tubes' last step)."""
         sched, ref = self.schedule, self.schedule.reference
         r = sched.next_refresh(sched.refresh_step(k))
+        if sched.starts is not None:
+            r = min(r, sched.end - 1)
         key = (k % ref.n_steps, r - k)  # Phi depends on the phase and the steps to go
         if key not in self._to_refresh:
             ref.linearize()
@@ -375,7 +378,7 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
     (``refresh_step``, the steps ``[first, end)`` it was active for, the same in revolutions,
     ``source``, ``guaranteed``, and ``fallback_reason`` when a sound method failed and the
     linear tube stood in)."""
-    M = schedule.reference.n_steps
+    M = schedule.reference.revolution_steps
     out = []
     for r in schedule.refresh_steps(n_steps):
         t = schedule.tube(r)
@@ -387,6 +390,40 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
     return out
 
 
+def _ephemeris_schedule(problem, ref: TrackingReference, initial: Any, disturbance: Any,
+                        membership: str, phase: Any, source: str, interval: Any,
+                        options: dict | None, source_given: bool, n_p: int,
+                        plant: EphemerisPlant) -> TubeSchedule:
+    """Drift tubes along the ephemeris-corrected reference
+    (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`: refreshed at every
+    apolune and where the sound method stops, nothing re-used).  A sound source taken from the
+    problem's defaults (not given) becomes ``"<method>-or-linear"``: guaranteed where the method
+    encloses, the linearised tube (labelled) where it cannot.  The sound method runs on the
+    plant's frame model restricted to each interval (:meth:`EphemerisPlant.frame_model_on`: the
+    same function there, without the ``if_else`` between DE421 fit pieces)."""
+    from ocreach.control.ephemeris_tubes import along_reference_schedule
+
+    if membership not in MEMBERSHIPS:
+        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    if phase != "apolune":
+        raise ProblemError(f"phase along the ephemeris-corrected reference must be 'apolune' (the "
+                           f"tubes restart at every apolune); got {phase!r}")
+    if interval not in (None, "adaptive"):
+        raise ProblemError(f"tube_interval along the ephemeris-corrected reference must be None "
+                           f"or 'adaptive' (every apolune and where the sound method stops); "
+                           f"got {interval!r}")
+    if not source_given and source in ("taylor", "sdc"):
+        source = f"{source}-or-linear"
+    G0 = paper_initial_set(problem) if isinstance(initial, str) and initial == "paper" else initial
+    if isinstance(G0, str):
+        raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
+    # the run's steps and the last MPC window (n_p steps after the last solve)
+    end = min(ref.n_steps, ref.n_default + n_p + 1)
+    return along_reference_schedule(problem, ref, G0, disturbance, source,
+                                    wrap=as_box if membership == "box" else (lambda t: t),
+                                    options=options, end=end, model_on=plant.frame_model_on)
+
+
 def _check_reference_kind(reference: str, plant: str, controllers) -> None:
     """``reference`` of :func:`run_station_keeping`: a name in ``REFERENCES`` that fits the plant
     and the controllers."""
@@ -396,11 +433,6 @@ def _check_reference_kind(reference: str, plant: str, controllers) -> None:
         if plant != "ephemeris":
             raise ProblemError(f"reference='ephemeris' (the DE421-corrected orbit) needs "
                                f"plant='ephemeris'; got plant={plant!r}")
-        tubed = [c for c in controllers if c in TUBE_CONTROLLERS]
-        if tubed:
-            raise ProblemError(f"controllers {tubed} need the periodic CR3BP reference (tubes "
-                               f"refreshed every period); with reference='ephemeris' use "
-                               f"{[c for c in CONTROLLERS if c not in TUBE_CONTROLLERS]}")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -443,7 +475,7 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference,
         on = un > 0
         activations = _edges(on)
     ks = np.arange(K + 1)
-    if schedule is None:  # no tube (the ephemeris-corrected reference): no gauge metrics
+    if schedule is None:  # no tube (no tube controller on the corrected reference): no gauges
         return _deviation_metrics(res, reference, problem, controller, dv, on, activations,
                                   None, None), None
     refresh = np.array([schedule.refresh_step(int(k)) for k in ks])
@@ -505,7 +537,7 @@ class StationKeepingRun:
     gauges: dict[str, np.ndarray | None]
     active: dict[str, np.ndarray]
     reference: TrackingReference
-    schedule: TubeSchedule | None  # None: no tube (the ephemeris-corrected reference)
+    schedule: TubeSchedule | None  # None: no tube (corrected reference, no tube controller)
     settings: dict = field(default_factory=dict)
     #: per controller with an anticipating trigger: the predicted gauge at the next refresh
     predicted_gauges: dict[str, np.ndarray] = field(default_factory=dict)
@@ -558,11 +590,16 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
     ``ephemeris_bodies`` from ``epoch`` = reference time 0, the CR3BP rotating frame fixed at the
     epoch); with ``reference="cr3bp"`` (default) the controllers, tubes and reference stay CR3BP
-    (the prediction model) either way.  ``reference="ephemeris"`` (with ``plant="ephemeris"``;
-    controllers ``mpc`` and ``lqr``): the DE421-corrected orbit of
-    :mod:`ocreach.control.ephemeris_reference` from ``epoch``, a natural orbit of the plant; the
-    LQR (finite-horizon, the reference is not periodic) and the MPC then linearise and predict
-    with the plant's own dynamics in the CR3BP frame fixed at the epoch, and there is no tube.
+    (the prediction model) either way.  ``reference="ephemeris"`` (with ``plant="ephemeris"``):
+    the DE421-corrected orbit of :mod:`ocreach.control.ephemeris_reference` from ``epoch``, a
+    natural orbit of the plant; the LQR (finite-horizon, the reference is not periodic), the MPCs
+    and the tubes then linearise and predict with the plant's own dynamics in the CR3BP frame
+    fixed at the epoch.  The tubes (only when ``event-mpc`` or ``tube-mpc`` runs) are computed
+    along the reference per refresh interval, nothing re-used
+    (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`; ``tube_interval`` None
+    or ``"adaptive"``, ``phase`` ``"apolune"``; the problem's default ``"taylor"`` becomes
+    ``"taylor-or-linear"``), and the tube MPC's margins and terminal set are computed over the
+    run's solve steps (:class:`~ocreach.control.tube_mpc.TubeMPC`).
     """
     from ocreach.control.report import PAPER_Q, paper_pattern
     from ocreach.control.tube_mpc import TubeMPC
@@ -585,6 +622,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
     Q = paper_pattern(problem, PAPER_Q[0], PAPER_Q[3]) if Q is None else Q
     R = np.ones(problem.model.n_u) if R is None else R
+    source_given = tube_source is not None
     if tube_source is None:
         default = problem.extra.get("station_keeping") or {}
         tube_source = default.get("tube_source", "linear")
@@ -601,6 +639,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         ref, orbit = ephemeris_reference(problem, revolutions, epoch=epoch,
                                          bodies=ephemeris_bodies, dt=dt, n_sub=n_sub)
         schedule = None
+        if any(c in TUBE_CONTROLLERS for c in controllers):
+            schedule = _ephemeris_schedule(problem, ref, initial, disturbance, membership, phase,
+                                           tube_source, tube_interval, tube_options, source_given,
+                                           n_p, orbit.plant)
     else:
         ref = reference_from_problem(problem, dt=dt, n_sub=n_sub)
         schedule = drift_schedule(problem, ref, initial=initial, disturbance=disturbance,

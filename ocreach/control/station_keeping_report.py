@@ -7,7 +7,7 @@
 run_station_keeping` and writes, atomically, ``metrics.json`` (one entry per controller and the
 settings), ``report.md``, ``report.html`` and the figures ``trajectory.png`` (3-D with the thrust
 arcs), ``projections.png`` (x-y and y-z with the tube boxes), ``gauge.png`` (with the trigger and
-release lines; not with the ephemeris reference, which has no tube), ``thrust.png`` and
+release lines; with the ephemeris reference only when a tube controller ran), ``thrust.png`` and
 ``delta_v.png``.  Every sentence with a number is computed from
 the run.
 """
@@ -135,14 +135,7 @@ def summary_lines(data: dict) -> list[str]:
                "outside the tube with thrust off)" if m["max_gauge_off"] is not None else "")
             + f", {m['time_per_step_ms']:.3g} ms per step, {m['solver_failures']} solver "
               "failure(s).")
-    ts = (data.get("tube-mpc") or {}).get("terminal_set")
-    if ts:
-        lines.append(f"tube-mpc terminal set d^T P d <= alpha = {ts['alpha']:.3g}: sqrt(V) "
-                     f"contracts by {ts['contraction']:.6g} per step, the disturbance moves the "
-                     f"terminal state by <= {ts['disturbance_term']:.3g}; "
-                     + ("robustly invariant (recursive feasibility of the hard form, for the "
-                        "linearised error dynamics)." if ts["robustly_invariant"] else
-                        "NOT robustly invariant: no recursive-feasibility guarantee."))
+    lines += terminal_set_lines(data)
     if "event-mpc" in data and len(names) > 1:
         e = data["event-mpc"]
         for n in names:
@@ -154,6 +147,19 @@ def summary_lines(data: dict) -> list[str]:
                  f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
                  f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")
     return lines
+
+
+def terminal_set_lines(data: dict) -> list[str]:
+    """The tube MPC's terminal set and its robust-invariance check (if it ran with one)."""
+    ts = (data.get("tube-mpc") or {}).get("terminal_set")
+    if not ts:
+        return []
+    return [f"tube-mpc terminal set d^T P d <= alpha = {ts['alpha']:.3g}: sqrt(V) "
+            f"contracts by {ts['contraction']:.6g} per step, the disturbance moves the "
+            f"terminal state by <= {ts['disturbance_term']:.3g}; "
+            + ("robustly invariant (recursive feasibility of the hard form, for the "
+               "linearised error dynamics)." if ts["robustly_invariant"] else
+               "NOT robustly invariant: no recursive-feasibility guarantee.")]
 
 
 def tube_lines(tubes: list[dict]) -> list[str]:
@@ -176,7 +182,7 @@ def tube_lines(tubes: list[dict]) -> list[str]:
 
 
 def ephemeris_reference_lines(data: dict, names: list[str]) -> list[str]:
-    """Summary sentences of a run on the DE421-corrected reference (no tube, no gauge)."""
+    """Summary sentences of a run on the DE421-corrected reference (its tubes, if any)."""
     s = data["settings"]
     rf, pl = s["reference"], s["plant"]
     lines = [f"Reference: the CR3BP orbit corrected over {rf['revolutions_corrected']} "
@@ -186,15 +192,24 @@ def ephemeris_reference_lines(data: dict, names: list[str]) -> list[str]:
              f"{rf['max_defect']:.2g}; patch points moved up to "
              f"{rf['seed_to_corrected_max_position_km']:.4g} km from the CR3BP seed). Not "
              "periodic: the LQR is finite-horizon, and LQR and MPC predict with the plant's own "
-             f"dynamics ({rf['prediction_model']}). No tube, so no gauge."]
+             f"dynamics ({rf['prediction_model']})."
+             + (" Drift tubes computed along it in that model, one per refresh interval (step "
+                "0, every apolune, and where the sound method stops), nothing re-used:"
+                if s.get("tubes") else " No tube, so no gauge.")]
+    lines += tube_lines(s.get("tubes") or [])
     for n in names:
         m = data[n]
         lines.append(
             f"{n}: Delta-V {m['delta_v_mps']:.4g} m/s over {m['revolutions']:.3g} revolutions "
-            f"({m['delta_v_per_rev_mps']:.4g} m/s per revolution); duty cycle "
+            f"({m['delta_v_per_rev_mps']:.4g} m/s per revolution); {m['activations']} "
+            f"activation(s), duty cycle "
             f"{100 * m['duty_cycle']:.3g} %, max deviation {m['max_deviation_km']:.4g} km / "
-            f"{m['max_deviation_mps']:.4g} m/s, {m['time_per_step_ms']:.3g} ms per step, "
-            f"{m['solver_failures']} solver failure(s).")
+            f"{m['max_deviation_mps']:.4g} m/s"
+            + (f", max gauge while thrust off {m['max_gauge_off']:.3g}"
+               if m.get("max_gauge_off") is not None else "")
+            + f", {m['time_per_step_ms']:.3g} ms per step, {m['solver_failures']} solver "
+              "failure(s).")
+    lines += terminal_set_lines(data)
     lines.append(f"Initial offset (same for all): |dr| = {s['offset_position_km']:.4g} km, "
                  f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
                  f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")

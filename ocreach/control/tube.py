@@ -278,14 +278,20 @@ def apolune_phase(reference: TrackingReference, secondary: tuple[float, ...] | N
     ``(1 - mu, 0, 0)``; ``mu`` is the model's parameter of that name)."""
     if not reference.periodic:
         raise ProblemError(f"the apolune phase needs a periodic reference; '{reference.name}' is not")
+    return int(np.argmax(secondary_distance(reference, secondary, "apolune_phase")[:-1]))
+
+
+def secondary_distance(reference: TrackingReference, secondary: tuple[float, ...] | None,
+                       caller: str) -> np.ndarray:
+    """Distance of every reference state from the secondary (default, CR3BP: the Moon at
+    ``(1 - mu, 0, 0)``, ``mu`` the model's parameter of that name), (n_steps + 1,)."""
     if secondary is None:
         if "mu" not in reference.model.param_names:
-            raise ProblemError("apolune_phase: give secondary=(x, y, z) for a model without 'mu'")
+            raise ProblemError(f"{caller}: give secondary=(x, y, z) for a model without 'mu'")
         mu = reference.model.param("mu", reference.params)
         secondary = (1.0 - mu, 0.0, 0.0)
     s = np.asarray(secondary, float)
-    r = reference.X[:-1, : s.size] - s
-    return int(np.argmax(np.linalg.norm(r, axis=1)))
+    return np.linalg.norm(reference.X[:, : s.size] - s, axis=1)
 
 
 class TubeSchedule:
@@ -302,15 +308,25 @@ class TubeSchedule:
     ``phases`` (reference steps ``0..M-1``, instead of ``phase``/``every``/``interval``): refresh
     at each of these steps of every period, i.e. intervals of different lengths (short ones around
     perilune, see :func:`sound_drift_partition`).
+
+    ``starts`` (a non-periodic reference, e.g. the ephemeris-corrected orbit; instead of
+    ``phase``/``every``/``interval``/``phases``): the refresh steps along the whole reference,
+    increasing from 0; the last tube covers up to ``end`` - 1 (default: the reference's last
+    step).  Every tube is built once for its own stretch of the reference (no re-use).
     """
 
     def __init__(self, builder: Callable[[int], Tube], reference: TrackingReference, *,
                  phase: int | str = "apolune", every: int = 1, lookahead: int = 0,
                  reuse: bool = True, interval: int | None = None,
-                 phases: Sequence[int] | None = None) -> None:
+                 phases: Sequence[int] | None = None, starts: Sequence[int] | None = None,
+                 end: int | None = None) -> None:
+        self.starts: np.ndarray | None = None
+        if starts is not None:
+            self._init_starts(builder, reference, starts, end, phases, interval)
+            return
         if not reference.periodic:
-            raise ProblemError(f"tube refresh needs a periodic reference (a period to refresh on); "
-                               f"'{reference.name}' has none")
+            raise ProblemError(f"tube refresh needs a periodic reference (a period to refresh on) "
+                               f"or starts (refresh steps along it); '{reference.name}' has none")
         M = reference.n_steps
         if isinstance(phase, str):
             if phase != "apolune":
@@ -341,6 +357,33 @@ class TubeSchedule:
             self.offsets = np.array([p - ph[0] for p in ph], dtype=int)
             self.interval = int(np.diff(np.r_[self.offsets, M]).max())  # the longest interval
 
+    def _init_starts(self, builder: Callable[[int], Tube], reference: TrackingReference,
+                     starts: Sequence[int], end: int | None, phases: Any, interval: Any) -> None:
+        """The non-periodic mode: refresh at ``starts`` (see the class docstring)."""
+        if reference.periodic:
+            raise ProblemError(f"starts (refresh steps along a non-periodic reference) needs a "
+                               f"non-periodic reference; '{reference.name}' is periodic (use "
+                               f"phase, interval or phases)")
+        if phases is not None or interval is not None:
+            raise ProblemError("give either starts (refresh steps along a non-periodic "
+                               "reference) or phases/interval (a periodic one), not both")
+        N = reference.n_steps
+        end = N if end is None else check_count("end (step after the last tube step)", end, 2)
+        if end > N:
+            raise ProblemError(f"end (step after the last tube step) must be <= {N} (the "
+                               f"reference's steps); got {end}")
+        st = list(starts)
+        if not st or any(isinstance(r, (bool, np.bool_)) or int(r) != r for r in st) \
+                or st[0] != 0 or st[-1] >= end or any(b <= a for a, b in zip(st, st[1:])):
+            raise ProblemError(f"starts (refresh steps) must increase strictly from 0 and be < "
+                               f"end = {end}; got {list(starts)[:10]}")
+        self.reference, self.builder = reference, builder
+        self.starts, self.end = np.array(st, dtype=int), int(end)
+        self.phase, self.every, self.lookahead, self.reuse = 0, 1, 0, False
+        self.offsets = None
+        self.interval = int(np.diff(np.r_[self.starts, end]).max())  # the longest interval
+        self._tubes = {}
+
     @staticmethod
     def _phase_step(p: Any, M: int) -> int:
         if isinstance(p, (bool, np.bool_)) or int(p) != p or not 0 <= int(p) < M:
@@ -350,6 +393,11 @@ class TubeSchedule:
     def refresh_step(self, k: int) -> int:
         """The refresh step at or before ``k`` (steps before the first phase use the one a period
         earlier, i.e. ``phase - interval``)."""
+        if self.starts is not None:
+            if not 0 <= int(k) < self.end:
+                raise ProblemError(f"the tubes cover reference steps 0..{self.end - 1}; got "
+                                   f"step {k}")
+            return int(self.starts[np.searchsorted(self.starts, int(k), side="right") - 1])
         if self.offsets is None:
             return self.phase + ((int(k) - self.phase) // self.interval) * self.interval
         M = self.reference.n_steps
@@ -358,7 +406,10 @@ class TubeSchedule:
         return base + int(self.offsets[j])
 
     def next_refresh(self, r: int) -> int:
-        """The refresh step after the refresh step ``r``."""
+        """The refresh step after the refresh step ``r`` (non-periodic: ``end`` after the last)."""
+        if self.starts is not None:
+            j = int(np.searchsorted(self.starts, int(r), side="right"))
+            return int(self.starts[j]) if j < self.starts.size else self.end
         if self.offsets is None:
             return int(r) + self.interval
         M = self.reference.n_steps
@@ -369,7 +420,7 @@ class TubeSchedule:
     def refresh_steps(self, n_steps: int) -> list[int]:
         """Refresh steps whose intervals touch steps ``0..n_steps-1`` (the first may be < 0)."""
         out, r = [], self.refresh_step(0)
-        while r < n_steps:
+        while r < n_steps and (self.starts is None or r < self.end):
             out.append(r)
             r = self.next_refresh(r)
         return out
@@ -379,17 +430,21 @@ class TubeSchedule:
         r = self.refresh_step(k)
         if r not in self._tubes:
             M = self.reference.n_steps
+            if self.starts is not None:
+                self._tubes[r] = self._built(r)
+                return self._tubes[r]
             base = next((b for b in self._tubes.values() if (b.k0 - r) % M == 0), None) \
                 if self.reuse else None
-            if base is not None:
-                t = base.shifted(r)
-            else:
-                t = self.builder(r)
-                if not isinstance(t, Tube):
-                    raise ProblemError(f"tube builder must return a Tube; got {type(t).__name__}")
-                t.check_for(self.reference.model.n_x, r, self.next_refresh(r) - 1 + self.lookahead)
+            t = base.shifted(r) if base is not None else self._built(r)
             self._tubes[r] = t
         return self._tubes[r]
+
+    def _built(self, r: int) -> Tube:
+        """The builder's tube for refresh step ``r``, checked to cover its interval."""
+        t = self.builder(r)
+        if not isinstance(t, Tube):
+            raise ProblemError(f"tube builder must return a Tube; got {type(t).__name__}")
+        return t.check_for(self.reference.model.n_x, r, self.next_refresh(r) - 1 + self.lookahead)
 
     def is_refresh(self, k: int) -> bool:
         return self.refresh_step(k) == int(k)
@@ -416,6 +471,8 @@ class TubeSchedule:
     @property
     def n_generators(self) -> int:
         """Most generators of the tubes of one period (the MPC's tube constraint is sized by it)."""
+        if self.starts is not None:
+            return max(self.tube(int(r)).n_generators for r in self.starts)
         if self.offsets is None:
             return self.tube(self.phase).n_generators
         return max(self.tube(self.phase + int(o)).n_generators for o in self.offsets)
@@ -477,10 +534,11 @@ def linear_drift_tube(reference: TrackingReference, k0: int, length: int, initia
 
 def _drift_problem(problem, reference: TrackingReference, k0: int, length: int, initial: Any):
     """The zero-thrust problem from ``x_ref(k0) + G0 [-1, 1]^q`` on the reference grid
-    ``t_{k0} .. t_{k0+length-1}`` (``a_max`` = 1e-300)."""
+    ``t_{k0} .. t_{k0+length-1}`` (``a_max`` = 1e-300), in the reference's model (the problem's
+    for its periodic orbit; the plant's frame model for an ephemeris-corrected reference)."""
     import dataclasses
 
-    model = problem.model
+    model = reference.model  # the reference's own model (e.g. the ephemeris frame model)
     if "a_max" not in model.param_names:
         raise ProblemError(f"a sound drift tube needs a model with an 'a_max' thrust parameter; "
                            f"{model.name} has {list(model.param_names)}")
@@ -489,7 +547,7 @@ def _drift_problem(problem, reference: TrackingReference, k0: int, length: int, 
     x0 = reference.state(k0)
     G0 = _generator("initial deviation set", initial, model.n_x)
     return dataclasses.replace(
-        problem, id=f"{problem.id}-drift", x0=x0.copy(), params=p, reference=None,
+        problem, id=f"{problem.id}-drift", model=model, x0=x0.copy(), params=p, reference=None,
         grid=reference.time(np.arange(k0, k0 + length)), initial_set=Zonotope(x0, G0),
         method_options={})
 
@@ -588,4 +646,4 @@ def _head(tube: Tube, n: int) -> Tube:
 
 __all__ = ["CasadiGauge", "Tube", "TubeSchedule", "apolune_phase", "casadi_gauge_constraints",
            "disturbance_input", "gauge", "linear_drift_tube", "reach_drift_tube",
-           "sound_drift_partition"]
+           "secondary_distance", "sound_drift_partition"]

@@ -17,7 +17,9 @@ the Pontryagin difference is exact: half widths minus the support function of ``
 axes, ``sum_j |E_i|_{dj}``.  The thrust margin uses the support of ``K E_i`` along the axes (box
 set) or ``sum_j ||K g_j||_2 >= max ||K e||_2`` (ball set), both sound for the zonotope ``E_i``.
 The margins depend only on the phase of the periodic reference and are computed once for all
-``M`` phases (vectorised).
+``M`` phases (vectorised).  Along a non-periodic reference (the ephemeris-corrected orbit) they
+are computed once for every solve step ``k = 0..S-1`` of the run (``S`` = the reference's
+``n_track``, at most ``M - N - 1``): a finite horizon, with the finite-horizon Riccati gains.
 
 **Terminal set** (``terminal_set=True``, default; Chisci et al. 2001 Sec. 3, Mayne et al. 2005
 Sec. 4): the last nominal deviation must lie in the LQR level set
@@ -35,7 +37,11 @@ Riccati identity ``P_j = Q + K^T R K + A_cl^T P_{j+1} A_cl``, so ``sqrt V`` cont
 candidate's terminal state by at most ``e = max sum_g ||P^{1/2} Phi_cl g||`` (the disturbance
 ``Bw W`` propagated over the horizon); the condition ``c sqrt(alpha) + e <= sqrt(alpha)`` is
 evaluated at setup (``terminal_robust``, with ``terminal_contraction`` ``c`` and
-``terminal_disturbance`` ``e``).  This argument is about the linearised error dynamics; the
+``terminal_disturbance`` ``e``).  The check needs no periodicity: ``alpha`` is the smallest over
+the start steps used, and ``c`` and ``e`` the largest over the steps ``j = k + N`` the terminal
+set is imposed at (every phase of a periodic reference; ``N..S-1+N`` along a non-periodic one,
+where the finite-horizon Riccati solution satisfies the same identity step by step), so the
+invariance holds for the run, not beyond it.  This argument is about the linearised error dynamics; the
 plant is nonlinear, the tube a linearisation (not a guaranteed enclosure).  The state and
 terminal constraints are softened by the MPC's penalised slack (the measured state may start
 outside ``X``) unless ``tube_slack=None``; only the hard form carries the guarantee.
@@ -58,24 +64,27 @@ MIN_FRACTION = 1e-3
 
 
 def error_tube_margins(reference: TrackingReference, K: np.ndarray, Bw: np.ndarray, W: np.ndarray,
-                       n_p: int, thrust_kind: str) -> tuple[np.ndarray, np.ndarray]:
-    """Margins of the error tube for every start phase ``k = 0..M-1``.
+                       n_p: int, thrust_kind: str, n_starts: int | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Margins of the error tube for every start step ``k = 0..S-1``: every phase ``0..M-1`` of a
+    periodic reference (``S = M``, steps taken modulo ``M``), or the ``S = n_starts`` first steps
+    of a non-periodic one (a finite horizon: ``n_starts + n_p <= M``).
 
-    Returns ``state (M, n_p + 1, n_x)``: ``h_{E_i}(e_d)`` (support along each axis, ``i = 0..n_p``)
-    and ``thrust (M, n_p)``: the bound on ``||K_{k+i} e||`` over ``E_i`` (``i = 0..n_p-1``).
+    Returns ``state (S, n_p + 1, n_x)``: ``h_{E_i}(e_d)`` (support along each axis, ``i = 0..n_p``)
+    and ``thrust (S, n_p)``: the bound on ``||K_{k+i} e||`` over ``E_i`` (``i = 0..n_p-1``).
     ``K`` (M, n_u, n_x) the feedback gains, ``Bw`` (M, n_x, n_w), ``W`` (n_w, m) generators.
     """
-    M = reference.n_steps
+    S = reference.n_steps if n_starts is None else int(n_starts)
     A, B = reference.A, reference.B
     nx = A.shape[1]
     Acl = A - np.einsum("kxu,kuy->kxy", B, K)
     BW = np.einsum("kxw,wm->kxm", Bw, W)
-    ks = np.arange(M)
-    E = np.zeros((M, nx, 0))
-    state = np.zeros((M, n_p + 1, nx))
-    thrust = np.zeros((M, n_p))
+    ks = np.arange(S)
+    E = np.zeros((S, nx, 0))
+    state = np.zeros((S, n_p + 1, nx))
+    thrust = np.zeros((S, n_p))
     for i in range(n_p):
-        j = (ks + i) % M
+        j = reference.gains_index(ks + i)
         KE = np.einsum("kux,kxm->kum", K[j], E)
         if thrust_kind == "box":
             thrust[:, i] = np.abs(KE).sum(axis=2).max(axis=1) if E.shape[2] else 0.0
@@ -131,38 +140,62 @@ class TubeMPC(MPCWrapper):
     def setup(self, reference: TrackingReference, control_set_kind: str) -> TubeMPC:
         if reference is not self.schedule.reference:
             raise ProblemError("TubeMPC: the tube schedule was built on another reference")
-        if not reference.periodic:
-            raise ProblemError(f"TubeMPC needs a periodic reference; '{reference.name}' is not")
         self.mpc.setup(reference, control_set_kind)
         self.lqr = self.mpc.lqr
         reference.linearize()
         M = reference.n_steps
+        self.n_starts = M if reference.periodic else self._finite_starts(reference)
         K = self.lqr.K[np.arange(M)]
         Bw = disturbance_input(reference, self.velocity_dims)
         W = _generator("disturbance W", self.disturbance, len(self.velocity_dims))
         self.state_margin, self.thrust_margin = error_tube_margins(
-            reference, K, Bw, W, self.n_p, self.mpc.kind)
+            reference, K, Bw, W, self.n_p, self.mpc.kind, self.n_starts)
         self.M = M
         if self.terminal_set:
             self._terminal_ingredients(K, Bw, W)
         self.reset()
         return self
 
+    def _finite_starts(self, reference: TrackingReference) -> int:
+        """Start steps ``0..S-1`` of the solves along a non-periodic reference: the run's
+        ``n_track`` steps, as far as the reference reaches (a solve at ``k`` and its terminal
+        check use the steps up to ``k + n_p + 1``)."""
+        room = reference.n_steps - self.n_p - 1
+        if room < 1:
+            raise ProblemError(f"TubeMPC: the non-periodic reference '{reference.name}' has "
+                               f"{reference.n_steps} steps; the horizon n_p = {self.n_p} needs "
+                               f"at least {self.n_p + 2}")
+        return int(min(reference.n_default, room))
+
+    def _phase(self, k) -> Any:
+        """Row of the margins for the solve at step ``k`` (its phase for a periodic reference)."""
+        if self.schedule.reference.periodic:
+            return np.asarray(k) % self.M
+        if np.any(np.asarray(k) >= self.n_starts) or np.any(np.asarray(k) < 0):
+            raise ProblemError(f"TubeMPC: the tightened sets along the non-periodic reference "
+                               f"cover solves at steps 0..{self.n_starts - 1}; got step {k}")
+        return np.asarray(k)
+
     def _terminal_ingredients(self, K: np.ndarray, Bw: np.ndarray, W: np.ndarray) -> None:
         """``alpha``, the contraction ``c`` and the disturbance term ``e`` of the terminal set
-        (module docstring), over every start phase ``k = 0..M-1`` of the schedule."""
-        ref, N, M = self.schedule.reference, self.n_p, self.M
+        (module docstring), over every start step ``k = 0..S-1`` of the schedule: every phase of
+        a periodic reference, or every solve of the run along a non-periodic one (the Riccati
+        identity behind ``c`` holds for the finite-horizon solution too, step by step)."""
+        ref, N, M, S = self.schedule.reference, self.n_p, self.M, self.n_starts
         tl = self.mpc.terminal_lqr
-        P = np.stack([tl.cost_to_go(j) for j in range(M)])
+        n_P = M if ref.periodic else S + N + 2
+        P = np.stack([tl.cost_to_go(j) for j in range(n_P)])
         Pinv = np.linalg.inv(P)
         Acl = ref.A - np.einsum("kxu,kuy->kxy", ref.B, K)
-        alphas = np.empty(M)
-        for k in range(M):
+        wrap = (lambda j: j % M) if ref.periodic else (lambda j: j)
+        alphas = np.empty(S)
+        for k in range(S):
             _, hw, r = self._tightened_sets(k)
-            j = (k + N) % M
+            j = wrap(k + N)
             a_box = np.min(hw[N - 1] ** 2 / np.diag(Pinv[j]))
             # the appended LQR step -K d_N is the last control of the next problem (margin N - 1)
-            r_next = 1.0 - self.thrust_margin[(k + 1) % M, N - 1]
+            k_next = wrap(k + 1) if ref.periodic else min(k + 1, S - 1)  # last solve: its own
+            r_next = 1.0 - self.thrust_margin[k_next, N - 1]
             KPK = K[j] @ Pinv[j] @ K[j].T
             a_u = max(r_next, 0.0) ** 2 / max(float(np.linalg.eigvalsh(KPK).max()), 1e-300)
             alphas[k] = min(a_box, a_u)
@@ -172,17 +205,17 @@ class TubeMPC(MPCWrapper):
                                f"(alpha = {self.terminal_alpha:g}); use a larger tube or smaller W")
         # contraction of sqrt(V) over one closed-loop step
         c = 0.0
-        for j in range(M):
-            L = np.linalg.cholesky(P[(j + 1) % M])  # P = L L^T
+        for j in (range(M) if ref.periodic else range(N, S + N)):
+            L = np.linalg.cholesky(P[wrap(j + 1)])  # P = L L^T
             Ls = np.linalg.cholesky(Pinv[j])
             c = max(c, float(np.linalg.norm(L.T @ Acl[j] @ Ls, 2)))
         # disturbance at step k moves the candidate's terminal state by Phi_cl(k+1 -> k+N+1) Bw W
         e = 0.0
-        for k in range(M):
+        for k in range(S):
             G = Bw[k] @ W
             for i in range(1, N + 1):
-                G = Acl[(k + i) % M] @ G
-            L = np.linalg.cholesky(P[(k + N + 1) % M])
+                G = Acl[wrap(k + i)] @ G
+            L = np.linalg.cholesky(P[wrap(k + N + 1)])
             e = max(e, float(np.linalg.norm(L.T @ G, axis=0).sum()))
         self.terminal_contraction, self.terminal_disturbance = c, e
         self.terminal_robust = bool(c < 1 and c * np.sqrt(self.terminal_alpha) + e
@@ -197,7 +230,7 @@ class TubeMPC(MPCWrapper):
     def _tightened_sets(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         c, G = self.schedule.window(k, self.n_p)
         hw = np.abs(G).sum(axis=2)
-        ph = k % self.M
+        ph = self._phase(k)
         hw_t = hw - self.state_margin[ph, 1:]
         r = 1.0 - self.thrust_margin[ph, : self.mpc.n_c]
         return c, hw_t, r
@@ -205,7 +238,7 @@ class TubeMPC(MPCWrapper):
     def tightened(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(centres (n_p, n_x), half widths (n_p, n_x), thrust radii (n_c,))`` at step ``k``."""
         c, hw_t, r = self._tightened_sets(k)
-        hw = hw_t + self.state_margin[k % self.M, 1:]
+        hw = hw_t + self.state_margin[self._phase(k), 1:]
         floor_x, floor_u = MIN_FRACTION * hw, MIN_FRACTION
         self.tightening_exhausted += int(np.sum(hw_t < floor_x) + np.sum(r < floor_u))
         return c, np.maximum(hw_t, floor_x), np.clip(r, floor_u, 1.0)

@@ -94,6 +94,7 @@ def ephemeris_inertial(
     control_set: str = "ball",
     ephemeris: EphemerisFit | None = None,
     tol_km: float = 1e-5,
+    window: tuple[float, float] | None = None,
 ) -> Model:
     """Point-mass ephemeris dynamics with thrust and inverse mass (Patel & Scheeres Eq. 11).
 
@@ -121,6 +122,9 @@ def ephemeris_inertial(
     ``frame="eclipj2000"`` uses ecliptic J2000 axes (Patel & Scheeres Sec. 6).
     ``span_days``: days from the epoch the model must be valid for (negative for backward
     propagation; see :class:`ocreach.ephemeris.EphemerisFit`).
+    ``window = (lo, hi)`` (model time, TU after the epoch): the same dynamics for ``lo <= t <=
+    hi`` only, without the ``if_else`` between fit pieces
+    (:meth:`~ocreach.ephemeris.EphemerisFit.position_expr`), so sound reachability accepts it.
     """
     bodies = _bodies(bodies)
     central = check_body(central, ORIGINS, "central")
@@ -145,6 +149,7 @@ def ephemeris_inertial(
 
     t = ca.SX.sym("t")
     ts = tu * t
+    win = None if window is None else (tu * float(window[0]), tu * float(window[1]))
     r = ca.SX.sym("r", 3)
     v = ca.SX.sym("v", 3)
     n = ca.SX.sym("n")
@@ -160,13 +165,14 @@ def ephemeris_inertial(
         if b == central:
             acc += -mu[b] * r / ca.norm_2(r) ** 3
             continue
-        rb = eph.position_expr(b, ts, central, frame=frame) / du_km
+        rb = eph.position_expr(b, ts, central, frame=frame, window=win) / du_km
         d = r - rb
         acc += -mu[b] * d / ca.norm_2(d) ** 3
         if frame_acceleration == "modelled" and central != "ssb":
             origin_acc += mu[b] * rb / ca.norm_2(rb) ** 3
     if frame_acceleration == "ephemeris" and central != "ssb":
-        origin_acc = _second_derivative(eph.position_expr(central, ts, "ssb", frame=frame) / du_km, t)
+        origin_acc = _second_derivative(
+            eph.position_expr(central, ts, "ssb", frame=frame, window=win) / du_km, t)
     unorm = ca.sqrt(ca.sumsqr(u) + 1e-30)
     sigma = ca.SX.sym("sigma")  # ||u|| (throttle), see Model.throttle
     # cse: every position_expr builds its own Chebyshev basis; merge the common subexpressions
@@ -176,7 +182,9 @@ def ephemeris_inertial(
     T_nd = thrust / mass0 / units.acceleration
     c_nd = G0 * isp / units.velocity
     model = Model.build(
-        f"ephemeris-inertial-{central}", ca.vertcat(r, v, n), u, f, t=t, p=ca.vertcat(T_s, c_s),
+        f"ephemeris-inertial-{central}"
+        + ("" if window is None else f"-window-{window[0]:.17g}-{window[1]:.17g}"),
+        ca.vertcat(r, v, n), u, f, t=t, p=ca.vertcat(T_s, c_s),
         p_default=[T_nd, c_nd], state_names=["x", "y", "z", "vx", "vy", "vz", "n"],
         control_names=["ux", "uy", "uz"], param_names=["T_max", "c_ex"], thrust_param="T_max",
         control_set=control_set, units=units, state_units=units.state_labels(3, ("1",)),

@@ -1,0 +1,169 @@
+"""Drift tubes along a non-periodic reference (the ephemeris-corrected NRHO), for event-triggered
+and tube MPC on the DE421 plant (issue 14).
+
+The periodic schedule of :func:`~ocreach.control.station_keeping.drift_schedule` computes the
+tubes of one period and re-uses them shifted; an ephemeris-corrected orbit
+(:mod:`ocreach.control.ephemeris_reference`) repeats no period, so here every tube is computed for
+its own stretch of the reference, in the reference's own model (the plant's dynamics in the CR3BP
+frame, :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model`):
+
+* the run is cut at every apolune of the reference (:func:`apolune_steps`; Patel & Subbarao: "At
+  each apolune ... a tube of forward reachable sets"), the first interval starting at step 0;
+* on each interval the sound method is restarted from the initial deviation set where it stops
+  (:func:`~ocreach.control.tube.sound_drift_partition`, the rule of the periodic
+  ``tube_interval="adaptive"`` schedule), and the tubes are guaranteed;
+* where the sound method cannot enclose the interval (it fails, or refuses the model), the
+  ``*-or-linear`` sources use the linearised tube of that interval
+  (:func:`~ocreach.control.tube.linear_drift_tube`, NOT guaranteed), its
+  ``meta["fallback_reason"]`` the method's message, so metrics.json says per refresh interval
+  which tube was used (:func:`~ocreach.control.station_keeping.tube_log`).
+
+The frame model of a long run joins two DE421 fit pieces in time with ``if_else``
+(:mod:`ocreach.ephemeris`), which the Lagrange remainder of ``taylor`` / ``sdc`` refuses, so the
+sound method runs per interval on ``model_on(t_a - dt, t_b + dt)``
+(:meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
+that window without the ``if_else``); an interval across the blend of two pieces falls back
+(docs/validation.md "DE421 ephemeris plant, corrected reference: event-triggered and tube MPC").
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ocreach.control.reference import TrackingReference
+from ocreach.control.tube import (
+    Tube,
+    TubeSchedule,
+    linear_drift_tube,
+    secondary_distance,
+    sound_drift_partition,
+)
+from ocreach.errors import ProblemError, SolverError
+
+#: tube sources accepted along a non-periodic reference
+SOURCES = ("linear", "taylor", "sdc", "taylor-or-linear", "sdc-or-linear")
+
+
+def apolune_steps(reference: TrackingReference, secondary: tuple[float, ...] | None = None
+                  ) -> np.ndarray:
+    """Steps of the apolunes of a multi-revolution reference: the largest distance from the
+    secondary (``(1 - mu, 0, 0)`` for a model with ``mu``) in each window of one revolution
+    centred on the previous apolune's next expected one, starting from the largest distance in
+    the first revolution.  Returns the increasing steps (those within a quarter revolution of the
+    reference's end are kept: the caller decides)."""
+    M = reference.revolution_steps
+    d = secondary_distance(reference, secondary, "apolune_steps")
+    N = d.size
+    out = [int(np.argmax(d[: min(M, N)]))]
+    while True:
+        lo, hi = out[-1] + M // 2, out[-1] + (3 * M) // 2
+        if lo >= N:
+            break
+        out.append(lo + int(np.argmax(d[lo: min(hi, N)])))
+    return np.unique(np.array(out, dtype=int))
+
+
+def refresh_starts(reference: TrackingReference, end: int) -> list[int]:
+    """Refresh steps ``0, a_1, a_2, ...``: step 0 and every apolune ``a_i`` at least a quarter
+    revolution after the previous refresh and before ``end``."""
+    M = reference.revolution_steps
+    starts = [0]
+    for a in apolune_steps(reference):
+        if a - starts[-1] >= M // 4 and a < end - 1:
+            starts.append(int(a))
+    return starts
+
+
+def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
+                    model_on: Callable[[float, float], Any] | None) -> TrackingReference:
+    """The reference with the model the sound method runs on over steps ``a .. b``: its own, or
+    ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval without the
+    ``if_else`` between ephemeris fit pieces, e.g.
+    :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
+    :class:`ProblemError` saying why the method cannot run on it."""
+    import dataclasses
+
+    from ocreach.reach.taylor import check_smooth
+
+    model = reference.model
+    if model_on is not None:
+        t_a, t_b = float(reference.time(a)), float(reference.time(b))
+        model = model_on(t_a - reference.dt, t_b + reference.dt)
+    try:
+        check_smooth(model)
+    except ProblemError as err:
+        raise ProblemError(f"{method} refuses the model: " + " ".join(str(err).split())) from err
+    if model is reference.model:
+        return reference
+    return dataclasses.replace(reference, model=model, A=None, B=None, cache={})
+
+
+def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: Any,
+                   disturbance: Any, source: str, options: dict,
+                   model_on: Callable[[float, float], Any] | None = None) -> list[Tube]:
+    """Tubes covering steps ``a .. b - 1``: the sound partition (``taylor`` / ``sdc``, on
+    :func:`sound_reference`), or the linear tube (``linear``, or the fallback of
+    ``*-or-linear`` with the reason)."""
+    method = source.split("-")[0]
+    if source != "linear":
+        try:
+            sound_ref = sound_reference(reference, a, b, method, model_on)
+        except ProblemError as err:
+            if source == method:
+                raise ProblemError(f"tube source {source!r} cannot enclose the drift along "
+                                   f"'{reference.name}' at steps {a}..{b}: {err}; use "
+                                   f"{method + '-or-linear'!r} (linearised tube where it "
+                                   f"cannot) or 'linear'") from err
+            reason = " ".join(str(err).split())[:300]
+        else:
+            try:
+                return sound_drift_partition(problem, sound_ref, a, b, G0, disturbance, method,
+                                             max_tubes=b - a, **options)
+            except SolverError as err:
+                if source == method:
+                    raise
+                reason = " ".join(str(err).split())[:300]
+    lin = linear_drift_tube(reference, a, b - a, G0, disturbance, problem.velocity_dims)
+    if source == "linear":
+        return [lin]
+    return [Tube(lin.centers, lin.generators, k0=a, guaranteed=False,
+                 source=f"{lin.source}; {method} failed",
+                 meta={**lin.meta, "fallback_from": method, "fallback_reason": reason})]
+
+
+def along_reference_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
+                             source: str, *, wrap=lambda t: t, options: dict | None = None,
+                             end: int | None = None,
+                             model_on: Callable[[float, float], Any] | None = None
+                             ) -> TubeSchedule:
+    """A :class:`~ocreach.control.tube.TubeSchedule` of drift tubes along the non-periodic
+    ``reference`` up to step ``end`` - 1 (default: its last step), refreshed at step 0, at every
+    apolune and where the sound method stops (module docstring).  ``wrap`` maps each tube (e.g.
+    to its interval hull); ``model_on``: the sound method's model per interval
+    (:func:`sound_reference`).  All tubes are computed here, once."""
+    if reference.periodic:
+        raise ProblemError(f"along_reference_schedule is for a non-periodic reference; "
+                           f"'{reference.name}' is periodic (use drift_schedule)")
+    if source not in SOURCES:
+        raise ProblemError(f"tube source along a non-periodic reference must be one of "
+                           f"{list(SOURCES)}; got {source!r}")
+    end = reference.n_steps if end is None else int(end)
+    if not 2 <= end <= reference.n_steps:
+        raise ProblemError(f"end (step after the last tube step) must be in 2..{reference.n_steps}; "
+                           f"got {end}")
+    from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS
+
+    opts = {**ADAPTIVE_TUBE_OPTIONS, **(options or {})}
+    starts = refresh_starts(reference, end)
+    tubes: dict[int, Tube] = {}
+    for a, b in zip(starts, starts[1:] + [end], strict=True):
+        for t in interval_tubes(problem, reference, a, b, G0, disturbance, source, opts,
+                                model_on):
+            tubes[t.k0] = wrap(t)
+    return TubeSchedule(tubes.__getitem__, reference, starts=sorted(tubes), end=end)
+
+
+__all__ = ["SOURCES", "along_reference_schedule", "apolune_steps", "interval_tubes",
+           "refresh_starts", "sound_reference"]

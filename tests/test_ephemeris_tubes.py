@@ -1,0 +1,162 @@
+"""Drift tubes along the ephemeris-corrected (non-periodic) reference, and event-triggered / tube
+MPC on the DE421 plant with that reference (ocreach.control.ephemeris_tubes, issue 14)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from ocreach.control.ephemeris_reference import ephemeris_reference
+from ocreach.control.ephemeris_tubes import along_reference_schedule, interval_tubes
+from ocreach.control.station_keeping import PAPER_W, paper_initial_set, run_station_keeping
+from ocreach.control.tube import Tube, TubeSchedule
+from ocreach.errors import ProblemError
+from ocreach.problem import get_problem
+
+
+@pytest.fixture(scope="module")
+def nrho():
+    return get_problem("nrho-9-2")
+
+
+@pytest.fixture(scope="module")
+def eph(nrho):
+    return ephemeris_reference(nrho, 0.3)  # the orbit corrected over 2 revolutions
+
+
+def test_tube_along_the_corrected_reference_contains_independent_drift(nrho, eph):
+    """Zero-thrust samples from the corners and the inside of the initial deviation set,
+    integrated with SciPy on the plant's own Moon-centred ICRF right-hand side (not the rotating
+    frame model, restricted to the interval, that the tube is computed in), stay in the
+    guaranteed tube at every step."""
+    ref, orbit = eph
+    end = 21
+    G0 = paper_initial_set(nrho)
+    sched = along_reference_schedule(nrho, ref, G0, PAPER_W, "taylor", end=end,
+                                     model_on=orbit.plant.frame_model_on)
+    tubes = [sched.tube(int(r)) for r in sched.refresh_steps(end)]
+    assert sched.refresh_step(0) == 0 and all(t.guaranteed for t in tubes)
+    assert all("taylor" in t.source for t in tubes)
+    plant = orbit.plant
+    f, p = plant.model.f_fun, np.asarray(plant.model.p_default, float)
+
+    def rhs(t, y):
+        return np.asarray(f(y, np.zeros(3), t - plant.t0, p)).ravel()
+
+    rng = np.random.default_rng(11)
+    signs = np.vstack([rng.choice([-1.0, 1.0], size=(6, 6)), rng.uniform(-1, 1, size=(4, 6))])
+    ts = ref.time(np.arange(end))
+    for s in signs:
+        x0 = ref.state(0) + s * G0
+        sol = solve_ivp(rhs, (ts[0], ts[-1]), plant.to_inertial(ts[0], x0), t_eval=ts,
+                        method="DOP853", rtol=1e-12, atol=1e-14)
+        assert sol.success
+        X = np.stack([plant.from_inertial(t, y) for t, y in zip(ts, sol.y.T, strict=True)])
+        g = np.array([sched.gauge(k, X[k]) for k in range(end)])
+        # corners start on the boundary (gauge 1 at step 0, up to the rounding of the ICRF
+        # round trip: ~1e-15 here) and stay within 3e-4 of it: a tight test of the enclosure
+        assert g.max() <= 1.0 + 1e-9, (s, g.max())
+        assert g.max() > 0.05  # the samples are not trivially at the centres
+
+
+def test_event_and_tube_mpc_close_the_loop_on_the_corrected_reference(nrho):
+    run = run_station_keeping(nrho, controllers=("event-mpc", "tube-mpc"), revolutions=0.12,
+                              plant="ephemeris", reference="ephemeris")
+    tubes = run.settings["tubes"]
+    assert tubes and tubes[0]["refresh_step"] == 0
+    assert run.schedule is not None and not run.reference.periodic
+    for name in ("event-mpc", "tube-mpc"):
+        met = run.metrics[name]
+        assert met["solver_failures"] == 0, name
+        assert met["max_gauge"] is not None and np.isfinite(met["delta_v_mps"])
+        assert met["tube_guaranteed"] == all(t["guaranteed"] for t in tubes)
+    ts = run.metrics["tube-mpc"]["terminal_set"]
+    assert ts["alpha"] > 0 and ts["contraction"] < 1
+
+
+def test_fallback_is_labelled_and_a_strict_sound_source_refuses(nrho, eph):
+    ref, _ = eph
+    G0 = paper_initial_set(nrho)
+    why = "window reaches across a boundary of the blend of DE421 fit pieces 0 and 1"
+
+    def refused(t_lo, t_hi):
+        raise ProblemError(why)
+
+    (t,) = interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor-or-linear", {}, refused)
+    assert (t.k0, len(t), t.guaranteed) == (3, 9, False)
+    assert t.meta["fallback_reason"] == why and "linear" in t.source
+    with pytest.raises(ProblemError, match="taylor-or-linear"):
+        interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor", {}, refused)
+
+
+def test_fit_window_is_the_same_function_without_if_else():
+    """The DE421 fit over 74 days has two pieces blended in time with if_else; restricted to a
+    window on one side of (or inside) the blend it is the same function with no if_else, and a
+    window across a blend boundary is refused."""
+    import casadi as ca
+
+    from ocreach.ephemeris import SECONDS_PER_DAY, ephemeris_fit
+
+    fit = ephemeris_fit(["earth", "moon", "sun"], "2026-01-01 00:00:00", 74.0)
+    assert len(fit.coefficients) == 2
+    e = fit.edges_days[1]
+    t = ca.SX.sym("t")
+
+    def fun(window=None):
+        return ca.Function("r", [t], [fit.position_expr("moon", t, "earth", window=window)])
+
+    def has_if_else(f):
+        return any(f.instruction_id(k) == ca.OP_IF_ELSE_ZERO for k in range(f.n_instructions()))
+
+    full = fun()
+    assert has_if_else(full)
+    for lo, hi in ((1.0, 8.0), (e - 0.5 * fit.blend_days, e + 0.5 * fit.blend_days),
+                   (e + 2 * fit.blend_days, e + 9.0)):
+        win = fun((lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY))
+        assert not has_if_else(win)
+        for d in np.linspace(lo, hi, 7):
+            np.testing.assert_array_equal(np.asarray(win(d * SECONDS_PER_DAY)),
+                                          np.asarray(full(d * SECONDS_PER_DAY)))
+    with pytest.raises(ProblemError, match="across a boundary"):
+        fun(((e - 2 * fit.blend_days) * SECONDS_PER_DAY, e * SECONDS_PER_DAY))
+    with pytest.raises(ProblemError, match="window"):
+        fun((2.0, 1.0))
+
+
+def test_non_periodic_schedule_refreshes_at_its_starts(eph):
+    ref, _ = eph
+
+    def build(r):
+        n = {0: 5, 5: 7, 12: 8}[r]
+        return Tube(ref.X[r: r + n], np.full((n, 6, 1), 1e-3), k0=r)
+
+    sched = TubeSchedule(build, ref, starts=[0, 5, 12], end=20)
+    assert [sched.refresh_step(k) for k in (0, 4, 5, 11, 12, 19)] == [0, 0, 5, 5, 12, 12]
+    assert [sched.next_refresh(r) for r in (0, 5, 12)] == [5, 12, 20]
+    assert sched.refresh_steps(100) == [0, 5, 12] and sched.interval == 8
+    c, G = sched.window(3, 4)  # steps 4..7 across the refresh at 5
+    np.testing.assert_array_equal(c, ref.X[4:8])
+    with pytest.raises(ProblemError, match="0..19"):
+        sched.tube(20)
+
+
+def test_bad_input(nrho, eph):
+    ref, _ = eph
+    G0 = paper_initial_set(nrho)
+    for starts in ([1, 5], [0, 5, 5], [0, 30], [], [0, 2.5]):
+        with pytest.raises(ProblemError, match="starts"):
+            TubeSchedule(lambda r: None, ref, starts=starts, end=20)
+    with pytest.raises(ProblemError, match="end"):
+        TubeSchedule(lambda r: None, ref, starts=[0], end=ref.n_steps + 1)
+    with pytest.raises(ProblemError, match="not both"):
+        TubeSchedule(lambda r: None, ref, starts=[0], interval=4)
+    with pytest.raises(ProblemError, match="tube source"):
+        along_reference_schedule(nrho, ref, G0, PAPER_W, "ode")
+    with pytest.raises(ProblemError, match="end"):
+        along_reference_schedule(nrho, ref, G0, PAPER_W, "linear", end=1)
+    with pytest.raises(ProblemError, match="tube_interval"):
+        run_station_keeping(nrho, controllers=("event-mpc",), revolutions=0.1,
+                            plant="ephemeris", reference="ephemeris", tube_interval=20)
+    with pytest.raises(ProblemError, match="phase"):
+        run_station_keeping(nrho, controllers=("tube-mpc",), revolutions=0.1,
+                            plant="ephemeris", reference="ephemeris", phase=3)
