@@ -59,8 +59,13 @@ def _gauge_lp(G: np.ndarray, R: np.ndarray) -> np.ndarray:
     A_ub = sp.kron(sp.identity(K, format="csr"), blk_ub, format="csc")
     cost = np.tile(np.r_[np.zeros(q), 1.0], K)
     lb = np.tile(np.r_[np.full(q, -np.inf), 0.0], K)
+    # HiGHS's default feasibility tolerance (1e-7) gave gauges up to 5.7e-7 too high on the NRHO
+    # tubes (0.99999991 read as 1.00000043, a false excursion); 1e-9 is as tight as it solves
+    # reliably (1e-10 failed with status 4 on a 64-point batch).
     res = linprog(cost, A_ub=A_ub, b_ub=np.zeros(2 * q * K), A_eq=A_eq, b_eq=R.ravel(),
-                  bounds=np.column_stack([lb, np.full(nv * K, np.inf)]), method="highs")
+                  bounds=np.column_stack([lb, np.full(nv * K, np.inf)]), method="highs",
+                  options={"primal_feasibility_tolerance": 1e-9,
+                           "dual_feasibility_tolerance": 1e-9})
     if res.status != 0:
         raise SolverError(f"gauge: HiGHS returned status {res.status} ({res.message}) for the "
                           f"batched gauge LP of {K} point(s)")
@@ -605,7 +610,7 @@ def sound_drift_partition(problem, reference: TrackingReference, start: int, sto
     refresh steps, each covering up to the next refresh); raises :class:`SolverError` if no
     restart makes progress or more than ``max_tubes`` tubes would be needed.
     """
-    start, stop = int(start), int(stop)
+    start, stop = check_count("start", start, 0), check_count("stop", stop, 1)
     if stop <= start:
         raise ProblemError(f"sound_drift_partition: stop ({stop}) must be > start ({start})")
     max_tubes = check_count("max_tubes", max_tubes, 1)
