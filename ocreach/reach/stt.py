@@ -21,9 +21,9 @@ Beyond the paper (documented in docs/stt.md):
   polynomial is estimated against the true flow of extreme samples of ``dZ_k``; parts above
   ``split_tol`` (relative to the part's image) are split, worst first, while fewer than
   ``max_parts`` exist, and each half gets its own reference trajectory started at its centre (one
-  extra STT integration per part and segment).  The set at a time is then a :class:`PZUnion`;
-  ``meta["parts"]`` counts the parts per time, ``meta["truncation_error"]`` the largest estimate
-  per step.
+  extra STT integration per part and segment).  The set at a time is then a
+  :class:`ocreach.sets.PZUnion`; ``meta["parts"]`` counts the parts per time,
+  ``meta["truncation_error"]`` the largest estimate per step.
 * **reachable tube** (``tube_substeps=s``): for each segment the sets at ``s - 1`` interior times
   are computed by second-order STTs from ``t_k`` to ``t_k + i dt / s`` applied to ``dZ_k`` (the
   control is held on the segment, so the map is exact in the same sense), and each is bloated by
@@ -48,9 +48,10 @@ from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 from ocreach.reach.stt_split import check_split_options
+from ocreach.sets.pz_union import PZUnion
 
 if TYPE_CHECKING:
-    from ocreach.sets import Interval, PolyZonotope
+    from ocreach.sets import PolyZonotope
 
 INPUT_SETS = ("box", "ball")
 BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz")
@@ -72,78 +73,6 @@ REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
             "smaller set or horizon, a lower order, or splitting")
-
-
-# ============================================================================ union of PZs
-class PZUnion:
-    """Union of polynomial zonotopes (the parts of a split reachable set).
-
-    Offers the set queries used by results and comparisons: ``support`` (max over parts),
-    ``contains`` (any part), ``sample``, ``project``, ``outline`` (all parts' polygons),
-    ``interval_hull``, ``plot``.
-    """
-
-    def __init__(self, parts: Sequence[Any]):
-        parts = list(parts)
-        if not parts:
-            raise SetError("PZUnion needs at least one part")
-        dims = {p.dim for p in parts}
-        if len(dims) != 1:
-            raise SetError(f"PZUnion parts must share one dimension; got {sorted(dims)}")
-        self.parts = tuple(parts)
-
-    @property
-    def dim(self) -> int:
-        return int(self.parts[0].dim)
-
-    @property
-    def n_generators(self) -> int:
-        return int(sum(p.n_generators for p in self.parts))
-
-    def __repr__(self) -> str:
-        return f"PZUnion(dim={self.dim}, parts={len(self.parts)})"
-
-    def project(self, dims: Any) -> PZUnion:
-        return PZUnion([p.project(dims) for p in self.parts])
-
-    def support(self, d: Any, splits: int = 0) -> float | np.ndarray:
-        vals = np.array([np.atleast_1d(p.support(d, splits=splits)) for p in self.parts])
-        out = vals.max(axis=0)
-        return float(out[0]) if np.ndim(d) == 1 else out
-
-    def contains(self, points: Any, splits: int = 0, tol: float = 1e-7) -> bool | np.ndarray:
-        P = np.atleast_2d(np.asarray(points, dtype=float))
-        ok = np.zeros(P.shape[0], dtype=bool)
-        for part in self.parts:
-            todo = ~ok
-            if not np.any(todo):
-                break
-            ok[todo] = np.atleast_1d(part.contains(P[todo], splits=splits, tol=tol))
-        return bool(ok[0]) if np.ndim(points) == 1 else ok
-
-    def sample(self, n: int, rng: Any = None, mode: str = "uniform") -> np.ndarray:
-        rng = np.random.default_rng(rng)
-        counts = np.bincount(rng.integers(0, len(self.parts), size=int(n)), minlength=len(self.parts))
-        return np.vstack([p.sample(int(c), rng, mode) for p, c in zip(self.parts, counts) if c > 0]
-                         or [np.zeros((0, self.dim))])
-
-    def outline(self, dims: Any = (0, 1), pieces: int = 64) -> list[np.ndarray]:
-        per = max(2, int(pieces) // len(self.parts))
-        return [poly for p in self.parts for poly in p.outline(dims, pieces=per)]
-
-    def interval_hull(self) -> Interval:
-        from ocreach.sets import Interval
-
-        hulls = [p.interval_hull() for p in self.parts]
-        return Interval(np.min([h.lo for h in hulls], axis=0), np.max([h.hi for h in hulls], axis=0))
-
-    def plot(self, ax: Any, dims: Sequence[int] = (0, 1), **kw: Any) -> Any:
-        from ocreach.sets.plot import plot_set
-
-        out = None
-        for i, p in enumerate(self.parts):
-            out = plot_set(p, ax, dims=dims, **(kw if i == 0 else {**kw, "label": None}))
-        return out
 
 
 # ============================================================================ helpers
