@@ -56,6 +56,8 @@ if TYPE_CHECKING:
 INPUT_SETS = ("box", "ball")
 BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz")
 PRUNED_BOXES = ("exact", "bound")
+#: the default ``pruned_box`` (the only value ``engine="library"`` accepts: it prunes nothing)
+PRUNED_BOX_DEFAULT = "bound"
 #: generators of the zonotope ball input per input dimension, ``ball_input="zonotope"``: support
 #: over the unit sphere in [1, 1.03] (exact, :func:`ocreach.sets.zonotope_support_range`):
 #: 2-D a regular 16-gon (<= 1.0196), 3-D 30 spread directions (<= 1.0269); other dimensions 2 n
@@ -423,7 +425,8 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         docs/validation.md "STT splitting on nrho-flyby").
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
-        library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.
+        library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set up to
+        how the fused engine boxes the order-3 products it prunes (``pruned_box``).
         ``lift_independent`` [False]: before each step turn the independent generators left by
         earlier reductions into dependent generators with fresh factors (exact), so that their
         products in the tensor maps keep their dependence (``b^2`` in [0, 1], ``b`` and ``b c``
@@ -439,6 +442,11 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         pair (time ~ the kept products; a box that still contains every pruned product, 0.05-0.14 %
         more hull area on vdp), ``"exact"`` forms every one for the exact PCA/Girard box of them
         (time ~ all ``C(H + 2, 3)`` products, 1.5x the time at h_max 200, 4x at 800: docs/stt.md).
+        It applies to ``engine="fused"`` at ``order=3`` only, and only in steps with more than
+        :data:`ocreach.reach.stt_products.PRUNE_MIN_PRODUCTS` order-3 products (below that
+        nothing is pruned).  ``engine="library"`` prunes nothing (it forms and merges every
+        product), so there the option has no meaning: an explicit ``"exact"`` is refused with a
+        :class:`ProblemError`; the default ``"bound"`` is accepted and has no effect.
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """
 
@@ -455,7 +463,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         engine: str = "fused"
         lift_independent: bool = False
         chunk: int = 0
-        pruned_box: str = "bound"
+        pruned_box: str = PRUNED_BOX_DEFAULT
         rtol: float = 1e-10
         atol: float = 1e-12
 
@@ -480,6 +488,11 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
             self.chunk = check_count("chunk", self.chunk, 0)
             if self.pruned_box not in PRUNED_BOXES:
                 raise ProblemError(f"pruned_box must be one of {PRUNED_BOXES}; got {self.pruned_box!r}")
+            if self.engine == "library" and self.pruned_box != PRUNED_BOX_DEFAULT:
+                raise ProblemError(
+                    f"pruned_box={self.pruned_box!r} applies to engine='fused' only; engine='library' "
+                    "forms and merges every order-3 product, so it prunes none: use engine='fused' "
+                    f"or leave pruned_box at its default {PRUNED_BOX_DEFAULT!r}")
             self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
             self.lift_independent = bool(self.lift_independent)
 
