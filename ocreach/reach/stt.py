@@ -426,7 +426,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
         library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set up to
-        how the fused engine boxes the order-3 products it prunes (``pruned_box``).
+        how the fused engine boxes the order-3 products it prunes (option pruned_box, below).
         ``lift_independent`` [False]: before each step turn the independent generators left by
         earlier reductions into dependent generators with fresh factors (exact), so that their
         products in the tensor maps keep their dependence (``b^2`` in [0, 1], ``b`` and ``b c``
