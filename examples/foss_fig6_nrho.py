@@ -36,7 +36,8 @@ from ocreach.plot import save_figure
 from ocreach.problem import get_problem
 from ocreach.reach.result import atomic_write_text
 from ocreach.flow import stt as stt_flow
-from ocreach.reach.stt import PZUnion, STTReach, stt_polynomial
+from ocreach.reach.stt import STTReach, stt_polynomial
+from ocreach.sets import PZUnion
 from ocreach.sets.pz_exact import support_bounds
 
 #: STT runs measured (name -> options); all with the problem's ball input (``ball_input="auto"``)

@@ -12,8 +12,7 @@ import pytest
 import ocreach
 from ocreach.errors import ProblemError
 from ocreach.reach.result import ReachResult, load
-from ocreach.reach.stt import PZUnion
-from ocreach.sets import Ellipsoid, Interval, MatrixZonotope, PolyZonotope, Zonotope
+from ocreach.sets import Ellipsoid, Interval, MatrixZonotope, PolyZonotope, PZUnion, Zonotope
 from ocreach.sets.serialize import registered_types
 from ocreach.sets.union import ZonotopeUnion
 

@@ -15,8 +15,8 @@ from ocreach.flow import propagate
 from ocreach.geometry import hull_area, outline_area, points_in_polygons
 from ocreach.problem import ControlSet, get_problem
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.stt import PZUnion, STTReach, fused_step, make_dependent, stt_polynomial
-from ocreach.sets import Interval, PolyZonotope, new_ids, tensor_map
+from ocreach.reach.stt import STTReach, fused_step, make_dependent, stt_polynomial
+from ocreach.sets import Interval, PolyZonotope, PZUnion, new_ids, tensor_map
 
 
 # ---------------------------------------------------------------------------- helpers

@@ -114,5 +114,10 @@ def test_pruned_box_option_is_checked():
     with pytest.raises(ProblemError, match="pruned_box.*'exact', 'bound'.*'tight'"):
         STTReach(pruned_box="tight")
     assert STTReach(pruned_box="bound").options.pruned_box == "bound"
+    # the library engine prunes nothing: an explicit "exact" there is refused, naming both options
+    with pytest.raises(ProblemError, match="pruned_box='exact'.*engine='fused'.*engine='library'"):
+        STTReach(engine="library", pruned_box="exact")
+    assert STTReach(engine="library").options.pruned_box == "bound"
+    assert STTReach(engine="fused", pruned_box="exact").options.pruned_box == "exact"
     with pytest.raises(ValueError, match="pruned_box"):
         order3_products(np.zeros((1, 1, 1, 1)), np.ones((1, 2)), 0.0, 10, "tight")

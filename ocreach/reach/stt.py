@@ -21,9 +21,9 @@ Beyond the paper (documented in docs/stt.md):
   polynomial is estimated against the true flow of extreme samples of ``dZ_k``; parts above
   ``split_tol`` (relative to the part's image) are split, worst first, while fewer than
   ``max_parts`` exist, and each half gets its own reference trajectory started at its centre (one
-  extra STT integration per part and segment).  The set at a time is then a :class:`PZUnion`;
-  ``meta["parts"]`` counts the parts per time, ``meta["truncation_error"]`` the largest estimate
-  per step.
+  extra STT integration per part and segment).  The set at a time is then a
+  :class:`ocreach.sets.PZUnion`; ``meta["parts"]`` counts the parts per time,
+  ``meta["truncation_error"]`` the largest estimate per step.
 * **reachable tube** (``tube_substeps=s``): for each segment the sets at ``s - 1`` interior times
   are computed by second-order STTs from ``t_k`` to ``t_k + i dt / s`` applied to ``dZ_k`` (the
   control is held on the segment, so the map is exact in the same sense), and each is bloated by
@@ -48,13 +48,16 @@ from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 from ocreach.reach.stt_split import check_split_options
+from ocreach.sets.pz_union import PZUnion
 
 if TYPE_CHECKING:
-    from ocreach.sets import Interval, PolyZonotope
+    from ocreach.sets import PolyZonotope
 
 INPUT_SETS = ("box", "ball")
 BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz")
 PRUNED_BOXES = ("exact", "bound")
+#: the default ``pruned_box`` (the only value ``engine="library"`` accepts: it prunes nothing)
+PRUNED_BOX_DEFAULT = "bound"
 #: generators of the zonotope ball input per input dimension, ``ball_input="zonotope"``: support
 #: over the unit sphere in [1, 1.03] (exact, :func:`ocreach.sets.zonotope_support_range`):
 #: 2-D a regular 16-gon (<= 1.0196), 3-D 30 spread directions (<= 1.0269); other dimensions 2 n
@@ -72,78 +75,6 @@ REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
             "smaller set or horizon, a lower order, or splitting")
-
-
-# ============================================================================ union of PZs
-class PZUnion:
-    """Union of polynomial zonotopes (the parts of a split reachable set).
-
-    Offers the set queries used by results and comparisons: ``support`` (max over parts),
-    ``contains`` (any part), ``sample``, ``project``, ``outline`` (all parts' polygons),
-    ``interval_hull``, ``plot``.
-    """
-
-    def __init__(self, parts: Sequence[Any]):
-        parts = list(parts)
-        if not parts:
-            raise SetError("PZUnion needs at least one part")
-        dims = {p.dim for p in parts}
-        if len(dims) != 1:
-            raise SetError(f"PZUnion parts must share one dimension; got {sorted(dims)}")
-        self.parts = tuple(parts)
-
-    @property
-    def dim(self) -> int:
-        return int(self.parts[0].dim)
-
-    @property
-    def n_generators(self) -> int:
-        return int(sum(p.n_generators for p in self.parts))
-
-    def __repr__(self) -> str:
-        return f"PZUnion(dim={self.dim}, parts={len(self.parts)})"
-
-    def project(self, dims: Any) -> PZUnion:
-        return PZUnion([p.project(dims) for p in self.parts])
-
-    def support(self, d: Any, splits: int = 0) -> float | np.ndarray:
-        vals = np.array([np.atleast_1d(p.support(d, splits=splits)) for p in self.parts])
-        out = vals.max(axis=0)
-        return float(out[0]) if np.ndim(d) == 1 else out
-
-    def contains(self, points: Any, splits: int = 0, tol: float = 1e-7) -> bool | np.ndarray:
-        P = np.atleast_2d(np.asarray(points, dtype=float))
-        ok = np.zeros(P.shape[0], dtype=bool)
-        for part in self.parts:
-            todo = ~ok
-            if not np.any(todo):
-                break
-            ok[todo] = np.atleast_1d(part.contains(P[todo], splits=splits, tol=tol))
-        return bool(ok[0]) if np.ndim(points) == 1 else ok
-
-    def sample(self, n: int, rng: Any = None, mode: str = "uniform") -> np.ndarray:
-        rng = np.random.default_rng(rng)
-        counts = np.bincount(rng.integers(0, len(self.parts), size=int(n)), minlength=len(self.parts))
-        return np.vstack([p.sample(int(c), rng, mode) for p, c in zip(self.parts, counts) if c > 0]
-                         or [np.zeros((0, self.dim))])
-
-    def outline(self, dims: Any = (0, 1), pieces: int = 64) -> list[np.ndarray]:
-        per = max(2, int(pieces) // len(self.parts))
-        return [poly for p in self.parts for poly in p.outline(dims, pieces=per)]
-
-    def interval_hull(self) -> Interval:
-        from ocreach.sets import Interval
-
-        hulls = [p.interval_hull() for p in self.parts]
-        return Interval(np.min([h.lo for h in hulls], axis=0), np.max([h.hi for h in hulls], axis=0))
-
-    def plot(self, ax: Any, dims: Sequence[int] = (0, 1), **kw: Any) -> Any:
-        from ocreach.sets.plot import plot_set
-
-        out = None
-        for i, p in enumerate(self.parts):
-            out = plot_set(p, ax, dims=dims, **(kw if i == 0 else {**kw, "label": None}))
-        return out
 
 
 # ============================================================================ helpers
@@ -494,7 +425,8 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         docs/validation.md "STT splitting on nrho-flyby").
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
-        library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set.
+        library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set up to
+        how the fused engine boxes the order-3 products it prunes (option pruned_box, below).
         ``lift_independent`` [False]: before each step turn the independent generators left by
         earlier reductions into dependent generators with fresh factors (exact), so that their
         products in the tensor maps keep their dependence (``b^2`` in [0, 1], ``b`` and ``b c``
@@ -510,6 +442,11 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         pair (time ~ the kept products; a box that still contains every pruned product, 0.05-0.14 %
         more hull area on vdp), ``"exact"`` forms every one for the exact PCA/Girard box of them
         (time ~ all ``C(H + 2, 3)`` products, 1.5x the time at h_max 200, 4x at 800: docs/stt.md).
+        It applies to ``engine="fused"`` at ``order=3`` only, and only in steps with more than
+        :data:`ocreach.reach.stt_products.PRUNE_MIN_PRODUCTS` order-3 products (below that
+        nothing is pruned).  ``engine="library"`` prunes nothing (it forms and merges every
+        product), so there the option has no meaning: an explicit ``"exact"`` is refused with a
+        :class:`ProblemError`; the default ``"bound"`` is accepted and has no effect.
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """
 
@@ -526,7 +463,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         engine: str = "fused"
         lift_independent: bool = False
         chunk: int = 0
-        pruned_box: str = "bound"
+        pruned_box: str = PRUNED_BOX_DEFAULT
         rtol: float = 1e-10
         atol: float = 1e-12
 
@@ -551,6 +488,11 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
             self.chunk = check_count("chunk", self.chunk, 0)
             if self.pruned_box not in PRUNED_BOXES:
                 raise ProblemError(f"pruned_box must be one of {PRUNED_BOXES}; got {self.pruned_box!r}")
+            if self.engine == "library" and self.pruned_box != PRUNED_BOX_DEFAULT:
+                raise ProblemError(
+                    f"pruned_box={self.pruned_box!r} applies to engine='fused' only; engine='library' "
+                    "forms and merges every order-3 product, so it prunes none: use engine='fused' "
+                    f"or leave pruned_box at its default {PRUNED_BOX_DEFAULT!r}")
             self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
             self.lift_independent = bool(self.lift_independent)
 

@@ -4,7 +4,7 @@ Foss, Rosengren & Biria (AMOS 2024) name splitting as future work (Sec. 5): one 
 about one reference is a local approximation, and on a close flyby its truncation error exceeds
 the set (docs/validation.md, "STT reachability").  A split part is propagated about its own
 reference trajectory with its own STTs (:meth:`ocreach.reach.stt.STTReach.solve`); the set at a
-time is the union of the parts (:class:`ocreach.reach.stt.PZUnion`).
+time is the union of the parts (:class:`ocreach.sets.PZUnion`).
 
 This module holds the two pieces of that rule:
 

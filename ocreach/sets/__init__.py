@@ -1,4 +1,6 @@
-"""Set library: intervals, zonotopes, sparse polynomial zonotopes, ellipsoids, matrix zonotopes.
+"""Set library: intervals, zonotopes, sparse polynomial zonotopes, ellipsoids, matrix zonotopes,
+and finite unions of zonotopes (:class:`ZonotopeUnion`) and of polynomial zonotopes
+(:class:`PZUnion`, the parts of a split ``stt`` set).
 
 Sets are immutable numpy-backed values: ``M @ S`` (linear map), ``S + v`` (translation),
 ``S1 + S2`` (Minkowski sum; exact for polynomial zonotopes with shared identifiers), ``support``,
@@ -29,11 +31,14 @@ from ocreach.sets.interval import Interval
 from ocreach.sets.matzonotope import MatrixZonotope, matzonotope_times_zonotope
 from ocreach.sets.plot import plot_set
 from ocreach.sets.polyzonotope import PolyZonotope, cartesian_product, merge_monomials, tensor_map
+from ocreach.sets.pz_union import PZUnion
 from ocreach.sets.reduce import reduce, reduce_pz, reduce_zonotope
+from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope, polygon_area, zonotope_polygon
 
 __all__ = [
-    "CasadiContainment", "Ellipsoid", "Interval", "MatrixZonotope", "PolyZonotope", "Zonotope",
+    "CasadiContainment", "Ellipsoid", "Interval", "MatrixZonotope", "PZUnion", "PolyZonotope",
+    "Zonotope", "ZonotopeUnion",
     "cartesian_product", "casadi_containment", "containment_constraints", "interval_to_zonotope",
     "matzonotope_times_zonotope", "merge_monomials", "new_ids", "plot_set", "points_in_ellipsoid",
     "points_in_zonotope", "polygon_area", "reduce", "reduce_pz", "reduce_zonotope", "tensor_map",

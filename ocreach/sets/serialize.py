@@ -9,7 +9,7 @@ Only registered types are ever constructed on load, and their classes are resolv
 module's table (never from a name read from the file), so a crafted file cannot make ``load``
 import or run anything.  A new set type registers itself with :func:`register_set_type`::
 
-    register_set_type("ZonotopeUnion", "ocreach.sets.zunion:ZonotopeUnion", union=True)
+    register_set_type("ZonotopeUnion", "ocreach.sets.union:ZonotopeUnion", union=True)
     register_set_type("Zonotope", "ocreach.sets.zonotope:Zonotope", fields=("c", "G"))
 
 ``fields`` are attribute names that are also the constructor's keyword arguments (write
@@ -70,7 +70,7 @@ for _args in (
     ("MatrixZonotope", "ocreach.sets.matzonotope:MatrixZonotope", ("C", "G=gens")),
 ):
     register_set_type(*_args)
-register_set_type("PZUnion", "ocreach.reach.stt:PZUnion", union=True)
+register_set_type("PZUnion", "ocreach.sets.pz_union:PZUnion", union=True)
 register_set_type("ZonotopeUnion", "ocreach.sets.union:ZonotopeUnion", union=True)
 
 
