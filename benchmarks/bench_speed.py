@@ -395,8 +395,8 @@ def order3_markdown(o3: list[dict]) -> str:
                f"with `bound` {growth('bound', lambda r: r['cpu'])}.")
     return f"""**Order-3 STT: products formed and kept** (`--order3`): vdp, order 3, one `reach` per fresh
 process (after a small warm-up that compiles the STT functions), the pruned order-3 products boxed
-exactly (`pruned_box="exact"`, the default: every product formed) or bounded without being formed
-(`pruned_box="bound"`: only the kept ones).  Products summed over the steps; CPU time of the process;
+exactly (`pruned_box="exact"`: every product formed) or bounded without being formed
+(`pruned_box="bound"`, the default: only the kept ones).  Products summed over the steps; CPU time of the process;
 peak memory `VmHWM` (imports included); load average after each run.
 
 | h_max | `pruned_box` | order-3 products | kept | order-2 products (all kept) | CPU time | wall | peak memory | load |
