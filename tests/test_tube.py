@@ -645,6 +645,27 @@ def test_tube_log_says_per_refresh_which_tube_was_used(halo, halo_ref, monkeypat
         drift_schedule(halo, halo_ref, source="taylor-or-guess")
 
 
+def test_partition_key_tells_apart_large_arrays_that_differ_only_in_the_middle(halo, halo_ref):
+    """The adaptive-partition cache key hashes arrays by dtype, shape and bytes: numpy's ``repr``
+    elides the middle of a large array, so a key built from ``repr`` gave two different
+    disturbances (or array options) the same key and the cache the wrong tubes."""
+    from ocreach.control.drift_tubes import partition_key
+    from ocreach.control.station_keeping_paper import paper_initial_set
+
+    a = np.full(2000, 1e-7)
+    b = a.copy()
+    b[1000] = 2e-7
+    assert repr(a) == repr(b)  # what the old key saw
+
+    def key(W, options):
+        return partition_key(halo, halo_ref, 0, paper_initial_set(halo), W, "taylor", options)
+
+    assert key(a, {}) != key(b, {})
+    assert key(1e-7, {"weights": a}) != key(1e-7, {"weights": b})
+    assert key(a, {}) != key(a.reshape(1000, 2), {})  # same bytes, another shape
+    assert key(a, {"substeps": 16}) == key(a.copy(), {"substeps": 16})  # same values, same key
+
+
 def test_tube_mpc_terminal_set_gives_recursive_feasibility_in_closed_loop(halo, halo_ref):
     """Robust tube MPC with hard tightened constraints and the LQR terminal set on the L2 halo
     (offset in 0.8x the paper's box, N = 6, W = 1e-7 per step): the terminal set is robustly invariant

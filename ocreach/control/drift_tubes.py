@@ -6,7 +6,7 @@ deviation set under the disturbance ``W``, refreshed at every apolune).
 reference from a linearised or a sound tube (``taylor``/``sdc``, optionally with the linear tube
 where the method fails, or the adaptive partition of
 :func:`~ocreach.control.tube.sound_drift_partition`, cached per process by
-:func:`_partition_key`); :func:`ephemeris_drift_schedule` the tubes along the ephemeris-corrected
+:func:`partition_key`); :func:`ephemeris_drift_schedule` the tubes along the ephemeris-corrected
 reference; :func:`tube_log` says which tube was used per refresh.
 """
 from __future__ import annotations
@@ -126,23 +126,57 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
                         lookahead=lookahead, reuse=True, interval=interval)
 
 
-#: adaptive tube partitions of this process, by :func:`_partition_key` (they are deterministic:
+#: adaptive tube partitions of this process, by :func:`partition_key` (they are deterministic:
 #: several runs on the same reference, e.g. one per plant, compute them once)
 _PARTITIONS: dict[str, list[Tube]] = {}
 
 
-def _partition_key(problem, reference: TrackingReference, phase: int, G0: Any, disturbance: Any,
-                   method: str, options: dict) -> str:
+def partition_key(problem, reference: TrackingReference, phase: int, G0: Any, disturbance: Any,
+                  method: str, options: dict) -> str:
     """Everything :func:`~ocreach.control.tube.sound_drift_partition` depends on, hashed: the
-    model, its parameters, the reference states and times, the sets, the method and options."""
+    model, its parameters, the reference states and times, the sets, the method and options.
+    Arrays enter by dtype, shape and bytes (:func:`_hash_value`), never by ``repr``, which numpy
+    shortens with ``...`` for large arrays (two different arrays would share a key)."""
     h = hashlib.sha256()
-    h.update(repr((problem.model.name, problem.model.n_x, problem.id, problem.control_set.kind,
-                   phase, method,
-                   sorted((k, repr(v)) for k, v in options.items()), repr(disturbance))).encode())
+    _hash_value(h, (problem.model.name, problem.model.n_x, problem.id, problem.control_set.kind,
+                    phase, method, options, disturbance))
     for a in (reference.X, reference.time(np.arange(reference.n_steps + 1)), reference.params,
-              problem.params, np.asarray(G0, float)):
-        h.update(np.ascontiguousarray(np.asarray(a, float)).tobytes())
+              problem.params, G0):
+        _hash_value(h, np.asarray(a, float))
     return h.hexdigest()
+
+
+def _hash_value(h: Any, value: Any) -> None:
+    """Feed ``value`` into the hash ``h`` unambiguously: numeric numpy arrays, scalars, lists and
+    tuples by dtype, shape and the bytes of the data; dicts by their items sorted by key; other
+    sequences item by item; anything else by its ``repr`` (with its length, so no two values run
+    together)."""
+    if isinstance(value, dict):
+        h.update(b"dict %d;" % len(value))
+        for k in sorted(value, key=repr):
+            _hash_value(h, k)
+            _hash_value(h, value[k])
+        return
+    if isinstance(value, (np.ndarray, np.generic, list, tuple)):
+        try:
+            a = np.asarray(value)
+        except ValueError:  # ragged
+            a = None
+        if a is not None and a.dtype.kind in "biufc":  # numbers (strings: item by item)
+            a = np.ascontiguousarray(a)
+            h.update(f"array {a.dtype.str} {a.shape};".encode())
+            h.update(a.tobytes())
+            return
+        if isinstance(value, (np.ndarray, np.generic)):  # strings or objects: as Python values
+            _hash_value(h, value.tolist())
+            return
+        h.update(b"seq %d;" % len(value))
+        for v in value:
+            _hash_value(h, v)
+        return
+    r = repr(value).encode()
+    h.update(b"repr %d;" % len(r))
+    h.update(r)
 
 
 def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
@@ -156,7 +190,7 @@ def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturban
     if isinstance(p0, str) or isinstance(p0, bool) or int(p0) != p0 or not 0 <= int(p0) < M:
         raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
     opts = {**ADAPTIVE_TUBE_OPTIONS, **options}
-    key = _partition_key(problem, reference, int(p0), G0, disturbance, method, opts)
+    key = partition_key(problem, reference, int(p0), G0, disturbance, method, opts)
     tubes = _PARTITIONS.get(key)
     if tubes is None:
         tubes = sound_drift_partition(problem, reference, int(p0), int(p0) + M, G0, disturbance,
@@ -223,4 +257,4 @@ def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, dist
 
 
 __all__ = ["ADAPTIVE_TUBE_OPTIONS", "FALLBACK_SOURCES", "MEMBERSHIPS", "TUBE_SOURCES", "as_box",
-           "drift_schedule", "ephemeris_drift_schedule", "tube_log"]
+           "drift_schedule", "ephemeris_drift_schedule", "partition_key", "tube_log"]
