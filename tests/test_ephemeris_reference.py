@@ -12,7 +12,7 @@ from ocreach.control.lqr import LQR
 from ocreach.control.reference import reference_from_problem
 from ocreach.control.report import PAPER_Q, paper_pattern
 from ocreach.control.simulate import SimOptions, simulate
-from ocreach.control.station_keeping import delta_v_si
+from ocreach.control.station_keeping_metrics import delta_v_si
 from ocreach.errors import ProblemError, SolverError
 from ocreach.problem import get_problem
 from ocreach.shooting import min_norm_update, multiple_shooting

@@ -8,7 +8,8 @@ from scipy.integrate import solve_ivp
 
 from ocreach.control.ephemeris_reference import ephemeris_reference
 from ocreach.control.ephemeris_tubes import along_reference_schedule, interval_tubes
-from ocreach.control.station_keeping import PAPER_W, paper_initial_set, run_station_keeping
+from ocreach.control.station_keeping import run_station_keeping
+from ocreach.control.station_keeping_paper import PAPER_W, paper_initial_set
 from ocreach.control.tube import Tube, TubeSchedule
 from ocreach.errors import ProblemError
 from ocreach.problem import get_problem

@@ -14,15 +14,10 @@ from scipy.integrate import solve_ivp
 
 import ocreach
 from ocreach.control import MPC, reference_from_problem
-from ocreach.control.station_keeping import (
-    EventTrigger,
-    EventTriggeredMPC,
-    delta_v_si,
-    drift_schedule,
-    run_station_keeping,
-    station_keeping_metrics,
-    trigger_signal,
-)
+from ocreach.control.drift_tubes import drift_schedule
+from ocreach.control.event_mpc import EventTrigger, EventTriggeredMPC, trigger_signal
+from ocreach.control.station_keeping import run_station_keeping
+from ocreach.control.station_keeping_metrics import delta_v_si, station_keeping_metrics
 from ocreach.control.tube import (
     Tube,
     TubeSchedule,
@@ -344,7 +339,8 @@ def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_
     sampled zero-thrust drift trajectory -- all 64 vertices and 16 interior points of each
     tube's initial box, per-step disturbances at the corners of +-W, independent SciPy DOP853
     integration of the CR3BP -- has zonotope gauge <= 1 at every grid time of its tube."""
-    from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS, paper_initial_set
+    from ocreach.control.drift_tubes import ADAPTIVE_TUBE_OPTIONS
+    from ocreach.control.station_keeping_paper import paper_initial_set
     from ocreach.control.tube import sound_drift_partition
 
     G0 = paper_initial_set(nrho)
@@ -379,7 +375,8 @@ def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_
 def test_sound_drift_partition_bad_input_and_budget(nrho, nrho_ref):
     """A range that is empty, a tube budget too small for perilune (taylor from step 72 stops at
     79, so one tube cannot cover 72..84), and the partial tube: its steps, its failure message."""
-    from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS, paper_initial_set
+    from ocreach.control.drift_tubes import ADAPTIVE_TUBE_OPTIONS
+    from ocreach.control.station_keeping_paper import paper_initial_set
     from ocreach.control.tube import sound_drift_partition
     from ocreach.errors import SolverError
 
@@ -615,7 +612,8 @@ def test_tube_log_says_per_refresh_which_tube_was_used(halo, halo_ref, monkeypat
     """``taylor-or-linear``: the real sound tube where taylor succeeds (first 30-step interval of
     the L2 halo), the linear tube where it fails (forced for the second interval, as taylor fails
     at the NRHO's perilune); the log and the report sentences name each, with the reason."""
-    import ocreach.control.station_keeping as sk
+    import ocreach.control.drift_tubes as sk
+    from ocreach.control.station_keeping_paper import PAPER_W, paper_initial_set
     from ocreach.control.station_keeping_report import tube_lines
     from ocreach.errors import SolverError
 
@@ -637,7 +635,7 @@ def test_tube_log_says_per_refresh_which_tube_was_used(halo, halo_ref, monkeypat
     assert not b["guaranteed"] and b["source"].startswith("linear")
     assert "step 12" in b["fallback_reason"]
     # the stand-in is exactly the linear tube of that interval
-    lin = linear_drift_tube(halo_ref, first + 30, 33, sk.paper_initial_set(halo), sk.PAPER_W,
+    lin = linear_drift_tube(halo_ref, first + 30, 33, paper_initial_set(halo), PAPER_W,
                             halo.velocity_dims)
     tb = sched.tube(first + 30)
     assert np.array_equal(tb.centers, lin.centers) and np.array_equal(tb.generators, lin.generators)
@@ -645,6 +643,27 @@ def test_tube_log_says_per_refresh_which_tube_was_used(halo, halo_ref, monkeypat
     assert "GUARANTEED" in text[0] and "LINEARISED" in text[1] and "step 12" in text[1]
     with pytest.raises(ProblemError, match="tube source must be one of"):
         drift_schedule(halo, halo_ref, source="taylor-or-guess")
+
+
+def test_partition_key_tells_apart_large_arrays_that_differ_only_in_the_middle(halo, halo_ref):
+    """The adaptive-partition cache key hashes arrays by dtype, shape and bytes: numpy's ``repr``
+    elides the middle of a large array, so a key built from ``repr`` gave two different
+    disturbances (or array options) the same key and the cache the wrong tubes."""
+    from ocreach.control.drift_tubes import partition_key
+    from ocreach.control.station_keeping_paper import paper_initial_set
+
+    a = np.full(2000, 1e-7)
+    b = a.copy()
+    b[1000] = 2e-7
+    assert repr(a) == repr(b)  # what the old key saw
+
+    def key(W, options):
+        return partition_key(halo, halo_ref, 0, paper_initial_set(halo), W, "taylor", options)
+
+    assert key(a, {}) != key(b, {})
+    assert key(1e-7, {"weights": a}) != key(1e-7, {"weights": b})
+    assert key(a, {}) != key(a.reshape(1000, 2), {})  # same bytes, another shape
+    assert key(a, {"substeps": 16}) == key(a.copy(), {"substeps": 16})  # same values, same key
 
 
 def test_tube_mpc_terminal_set_gives_recursive_feasibility_in_closed_loop(halo, halo_ref):
@@ -656,7 +675,7 @@ def test_tube_mpc_terminal_set_gives_recursive_feasibility_in_closed_loop(halo, 
     tightened box, thrust and terminal constraints of the new problem."""
     from ocreach.control.lqr import LQR
     from ocreach.control.simulate import SimOptions, simulate
-    from ocreach.control.station_keeping import PAPER_W, paper_initial_set
+    from ocreach.control.station_keeping_paper import PAPER_W, paper_initial_set
     from ocreach.control.tube_mpc import TubeMPC
 
     N = 6  # short enough that the terminal set binds from this offset (asserted below)

@@ -10,7 +10,10 @@
 The report ``lqr_vs_mpc_report(problem, out_dir, **options)`` lives in
 :mod:`ocreach.control.report` (imported lazily; it needs matplotlib).  Reachable-set tubes and
 gauges: :mod:`ocreach.control.tube`; event-triggered station keeping:
-:mod:`ocreach.control.station_keeping` (report: :mod:`ocreach.control.station_keeping_report`);
+:mod:`ocreach.control.station_keeping` (closed-loop runs; the controller
+:mod:`ocreach.control.event_mpc`, the drift-tube schedules :mod:`ocreach.control.drift_tubes`, the
+metrics :mod:`ocreach.control.station_keeping_metrics`, the paper's settings
+:mod:`ocreach.control.station_keeping_paper`; report: :mod:`ocreach.control.station_keeping_report`);
 robust tube MPC: :mod:`ocreach.control.tube_mpc`.
 """
 from ocreach.control.discretize import Discretization, rk4_expression
@@ -30,11 +33,8 @@ from ocreach.control.simulate import (
     compare_controllers,
     simulate,
 )
-from ocreach.control.station_keeping import (
-    EventTrigger,
-    EventTriggeredMPC,
-    run_station_keeping,
-)
+from ocreach.control.event_mpc import EventTrigger, EventTriggeredMPC
+from ocreach.control.station_keeping import run_station_keeping
 from ocreach.control.tube import Tube, TubeSchedule, gauge, linear_drift_tube
 from ocreach.control.tube_mpc import TubeMPC
 

@@ -1,7 +1,7 @@
 """Drift tubes along a non-periodic reference (the ephemeris-corrected NRHO), for event-triggered
 and tube MPC on the DE421 plant (issue 14).
 
-The periodic schedule of :func:`~ocreach.control.station_keeping.drift_schedule` computes the
+The periodic schedule of :func:`~ocreach.control.drift_tubes.drift_schedule` computes the
 tubes of one period and re-uses them shifted; an ephemeris-corrected orbit
 (:mod:`ocreach.control.ephemeris_reference`) repeats no period, so here every tube is computed for
 its own stretch of the reference, in the reference's own model (the plant's dynamics in the CR3BP
@@ -16,7 +16,7 @@ frame, :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model`):
   ``*-or-linear`` sources use the linearised tube of that interval
   (:func:`~ocreach.control.tube.linear_drift_tube`, NOT guaranteed), its
   ``meta["fallback_reason"]`` the method's message, so metrics.json says per refresh interval
-  which tube was used (:func:`~ocreach.control.station_keeping.tube_log`).
+  which tube was used (:func:`~ocreach.control.drift_tubes.tube_log`).
 
 The frame model of a long run joins two DE421 fit pieces in time with ``if_else``
 (:mod:`ocreach.ephemeris`), which the Lagrange remainder of ``taylor`` / ``sdc`` refuses, so the
@@ -153,7 +153,7 @@ def along_reference_schedule(problem, reference: TrackingReference, G0: Any, dis
     if not 2 <= end <= reference.n_steps:
         raise ProblemError(f"end (step after the last tube step) must be in 2..{reference.n_steps}; "
                            f"got {end}")
-    from ocreach.control.station_keeping import ADAPTIVE_TUBE_OPTIONS
+    from ocreach.control.drift_tubes import ADAPTIVE_TUBE_OPTIONS
 
     opts = {**ADAPTIVE_TUBE_OPTIONS, **(options or {})}
     starts = refresh_starts(reference, end)

@@ -21,14 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.control.station_keeping import (
-    CONTROLLERS,
-    PAPER_DELTA_V_MPS,
-    PAPER_TF_HOURS,
-    StationKeepingRun,
-    delta_v_si,
-    run_station_keeping,
-)
+from ocreach.control.station_keeping import CONTROLLERS, StationKeepingRun, run_station_keeping
+from ocreach.control.station_keeping_metrics import delta_v_si
+from ocreach.control.station_keeping_paper import PAPER_DELTA_V_MPS, PAPER_TF_HOURS
 from ocreach.errors import ProblemError
 from ocreach.plot import save_figure
 from ocreach.reach.result import atomic_write_text, jsonable
