@@ -434,16 +434,25 @@ class EphemerisFit:
         ``ca.jacobian(expr, t)`` is the exact velocity of the fit.  Only valid inside the fitted
         interval.
 
-        ``window = (lo, hi)`` (seconds after the epoch): the expression only for ``lo <= t <= hi``,
-        the branch of every ``if_else`` that holds on the whole window taken directly, so it is the
-        same function there and has no ``if_else`` (a model a sound reachability method accepts).
-        A window that reaches across a branch boundary (the start or end of a blend) raises
-        :class:`ProblemError`.
+        ``window = (lo, hi)`` (seconds after the epoch, ``lo < hi``): the expression only for
+        ``lo <= t <= hi``, where the fit is a single polynomial (the branch of every ``if_else``
+        that holds on the whole window), re-expanded as a Chebyshev series on the window itself
+        (:meth:`_window_matrix`; equal to the fit up to rounding, docs/intervals.md "Ephemeris
+        positions over a time interval"): no ``if_else`` (a model a sound reachability method
+        accepts), and an interval extension over a step that is not blown up by the piece's
+        degree-48 recurrence.  A window that reaches across a branch boundary (the start or end
+        of a blend) raises :class:`ProblemError`.
         """
         if window is not None:
             w_lo, w_hi = (float(w) for w in window)
-            if not (np.isfinite(w_lo) and np.isfinite(w_hi) and w_lo <= w_hi):
-                raise ProblemError(f"window must be (lo, hi) seconds with lo <= hi; got {window!r}")
+            if not (np.isfinite(w_lo) and np.isfinite(w_hi) and w_lo < w_hi):
+                raise ProblemError(f"window must be (lo, hi) seconds with lo < hi; got {window!r}")
+            self._branch_on(w_lo, w_hi)
+            C = self._window_matrix(body, origin, w_lo, w_hi)
+            out = ca.mtimes(ca.DM(C), _basis((2.0 * t - (w_lo + w_hi)) / (w_hi - w_lo),
+                                              C.shape[1] - 1))
+            R = self._rotation(frame)
+            return out if R is None else ca.mtimes(ca.DM(R), out)
         vals = []
         for k, (lo, hi) in enumerate(self.piece_bounds_days):
             lo, hi = lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY
@@ -455,23 +464,56 @@ class EphemerisFit:
             e0 = (self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY
             e1 = (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY
             w = _smoothstep_expr((t - e0) / (e1 - e0))
-            if window is None:
-                out = ca.if_else(t < e0, out,
-                                 ca.if_else(t < e1, out + w * (vals[k] - out), vals[k]))
-            elif w_hi < e0:
-                pass
-            elif w_lo >= e0 and w_hi < e1:
-                out = out + w * (vals[k] - out)
+            out = ca.if_else(t < e0, out, ca.if_else(t < e1, out + w * (vals[k] - out), vals[k]))
+        R = self._rotation(frame)
+        return out if R is None else ca.mtimes(ca.DM(R), out)
+
+    def _branch_on(self, w_lo: float, w_hi: float) -> int:
+        """Degree of the single polynomial the fit is on ``[w_lo, w_hi]`` (seconds): the largest
+        piece degree, plus 9 (:data:`_SMOOTHSTEP`) inside a blend.  Raises
+        :class:`ProblemError` when the window reaches across a boundary of a blend."""
+        degree, blended = self.degrees[0], False
+        for k in range(1, len(self.coefficients)):
+            e0 = (self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY
+            e1 = (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY
+            if w_hi < e0:
+                continue
+            if w_lo >= e0 and w_hi < e1:
+                degree, blended = max(self.degrees[k - 1], self.degrees[k]), True
             elif w_lo >= e1:
-                out = vals[k]
+                degree, blended = self.degrees[k], False
             else:
                 raise ProblemError(
                     f"window [{w_lo / SECONDS_PER_DAY:.6g}, {w_hi / SECONDS_PER_DAY:.6g}] d reaches "
                     f"across a boundary of the blend of DE421 fit pieces {k - 1} and {k} "
                     f"([{e0 / SECONDS_PER_DAY:.6g}, {e1 / SECONDS_PER_DAY:.6g}] d): no single "
                     f"smooth expression holds on it")
-        R = self._rotation(frame)
-        return out if R is None else ca.mtimes(ca.DM(R), out)
+        return degree + (_SMOOTHSTEP.degree() if blended else 0)
+
+    def _window_matrix(self, body: str, origin: str, w_lo: float, w_hi: float) -> np.ndarray:
+        """Chebyshev coefficients (3, D+1) of ``body - origin`` (ICRF) re-expanded on the window
+        ``[w_lo, w_hi]`` (seconds): on the window the fit is one polynomial of degree ``D``
+        (:meth:`_branch_on`), interpolated here at the ``D + 1`` Chebyshev nodes of the window
+        (exact up to rounding; docs/intervals.md "Ephemeris positions over a time interval").
+
+        Why: the interval extension of the three-term recurrence ``T_k = 2 tau T_(k-1) -
+        T_(k-2)`` widens by up to ``1 + sqrt(2)`` per degree near ``|tau| = 1``, which for the
+        degree-48 pieces near a piece's end is 1e4 times the true variation of a position over a
+        1-hour step; on a window of days the coefficients fall off like ``(omega H / 2)^k / k!``
+        (H the half-width, omega the body's angular rate) and that growth is harmless."""
+        key = ("window", body, origin, w_lo, w_hi)
+        if key not in self._cache:
+            D = self._branch_on(w_lo, w_hi)
+            nodes = np.cos(np.pi * (np.arange(D + 1) + 0.5) / (D + 1))
+            ts = 0.5 * (w_lo + w_hi) + 0.5 * (w_hi - w_lo) * nodes
+            C = cheb.chebfit(nodes, self.position(body, ts, origin), D).T
+            # drop the trailing coefficients at the rounding floor of the interpolation (they
+            # are noise, 1e-16 of the position, but the interval recurrence multiplies them by up
+            # to (1 + sqrt(2))^k): the series changes by at most their sum
+            floor = WINDOW_TAIL_ULPS * np.finfo(float).eps * np.abs(C).sum(axis=1, keepdims=True)
+            above = np.nonzero((np.abs(C) > floor).any(axis=0))[0]
+            self._cache[key] = C[:, : max(2, int(above[-1]) + 1 if above.size else 2)]
+        return self._cache[key]
 
     def __repr__(self) -> str:
         return (f"EphemerisFit(bodies={list(self.bodies)}, epoch={_format_jd(self.epoch_jd)}, "
@@ -479,6 +521,11 @@ class EphemerisFit:
                 f"degrees={self.degrees}, fit_error_km={self.fit_error_km:.2e})")
 
 
+#: Coefficients of a fit re-expanded on a window (:meth:`EphemerisFit._window_matrix`) below this
+#: many ulps of the sum of their row's magnitudes are dropped: rounding noise of the interpolation
+#: (measured with it: the window's positions are within 4e-9 km (Earth) and 3.4e-7 km (Sun, 10
+#: ulps) of the fit's, whose own error to DE421 is 4.4e-7 km; docs/intervals.md).
+WINDOW_TAIL_ULPS = 16.0
 #: Overlap of neighbouring pieces, as a fraction of the piece length (on each side of an edge).
 BLEND_FRACTION = 0.05
 #: Degree-9 smoothstep on [0, 1]: 0 -> 1 with zero derivatives of orders 1..4 at both ends (C^4).

@@ -154,8 +154,9 @@ class EphemerisPlant:
 
     def frame_model_on(self, t_lo: float, t_hi: float):
         """:meth:`frame_model` for reference times ``t_lo <= t <= t_hi`` only: the same function
-        there, without the ``if_else`` between DE421 fit pieces (``window`` of
-        :func:`~ocreach.models.ephemeris.ephemeris_inertial`), for sound reachability.  Raises
+        there up to rounding (the fit re-expanded on the window), without the ``if_else`` between
+        DE421 fit pieces (``window`` of :func:`~ocreach.models.ephemeris.ephemeris_inertial`),
+        for sound reachability.  Raises
         :class:`ProblemError` when the interval reaches across a boundary of a blend of pieces."""
         from ocreach.models.ephemeris import ephemeris_inertial
 

@@ -22,7 +22,7 @@ The frame model of a long run joins two DE421 fit pieces in time with ``if_else`
 (:mod:`ocreach.ephemeris`), which the Lagrange remainder of ``taylor`` / ``sdc`` refuses, so the
 sound method runs per interval on ``model_on(t_a - dt, t_b + dt)``
 (:meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
-that window without the ``if_else``); an interval across the blend of two pieces falls back
+that window, up to rounding, without the ``if_else``); an interval across the blend of two pieces falls back
 (docs/validation.md "DE421 ephemeris plant, corrected reference: event-triggered and tube MPC").
 """
 from __future__ import annotations
@@ -79,8 +79,8 @@ def refresh_starts(reference: TrackingReference, end: int) -> list[int]:
 def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
                     model_on: Callable[[float, float], Any] | None) -> TrackingReference:
     """The reference with the model the sound method runs on over steps ``a .. b``: its own, or
-    ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval without the
-    ``if_else`` between ephemeris fit pieces, e.g.
+    ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval, up to rounding,
+    without the ``if_else`` between ephemeris fit pieces, e.g.
     :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
     :class:`ProblemError` saying why the method cannot run on it."""
     import dataclasses
