@@ -90,6 +90,15 @@ def test_fallback_is_labelled_and_a_strict_sound_source_refuses(nrho, eph):
         interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor", {}, refused)
 
 
+def test_tube_options_may_cap_the_tube_count(nrho, eph):
+    """``max_tubes`` in the tube options caps the restarts, as in the periodic schedule (review
+    finding: it collided with the interval's own default, a bare TypeError)."""
+    ref, orbit = eph
+    tubes = interval_tubes(nrho, ref, 0, 5, paper_initial_set(nrho), PAPER_W, "taylor",
+                           {"max_tubes": 4}, orbit.plant.frame_model_on)
+    assert tubes[0].k0 == 0 and 1 <= len(tubes) <= 4 and all(t.guaranteed for t in tubes)
+
+
 def test_fit_window_is_the_same_function_without_if_else():
     """The DE421 fit over 74 days has two pieces blended in time with if_else; restricted to a
     window on one side of (or inside) the blend it is the same polynomial, re-expanded on the

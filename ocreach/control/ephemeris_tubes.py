@@ -119,8 +119,9 @@ def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: An
             reason = " ".join(str(err).split())[:300]
         else:
             try:
+                # max_tubes: one per step unless the options cap it (as in the periodic schedule)
                 return sound_drift_partition(problem, sound_ref, a, b, G0, disturbance, method,
-                                             max_tubes=b - a, **options)
+                                             **{"max_tubes": b - a, **options})
             except SolverError as err:
                 if source == method:
                     raise
