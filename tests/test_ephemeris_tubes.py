@@ -197,8 +197,9 @@ def test_bad_input(nrho, eph):
         TubeSchedule(lambda r: None, ref, starts=[0], interval=4)
     with pytest.raises(ProblemError, match="tube source"):
         along_reference_schedule(nrho, ref, G0, PAPER_W, "ode")
-    with pytest.raises(ProblemError, match="end"):
-        along_reference_schedule(nrho, ref, G0, PAPER_W, "linear", end=1)
+    for end in (1, 2.5, "x"):  # 2.5 was truncated to 2 and "x" a bare ValueError
+        with pytest.raises(ProblemError, match="end"):
+            along_reference_schedule(nrho, ref, G0, PAPER_W, "linear", end=end)
     with pytest.raises(ProblemError, match="tube_interval"):
         run_station_keeping(nrho, controllers=("event-mpc",), revolutions=0.1,
                             plant="ephemeris", reference="ephemeris", tube_interval=20)
