@@ -188,7 +188,8 @@ def test_non_periodic_schedule_refreshes_at_its_starts(eph):
 def test_bad_input(nrho, eph):
     ref, _ = eph
     G0 = paper_initial_set(nrho)
-    for starts in ([1, 5], [0, 5, 5], [0, 30], [], [0, 2.5]):
+    for starts in ([1, 5], [0, 5, 5], [0, 30], [], [0, 2.5], [0, True], [0, float("nan")],
+                   [0, "a"], [0, None]):  # the last three gave a bare ValueError / TypeError
         with pytest.raises(ProblemError, match="starts"):
             TubeSchedule(lambda r: None, ref, starts=starts, end=20)
     with pytest.raises(ProblemError, match="end"):
