@@ -288,9 +288,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                                   if schedule is not None and schedule.offsets is not None
                                   else None),
         "tube_guaranteed": guaranteed,
-        "tube_model": ("cr3bp (the plant's drift is NOT enclosed: the plant is the DE421 model)"
-                       if plant == "ephemeris" and reference == "cr3bp" else
-                       "the plant's dynamics" if tubes else None),
+        # the model whose drift the tubes enclose: "plant" or "cr3bp" (DE421 plant, CR3BP tubes)
+        "tube_model": (None if not tubes else
+                       "cr3bp" if plant == "ephemeris" and reference == "cr3bp" else "plant"),
         "tubes": tubes, "tube_sources_used": sorted({t["source"] for t in tubes}),
         "refresh_phase_step": schedule.phase if schedule is not None else None,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
