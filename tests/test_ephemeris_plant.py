@@ -191,3 +191,22 @@ def test_report_reference_option_on_the_command_line(tmp_path):
     assert not (tmp_path / "gauge.png").exists()
     # corrected reference, paper offset: the offset's cost only (CR3BP reference: ~30 m/s/rev)
     assert data["lqr"]["delta_v_per_rev_mps"] < 3.0
+
+
+def test_cr3bp_tubes_are_not_called_guaranteed_on_the_ephemeris_plant(nrho):
+    """With the DE421 plant and the CR3BP reference the tubes (taylor, sound for the CR3BP) do not
+    enclose the plant's drift -- the true state leaves them within 0.05 revolutions -- so the run
+    must not report them as guaranteed (review finding: metrics said tube_guaranteed True)."""
+    run = run_station_keeping(nrho, controllers=("lqr",), revolutions=0.05, plant="ephemeris",
+                              tube_source="taylor", tube_interval="adaptive")
+    assert all(t["guaranteed"] for t in run.settings["tubes"])  # sound for the CR3BP model
+    assert run.metrics["lqr"]["max_gauge"] > 1.0  # and the plant leaves them
+    assert run.settings["tube_guaranteed"] is False
+    assert run.metrics["lqr"]["tube_guaranteed"] is False
+    assert run.settings["tube_model"] == "cr3bp"
+    from ocreach.control.station_keeping import tubes_enclose_plant
+
+    tubes = [{"guaranteed": True}]
+    assert tubes_enclose_plant(tubes, "cr3bp", "cr3bp") is True
+    assert tubes_enclose_plant(tubes, "ephemeris", "ephemeris") is True
+    assert tubes_enclose_plant([], "ephemeris", "cr3bp") is None

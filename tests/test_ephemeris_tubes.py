@@ -90,6 +90,15 @@ def test_fallback_is_labelled_and_a_strict_sound_source_refuses(nrho, eph):
         interval_tubes(nrho, ref, 3, 12, G0, PAPER_W, "taylor", {}, refused)
 
 
+def test_tube_options_may_cap_the_tube_count(nrho, eph):
+    """``max_tubes`` in the tube options caps the restarts, as in the periodic schedule (review
+    finding: it collided with the interval's own default, a bare TypeError)."""
+    ref, orbit = eph
+    tubes = interval_tubes(nrho, ref, 0, 5, paper_initial_set(nrho), PAPER_W, "taylor",
+                           {"max_tubes": 4}, orbit.plant.frame_model_on)
+    assert tubes[0].k0 == 0 and 1 <= len(tubes) <= 4 and all(t.guaranteed for t in tubes)
+
+
 def test_fit_window_is_the_same_function_without_if_else():
     """The DE421 fit over 74 days has two pieces blended in time with if_else; restricted to a
     window on one side of (or inside) the blend it is the same polynomial, re-expanded on the
@@ -179,7 +188,8 @@ def test_non_periodic_schedule_refreshes_at_its_starts(eph):
 def test_bad_input(nrho, eph):
     ref, _ = eph
     G0 = paper_initial_set(nrho)
-    for starts in ([1, 5], [0, 5, 5], [0, 30], [], [0, 2.5]):
+    for starts in ([1, 5], [0, 5, 5], [0, 30], [], [0, 2.5], [0, True], [0, float("nan")],
+                   [0, "a"], [0, None]):  # the last three gave a bare ValueError / TypeError
         with pytest.raises(ProblemError, match="starts"):
             TubeSchedule(lambda r: None, ref, starts=starts, end=20)
     with pytest.raises(ProblemError, match="end"):
@@ -188,8 +198,9 @@ def test_bad_input(nrho, eph):
         TubeSchedule(lambda r: None, ref, starts=[0], interval=4)
     with pytest.raises(ProblemError, match="tube source"):
         along_reference_schedule(nrho, ref, G0, PAPER_W, "ode")
-    with pytest.raises(ProblemError, match="end"):
-        along_reference_schedule(nrho, ref, G0, PAPER_W, "linear", end=1)
+    for end in (1, 2.5, "x"):  # 2.5 was truncated to 2 and "x" a bare ValueError
+        with pytest.raises(ProblemError, match="end"):
+            along_reference_schedule(nrho, ref, G0, PAPER_W, "linear", end=end)
     with pytest.raises(ProblemError, match="tube_interval"):
         run_station_keeping(nrho, controllers=("event-mpc",), revolutions=0.1,
                             plant="ephemeris", reference="ephemeris", tube_interval=20)

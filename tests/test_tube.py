@@ -664,6 +664,11 @@ def test_partition_key_tells_apart_large_arrays_that_differ_only_in_the_middle(h
     assert key(1e-7, {"weights": a}) != key(1e-7, {"weights": b})
     assert key(a, {}) != key(a.reshape(1000, 2), {})  # same bytes, another shape
     assert key(a, {"substeps": 16}) == key(a.copy(), {"substeps": 16})  # same values, same key
+    # the partition runs on the reference's model (e.g. a plant's frame model), so it is in the key
+    import dataclasses
+
+    other = dataclasses.replace(halo_ref, model=dataclasses.replace(halo_ref.model, name="other"))
+    assert partition_key(halo, other, 0, paper_initial_set(halo), a, "taylor", {}) != key(a, {})
 
 
 def test_tube_mpc_terminal_set_gives_recursive_feasibility_in_closed_loop(halo, halo_ref):

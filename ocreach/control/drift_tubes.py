@@ -134,12 +134,13 @@ _PARTITIONS: dict[str, list[Tube]] = {}
 def partition_key(problem, reference: TrackingReference, phase: int, G0: Any, disturbance: Any,
                   method: str, options: dict) -> str:
     """Everything :func:`~ocreach.control.tube.sound_drift_partition` depends on, hashed: the
-    model, its parameters, the reference states and times, the sets, the method and options.
+    model it runs on (the reference's, :func:`~ocreach.control.tube._drift_problem`), the
+    parameters, the reference states and times, the sets, the method and options.
     Arrays enter by dtype, shape and bytes (:func:`_hash_value`), never by ``repr``, which numpy
     shortens with ``...`` for large arrays (two different arrays would share a key)."""
     h = hashlib.sha256()
-    _hash_value(h, (problem.model.name, problem.model.n_x, problem.id, problem.control_set.kind,
-                    phase, method, options, disturbance))
+    _hash_value(h, (reference.model.name, reference.model.n_x, problem.model.name, problem.id,
+                    problem.control_set.kind, phase, method, options, disturbance))
     for a in (reference.X, reference.time(np.arange(reference.n_steps + 1)), reference.params,
               problem.params, G0):
         _hash_value(h, np.asarray(a, float))

@@ -40,7 +40,7 @@ from ocreach.control.tube import (
     secondary_distance,
     sound_drift_partition,
 )
-from ocreach.errors import ProblemError, SolverError
+from ocreach.errors import ProblemError, SolverError, check_count
 
 #: tube sources accepted along a non-periodic reference
 SOURCES = ("linear", "taylor", "sdc", "taylor-or-linear", "sdc-or-linear")
@@ -119,8 +119,9 @@ def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: An
             reason = " ".join(str(err).split())[:300]
         else:
             try:
+                # max_tubes: one per step unless the options cap it (as in the periodic schedule)
                 return sound_drift_partition(problem, sound_ref, a, b, G0, disturbance, method,
-                                             max_tubes=b - a, **options)
+                                             **{"max_tubes": b - a, **options})
             except SolverError as err:
                 if source == method:
                     raise
@@ -149,7 +150,8 @@ def along_reference_schedule(problem, reference: TrackingReference, G0: Any, dis
     if source not in SOURCES:
         raise ProblemError(f"tube source along a non-periodic reference must be one of "
                            f"{list(SOURCES)}; got {source!r}")
-    end = reference.n_steps if end is None else int(end)
+    end = reference.n_steps if end is None else check_count("end (step after the last tube step)",
+                                                            end, 2)
     if not 2 <= end <= reference.n_steps:
         raise ProblemError(f"end (step after the last tube step) must be in 2..{reference.n_steps}; "
                            f"got {end}")

@@ -71,6 +71,18 @@ class NavigationError:
         return self.controller.control(k, np.asarray(x, float) + e)
 
 
+def tubes_enclose_plant(tubes: list[dict], plant: str, reference: str) -> bool | None:
+    """Whether every tube of the run (:func:`~ocreach.control.drift_tubes.tube_log`) is a
+    guaranteed enclosure of the drift of the plant the run simulates: the tubes are sound for the
+    reference's model, so with the DE421 plant and the CR3BP reference (tubes of the CR3BP drift)
+    none is, whatever method built them.  ``None`` without tubes."""
+    if not tubes:
+        return None
+    if plant == "ephemeris" and reference == "cr3bp":
+        return False
+    return all(t["guaranteed"] for t in tubes)
+
+
 def _check_reference_kind(reference: str, plant: str, controllers) -> None:
     """``reference`` of :func:`run_station_keeping`: a name in ``REFERENCES`` that fits the plant
     and the controllers."""
@@ -259,8 +271,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
     tube0 = schedule.tube(schedule.phase) if schedule is not None else None
     tubes = tube_log(schedule, K) if schedule is not None else []
+    guaranteed = tubes_enclose_plant(tubes, plant, reference)
     for met in metrics.values():  # the tubes are shared; repeated per controller for clarity
-        met["tube_guaranteed"] = all(t["guaranteed"] for t in tubes) if tubes else None
+        met["tube_guaranteed"] = guaranteed
         met["tube_sources"] = sorted({t["source"] for t in tubes})
     off0 = results[controllers[0]].X[0] - ref.state(0)
     settings = {
@@ -274,7 +287,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "refresh_steps_per_rev": ([schedule.phase + int(o) for o in schedule.offsets]
                                   if schedule is not None and schedule.offsets is not None
                                   else None),
-        "tube_guaranteed": all(t["guaranteed"] for t in tubes) if tubes else None,
+        "tube_guaranteed": guaranteed,
+        # the model whose drift the tubes enclose: "plant" or "cr3bp" (DE421 plant, CR3BP tubes)
+        "tube_model": (None if not tubes else
+                       "cr3bp" if plant == "ephemeris" and reference == "cr3bp" else "plant"),
         "tubes": tubes, "tube_sources_used": sorted({t["source"] for t in tubes}),
         "refresh_phase_step": schedule.phase if schedule is not None else None,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
@@ -302,4 +318,4 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
 
 
 __all__ = ["CONTROLLERS", "NavigationError", "REFERENCES", "StationKeepingRun", "TUBE_CONTROLLERS",
-           "run_station_keeping"]
+           "run_station_keeping", "tubes_enclose_plant"]

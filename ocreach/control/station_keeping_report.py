@@ -104,8 +104,10 @@ def summary_lines(data: dict) -> list[str]:
         when = f"refreshed at reference step {s['refresh_phase_step']} and then {every}"
     lines.append(f"Tube: membership {s['membership']}, {when}; "
                  + ("every tube a guaranteed enclosure." if s["tube_guaranteed"] else
-                    "NOT a guaranteed enclosure where a tube is linearised (no remainder term: "
-                    "gauges near perilune carry its linearisation error)."))
+                    "NOT a guaranteed enclosure of the plant's drift: the tubes enclose the "
+                    "CR3BP drift, the plant is the DE421 model." if s.get("tube_model") == "cr3bp"
+                    else "NOT a guaranteed enclosure where a tube is linearised (no remainder "
+                    "term: gauges near perilune carry its linearisation error)."))
     lines += tube_lines(s.get("tubes") or [])
     pl = s.get("plant") or {"plant": "cr3bp"}
     if pl["plant"] == "ephemeris":

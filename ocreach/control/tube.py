@@ -377,9 +377,8 @@ class TubeSchedule:
         if end > N:
             raise ProblemError(f"end (step after the last tube step) must be <= {N} (the "
                                f"reference's steps); got {end}")
-        st = list(starts)
-        if not st or any(isinstance(r, (bool, np.bool_)) or int(r) != r for r in st) \
-                or st[0] != 0 or st[-1] >= end or any(b <= a for a, b in zip(st, st[1:])):
+        st = [check_count("starts (refresh steps)", r, 0) for r in starts]
+        if not st or st[0] != 0 or st[-1] >= end or any(b <= a for a, b in zip(st, st[1:])):
             raise ProblemError(f"starts (refresh steps) must increase strictly from 0 and be < "
                                f"end = {end}; got {list(starts)[:10]}")
         self.reference, self.builder = reference, builder
