@@ -756,3 +756,33 @@ def test_mpc_terminal_set_bad_input(halo_ref):
         term.control(0, halo_ref.state(0))
     with pytest.raises(ProblemError, match="finite 6x6"):
         term.set_terminal_set(np.eye(5))
+
+
+def test_tube_guarantee_counts_tubes_reached_only_by_the_last_predictions():
+    """A tube refreshed after the run's last step but inside the last MPC horizon constrains the
+    last plans, so it counts for ``tube_guaranteed`` (review finding: the log stopped at the run's
+    last step and a linearised tube there went unreported)."""
+    from types import SimpleNamespace
+
+    from ocreach.control.station_keeping import run_tube_logs, tubes_enclose_plant
+
+    class Stub:  # refreshes every 10 steps; the tube refreshed at step 30 is linearised
+        reference = SimpleNamespace(revolution_steps=100)
+
+        def refresh_steps(self, n):
+            return list(range(0, n, 10))
+
+        def next_refresh(self, r):
+            return r + 10
+
+        def tube(self, r):
+            return SimpleNamespace(source="linear" if r == 30 else "taylor", guaranteed=r != 30,
+                                   meta={})
+
+    tubes, beyond = run_tube_logs(Stub(), 25, 4)  # last plan reaches step 28: no tube at 30
+    assert [e["refresh_step"] for e in tubes] == [0, 10, 20] and beyond == []
+    assert tubes_enclose_plant(tubes + beyond, "cr3bp", "cr3bp") is True
+    tubes, beyond = run_tube_logs(Stub(), 25, 15)  # reaches step 39: the tube at 30
+    assert [e["refresh_step"] for e in beyond] == [30] and not beyond[0]["guaranteed"]
+    assert tubes_enclose_plant(tubes + beyond, "cr3bp", "cr3bp") is False
+    assert run_tube_logs(None, 25, 15) == ([], [])

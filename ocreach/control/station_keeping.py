@@ -71,6 +71,18 @@ class NavigationError:
         return self.controller.control(k, np.asarray(x, float) + e)
 
 
+def run_tube_logs(schedule, n_steps: int, n_p: int) -> tuple[list[dict], list[dict]]:
+    """The tube log of a run (:func:`~ocreach.control.drift_tubes.tube_log` over its ``n_steps``
+    steps) and the tubes refreshed after its last step that the MPC predictions still reach (the
+    plan made at step ``n_steps - 1`` constrains steps up to ``n_steps - 1 + n_p``): both count
+    for whether the tubes used were guaranteed."""
+    if schedule is None:
+        return [], []
+    tubes = tube_log(schedule, n_steps)
+    beyond = [e for e in tube_log(schedule, n_steps + n_p) if e["refresh_step"] >= n_steps]
+    return tubes, beyond
+
+
 def tubes_enclose_plant(tubes: list[dict], plant: str, reference: str) -> bool | None:
     """Whether every tube of the run (:func:`~ocreach.control.drift_tubes.tube_log`) is a
     guaranteed enclosure of the drift of the plant the run simulates: the tubes are sound for the
@@ -270,8 +282,8 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         active[name] = (np.asarray(ctl.active, bool) if hasattr(ctl, "active")
                         else np.linalg.norm(res.U_applied, axis=1) > 0)
     tube0 = schedule.tube(schedule.phase) if schedule is not None else None
-    tubes = tube_log(schedule, K) if schedule is not None else []
-    guaranteed = tubes_enclose_plant(tubes, plant, reference)
+    tubes, tubes_beyond = run_tube_logs(schedule, K, n_p)
+    guaranteed = tubes_enclose_plant(tubes + tubes_beyond, plant, reference)
     for met in metrics.values():  # the tubes are shared; repeated per controller for clarity
         met["tube_guaranteed"] = guaranteed
         met["tube_sources"] = sorted({t["source"] for t in tubes})
@@ -292,6 +304,9 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         "tube_model": (None if not tubes else
                        "cr3bp" if plant == "ephemeris" and reference == "cr3bp" else "plant"),
         "tubes": tubes, "tube_sources_used": sorted({t["source"] for t in tubes}),
+        # refreshed after the last step, reached only by the last MPC predictions (counted in
+        # tube_guaranteed)
+        "tubes_in_last_predictions": tubes_beyond,
         "refresh_phase_step": schedule.phase if schedule is not None else None,
         "initial_set": np.asarray(paper_initial_set(problem) if isinstance(initial, str)
                                   else initial, float).tolist(),
