@@ -65,6 +65,7 @@ from ocreach.sets.interval import Interval
 from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope
+from ocreach.units import G0  # standard gravity [m/s^2] of the exhaust velocity Isp g0
 
 #: CasADi operations whose derivatives are not continuous: a Lagrange remainder over a box that
 #: straddles the kink would be wrong, so models using them are refused.
@@ -179,10 +180,6 @@ def initial_zonotope(problem: Problem) -> Zonotope:
         raise ProblemError(f"initial_set has dimension {Z.dim}; the model {problem.model.name!r} "
                            f"has n_x = {n} states {list(problem.model.state_names)}")
     return Z
-
-
-#: standard gravity [m/s^2] of the rocket equation's exhaust velocity ``Isp g0``
-G0 = 9.80665
 
 
 def mass_scale(problem: Problem) -> float:
