@@ -328,8 +328,12 @@ def linear_step(R0: Zonotope, A: np.ndarray, h: float, u_c: np.ndarray, W: Zonot
     return LinearStep(point=point, tube=tube)
 
 
+def all_finite(*sets: Zonotope) -> bool:
+    """True if every centre and generator entry of ``sets`` is finite."""
+    return all(np.all(np.isfinite(Z.c)) and np.all(np.isfinite(Z.G)) for Z in sets)
+
+
 def check_finite(*sets: Zonotope) -> None:
     """Raise :class:`SolverError` if a computed set is not finite (overflow)."""
-    for Z in sets:
-        if not (np.all(np.isfinite(Z.c)) and np.all(np.isfinite(Z.G))):
-            raise SolverError("the linear step's set is not finite (overflow); use a shorter step")
+    if not all_finite(*sets):
+        raise SolverError("the linear step's set is not finite (overflow); use a shorter step")

@@ -49,6 +49,7 @@ from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import (
+    all_finite,
     box_zonotope,
     diag_columns,
     expm_terms,
@@ -534,7 +535,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
             # base tube + R_W(box(Lbar)) + x*, padded by r_fp, as one concatenation
             tube = Zonotope.trusted(base_tube.c + 0.0 + xs, np.concatenate(
                 [base_tube.G, input_generators(diag_columns(Lbar), et), diag_columns(r_fp)], axis=1))
-        if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
+        if not all_finite(tube):
             return StepFail("the tube is not finite", need)
         try:
             err = ctx.err.bound(tube, xs, vs, Vbox, t_box, lin)
@@ -566,7 +567,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     box_fp = diag_columns(r_fp)
     point = Zonotope.trusted(hs2.point.c + xs, np.concatenate([hs2.point.G, RU2G, box_fp], axis=1))
     tube = Zonotope.trusted(hs2.tube.c + xs, np.concatenate([hs2.tube.G, RU2G, box_fp], axis=1))
-    if not all(np.all(np.isfinite(a)) for a in (point.c, point.G, tube.c, tube.G)):
+    if not all_finite(point, tube):
         return StepFail("the step's sets are not finite", need)
     return StepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)
 
