@@ -49,6 +49,7 @@ from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import (
+    abs_extent,
     all_finite,
     box_zonotope,
     diag_columns,
@@ -547,7 +548,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                        f"{np.array2string(need, precision=3)}) until: {msg}")
             return StepFail("remainder bound failed: " + msg, need)
         # rounded up: the loop closes only if the error box surely lies in [-Lbar, Lbar]
-        need = up(np.abs(err.c) + np.abs(err.G).sum(axis=1), err.n_generators + 1)
+        need = up(abs_extent(err), err.n_generators + 1)
         if not np.all(np.isfinite(need)):
             return StepFail("the remainder bound is not finite", need)
         if np.all(need <= Lbar):
