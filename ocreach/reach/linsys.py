@@ -176,9 +176,7 @@ def abs_extent(Z: Zonotope) -> np.ndarray:
 
 def box_zonotope(c: np.ndarray, r: np.ndarray) -> Zonotope:
     """The box ``c +- r`` as a zonotope (zero radii give no generator)."""
-    r = np.asarray(r, dtype=float)
-    keep = r > 0
-    return Zonotope.trusted(np.asarray(c, dtype=float), np.diag(r)[:, keep])
+    return Zonotope.trusted(np.asarray(c, dtype=float), diag_columns(np.asarray(r, dtype=float)))
 
 
 def interval_matrix_times(M_mid: np.ndarray, M_rad: np.ndarray, Z: Zonotope) -> Zonotope:
