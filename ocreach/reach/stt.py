@@ -201,11 +201,9 @@ def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: st
 _COMBO_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
 
 
-def _combos(H: int, order: int = 2) -> tuple[np.ndarray, ...]:
+def _combos(H: int) -> tuple[np.ndarray, ...]:
     """Pairs ``(i, j, mult)`` with ``i <= j`` over ``H`` generators (cached; order 3 is formed in
     blocks by :mod:`ocreach.reach.stt_products`)."""
-    if order != 2:
-        raise ValueError(f"_combos: order must be 2; got {order!r}")
     if H not in _COMBO_CACHE:
         i, j = np.triu_indices(H)
         _COMBO_CACHE[H] = (i, j, np.where(i == j, 1.0, 2.0))
@@ -299,7 +297,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     cols, tris = [phi[0] @ Ga], [np.vstack([np.arange(H), zero, zero])]
     if n_ord >= 2:
         T2 = sym_tensor(phi[1]) / 2.0
-        i, j, mult = _combos(H, 2)
+        i, j, mult = _combos(H)
         B = np.matmul(Ga.T[None], T2 @ Ga)                     # (n, H, H)
         cols.append(B.reshape(n, -1)[:, i * H + j] * mult)
         tris.append(np.vstack([i, j, np.zeros(i.size, dtype=np.int64)]))
