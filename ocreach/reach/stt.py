@@ -278,7 +278,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     :func:`ocreach.reach.stt_products.order3_products`.
     """
     from ocreach.reach.stt_products import PRUNE_MIN_PRODUCTS, default_chunk, n_products, order3_products
-    from ocreach.sets.polyzonotope import merge_monomials, monomial_keys, sym_tensor
+    from ocreach.sets.polyzonotope import monomial_keys, sym_tensor
 
     n_ord = len(phi)
     p, h, q = dZ.n_factors, dZ.n_dependent, dZ.n_independent
@@ -314,10 +314,10 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
             tris.append(tri)
             waiting += tri.shape[1]
             if waiting > max(chunk, merged):    # merge what waits (memory ~ 2x the merged set)
-                G, tri = _merge_products(cols, tris, ka, merge_monomials)
+                G, tri = _merge_products(cols, tris, ka)
                 cols, tris, merged, waiting = [G], [tri], tri.shape[1], 0
         pruned = prod if prod.count else None
-    Gm, tri = _merge_products(cols, tris, ka, merge_monomials)
+    Gm, tri = _merge_products(cols, tris, ka)
     # classification of the merged monomials from their generators (bit masks)
     PAR = par[tri[0]] ^ par[tri[1]] ^ par[tri[2]]
     SUP = sup[tri[0]] | sup[tri[1]] | sup[tri[2]]
@@ -327,8 +327,10 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     return Gm, tri, const, has_b, even, Ea, pruned
 
 
-def _merge_products(cols, tris, ka, merge_monomials):
+def _merge_products(cols, tris, ka):
     """Merge products with equal monomials (hash of ``E_i + E_j + E_k`` = sum of the keys)."""
+    from ocreach.sets.polyzonotope import merge_monomials
+
     G, tri = np.hstack(cols), np.hstack(tris)
     k0, k1 = np.ascontiguousarray(ka[:, 0]), np.ascontiguousarray(ka[:, 1])
     keys = np.stack([k0[tri[0]] + k0[tri[1]] + k0[tri[2]], k1[tri[0]] + k1[tri[1]] + k1[tri[2]]], axis=1)
