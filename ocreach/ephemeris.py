@@ -461,12 +461,16 @@ class EphemerisFit:
                                                      C.shape[1] - 1)))
         out = vals[0]
         for k in range(1, len(vals)):
-            e0 = (self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY
-            e1 = (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY
+            e0, e1 = self._blend_seconds(k)
             w = _smoothstep_expr((t - e0) / (e1 - e0))
             out = ca.if_else(t < e0, out, ca.if_else(t < e1, out + w * (vals[k] - out), vals[k]))
         R = self._rotation(frame)
         return out if R is None else ca.mtimes(ca.DM(R), out)
+
+    def _blend_seconds(self, k: int) -> tuple[float, float]:
+        """Start and end (seconds after the epoch) of the blend of pieces ``k - 1`` and ``k``."""
+        return ((self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY,
+                (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY)
 
     def _branch_on(self, w_lo: float, w_hi: float) -> int:
         """Degree of the single polynomial the fit is on ``[w_lo, w_hi]`` (seconds): the largest
@@ -474,8 +478,7 @@ class EphemerisFit:
         :class:`ProblemError` when the window reaches across a boundary of a blend."""
         degree, blended = self.degrees[0], False
         for k in range(1, len(self.coefficients)):
-            e0 = (self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY
-            e1 = (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY
+            e0, e1 = self._blend_seconds(k)
             if w_hi < e0:
                 continue
             if w_lo >= e0 and w_hi < e1:

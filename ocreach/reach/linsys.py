@@ -176,9 +176,7 @@ def abs_extent(Z: Zonotope) -> np.ndarray:
 
 def box_zonotope(c: np.ndarray, r: np.ndarray) -> Zonotope:
     """The box ``c +- r`` as a zonotope (zero radii give no generator)."""
-    r = np.asarray(r, dtype=float)
-    keep = r > 0
-    return Zonotope.trusted(np.asarray(c, dtype=float), np.diag(r)[:, keep])
+    return Zonotope.trusted(np.asarray(c, dtype=float), diag_columns(np.asarray(r, dtype=float)))
 
 
 def interval_matrix_times(M_mid: np.ndarray, M_rad: np.ndarray, Z: Zonotope) -> Zonotope:
@@ -328,8 +326,12 @@ def linear_step(R0: Zonotope, A: np.ndarray, h: float, u_c: np.ndarray, W: Zonot
     return LinearStep(point=point, tube=tube)
 
 
+def all_finite(*sets: Zonotope) -> bool:
+    """True if every centre and generator entry of ``sets`` is finite."""
+    return all(np.all(np.isfinite(Z.c)) and np.all(np.isfinite(Z.G)) for Z in sets)
+
+
 def check_finite(*sets: Zonotope) -> None:
     """Raise :class:`SolverError` if a computed set is not finite (overflow)."""
-    for Z in sets:
-        if not (np.all(np.isfinite(Z.c)) and np.all(np.isfinite(Z.G))):
-            raise SolverError("the linear step's set is not finite (overflow); use a shorter step")
+    if not all_finite(*sets):
+        raise SolverError("the linear step's set is not finite (overflow); use a shorter step")

@@ -43,7 +43,7 @@ from ocreach.errors import ProblemError, check_count
 from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
-from ocreach.reach.linsys import pad
+from ocreach.reach.linsys import abs_extent, pad
 from ocreach.reach.result import ReachResult
 from ocreach.reach.taylor import (
     ZonotopeOptions,
@@ -146,7 +146,7 @@ class SDCError:
         # literal: (sum dA_k d_k) x, x = x* + d (matzonotope_times_zonotope on the arrays)
         dev = Zonotope.trusted(*matzonotope_product(C, Gs, Dx_c, D.G))
         # rounding of C, Gs and the product: absolute value (sum_k |dA_k| a_D,k) a_Dx
-        aD = np.abs(D.c) + np.abs(D.G).sum(axis=1)
+        aD = abs_extent(D)
         aDx = aD if self.base == "center" else aD + np.abs(xs)
         dev_abs = np.einsum("ijk,k->ij", np.abs(dA), aD) @ aDx
         dev = pad(dev, rounding_radius(dev_abs, 2 * n + 4))

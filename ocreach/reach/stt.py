@@ -201,11 +201,9 @@ def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: st
 _COMBO_CACHE: dict[int, tuple[np.ndarray, ...]] = {}
 
 
-def _combos(H: int, order: int = 2) -> tuple[np.ndarray, ...]:
+def _combos(H: int) -> tuple[np.ndarray, ...]:
     """Pairs ``(i, j, mult)`` with ``i <= j`` over ``H`` generators (cached; order 3 is formed in
     blocks by :mod:`ocreach.reach.stt_products`)."""
-    if order != 2:
-        raise ValueError(f"_combos: order must be 2; got {order!r}")
     if H not in _COMBO_CACHE:
         i, j = np.triu_indices(H)
         _COMBO_CACHE[H] = (i, j, np.where(i == j, 1.0, 2.0))
@@ -280,7 +278,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     :func:`ocreach.reach.stt_products.order3_products`.
     """
     from ocreach.reach.stt_products import PRUNE_MIN_PRODUCTS, default_chunk, n_products, order3_products
-    from ocreach.sets.polyzonotope import merge_monomials, monomial_keys, sym_tensor
+    from ocreach.sets.polyzonotope import monomial_keys, sym_tensor
 
     n_ord = len(phi)
     p, h, q = dZ.n_factors, dZ.n_dependent, dZ.n_independent
@@ -299,7 +297,7 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     cols, tris = [phi[0] @ Ga], [np.vstack([np.arange(H), zero, zero])]
     if n_ord >= 2:
         T2 = sym_tensor(phi[1]) / 2.0
-        i, j, mult = _combos(H, 2)
+        i, j, mult = _combos(H)
         B = np.matmul(Ga.T[None], T2 @ Ga)                     # (n, H, H)
         cols.append(B.reshape(n, -1)[:, i * H + j] * mult)
         tris.append(np.vstack([i, j, np.zeros(i.size, dtype=np.int64)]))
@@ -316,10 +314,10 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
             tris.append(tri)
             waiting += tri.shape[1]
             if waiting > max(chunk, merged):    # merge what waits (memory ~ 2x the merged set)
-                G, tri = _merge_products(cols, tris, ka, merge_monomials)
+                G, tri = _merge_products(cols, tris, ka)
                 cols, tris, merged, waiting = [G], [tri], tri.shape[1], 0
         pruned = prod if prod.count else None
-    Gm, tri = _merge_products(cols, tris, ka, merge_monomials)
+    Gm, tri = _merge_products(cols, tris, ka)
     # classification of the merged monomials from their generators (bit masks)
     PAR = par[tri[0]] ^ par[tri[1]] ^ par[tri[2]]
     SUP = sup[tri[0]] | sup[tri[1]] | sup[tri[2]]
@@ -329,8 +327,10 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     return Gm, tri, const, has_b, even, Ea, pruned
 
 
-def _merge_products(cols, tris, ka, merge_monomials):
+def _merge_products(cols, tris, ka):
     """Merge products with equal monomials (hash of ``E_i + E_j + E_k`` = sum of the keys)."""
+    from ocreach.sets.polyzonotope import merge_monomials
+
     G, tri = np.hstack(cols), np.hstack(tris)
     k0, k1 = np.ascontiguousarray(ka[:, 0]), np.ascontiguousarray(ka[:, 1])
     keys = np.stack([k0[tri[0]] + k0[tri[1]] + k0[tri[2]], k1[tri[0]] + k1[tri[1]] + k1[tri[2]]], axis=1)

@@ -49,6 +49,8 @@ from ocreach.fastcall import FastFunction
 from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import (
+    abs_extent,
+    all_finite,
     box_zonotope,
     diag_columns,
     expm_terms,
@@ -65,6 +67,7 @@ from ocreach.sets.interval import Interval
 from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope
+from ocreach.units import G0  # standard gravity [m/s^2] of the exhaust velocity Isp g0
 
 #: CasADi operations whose derivatives are not continuous: a Lagrange remainder over a box that
 #: straddles the kink would be wrong, so models using them are refused.
@@ -179,10 +182,6 @@ def initial_zonotope(problem: Problem) -> Zonotope:
         raise ProblemError(f"initial_set has dimension {Z.dim}; the model {problem.model.name!r} "
                            f"has n_x = {n} states {list(problem.model.state_names)}")
     return Z
-
-
-#: standard gravity [m/s^2] of the rocket equation's exhaust velocity ``Isp g0``
-G0 = 9.80665
 
 
 def mass_scale(problem: Problem) -> float:
@@ -537,7 +536,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
             # base tube + R_W(box(Lbar)) + x*, padded by r_fp, as one concatenation
             tube = Zonotope.trusted(base_tube.c + 0.0 + xs, np.concatenate(
                 [base_tube.G, input_generators(diag_columns(Lbar), et), diag_columns(r_fp)], axis=1))
-        if not np.all(np.isfinite(tube.G)) or not np.all(np.isfinite(tube.c)):
+        if not all_finite(tube):
             return StepFail("the tube is not finite", need)
         try:
             err = ctx.err.bound(tube, xs, vs, Vbox, t_box, lin)
@@ -549,7 +548,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
                        f"{np.array2string(need, precision=3)}) until: {msg}")
             return StepFail("remainder bound failed: " + msg, need)
         # rounded up: the loop closes only if the error box surely lies in [-Lbar, Lbar]
-        need = up(np.abs(err.c) + np.abs(err.G).sum(axis=1), err.n_generators + 1)
+        need = up(abs_extent(err), err.n_generators + 1)
         if not np.all(np.isfinite(need)):
             return StepFail("the remainder bound is not finite", need)
         if np.all(need <= Lbar):
@@ -569,7 +568,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
     box_fp = diag_columns(r_fp)
     point = Zonotope.trusted(hs2.point.c + xs, np.concatenate([hs2.point.G, RU2G, box_fp], axis=1))
     tube = Zonotope.trusted(hs2.tube.c + xs, np.concatenate([hs2.tube.G, RU2G, box_fp], axis=1))
-    if not all(np.all(np.isfinite(a)) for a in (point.c, point.G, tube.c, tube.G)):
+    if not all_finite(point, tube):
         return StepFail("the step's sets are not finite", need)
     return StepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)
 

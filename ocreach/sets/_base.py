@@ -122,6 +122,17 @@ def factor_samples(num: int, k: int, rng: Any, mode: str) -> np.ndarray:
     raise SetError(f"sample: mode must be 'uniform' or 'extreme'; got {mode!r}")
 
 
+def check_parts(kind: str, parts: list) -> tuple:
+    """``parts`` as a tuple, or a :class:`SetError` naming ``kind`` if it is empty or the parts'
+    dimensions differ (the part check of the union sets)."""
+    if not parts:
+        raise SetError(f"{kind} needs at least one part")
+    dims = {p.dim for p in parts}
+    if len(dims) != 1:
+        raise SetError(f"{kind} parts must share one dimension; got {sorted(dims)}")
+    return tuple(parts)
+
+
 def check_linear_map(M: Any, n: int) -> np.ndarray:
     """Validate a (m, n) linear map (a scalar is allowed and means s*I)."""
     arr = np.asarray(M, dtype=float)

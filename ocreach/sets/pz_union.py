@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ocreach.errors import SetError
+from ocreach.sets._base import check_parts
 
 if TYPE_CHECKING:
     from ocreach.sets.interval import Interval
@@ -30,13 +30,7 @@ class PZUnion:
     """
 
     def __init__(self, parts: Sequence[Any]):
-        parts = list(parts)
-        if not parts:
-            raise SetError("PZUnion needs at least one part")
-        dims = {p.dim for p in parts}
-        if len(dims) != 1:
-            raise SetError(f"PZUnion parts must share one dimension; got {sorted(dims)}")
-        self.parts = tuple(parts)
+        self.parts = check_parts("PZUnion", list(parts))
 
     @property
     def dim(self) -> int:

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.errors import SetError, SolverError
-from ocreach.sets._base import SetBase, as_directions, as_points, as_rng
+from ocreach.errors import SolverError
+from ocreach.sets._base import SetBase, as_directions, as_points, as_rng, check_parts
 from ocreach.sets.zonotope import Zonotope
 
 #: points per block-diagonal gauge LP
@@ -26,12 +26,7 @@ class ZonotopeUnion(SetBase):
 
     def __init__(self, parts: Sequence[Any]):
         ps = [p.to_zonotope() if not isinstance(p, Zonotope) else p for p in parts]
-        if not ps:
-            raise SetError("ZonotopeUnion needs at least one part")
-        dims = {p.dim for p in ps}
-        if len(dims) != 1:
-            raise SetError(f"ZonotopeUnion: parts have different dimensions {sorted(dims)}")
-        self.parts = tuple(ps)
+        self.parts = check_parts("ZonotopeUnion", ps)
         self._freeze()
 
     @property
