@@ -12,6 +12,7 @@ reference; :func:`tube_log` says which tube was used per refresh.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,14 @@ def as_box(tube: Tube) -> Tube:
                 source=f"interval hull of {tube.source}", meta=tube.meta)
 
 
+def _membership_wrap(membership: str) -> Callable[[Tube], Tube]:
+    """The tube wrapper for ``membership`` (checked): :func:`as_box` for ``"box"``, else the
+    identity."""
+    if membership not in MEMBERSHIPS:
+        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    return as_box if membership == "box" else (lambda t: t)
+
+
 def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "paper",
                    disturbance: Any = PAPER_W, membership: str = "box", phase: int | str = "apolune",
                    every: int = 1, lookahead: int = PAPER_N, source: str = "linear",
@@ -82,15 +91,14 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
     """
-    if membership not in MEMBERSHIPS:
-        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    wrap = _membership_wrap(membership)
     G0 = _initial_generators(problem, initial)
     if isinstance(interval, str):
         if interval != "adaptive" or source not in ("taylor", "sdc"):
             raise ProblemError(f"interval must be a number of steps, None (every revolution) or "
                                f"'adaptive' (with tube source 'taylor' or 'sdc'); got "
                                f"{interval!r} with source {source!r}")
-        return _adaptive_schedule(problem, reference, G0, disturbance, source, membership, phase,
+        return _adaptive_schedule(problem, reference, G0, disturbance, source, wrap, phase,
                                   tube_options or {})
     length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
 
@@ -121,7 +129,6 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
                                 **lin.meta, "fallback_from": method, "fallback_reason": reason})
     else:
         raise ProblemError(f"tube source must be one of {list(TUBE_SOURCES)}; got {source!r}")
-    wrap = as_box if membership == "box" else (lambda t: t)
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
                         lookahead=lookahead, reuse=True, interval=interval)
 
@@ -181,7 +188,7 @@ def _hash_value(h: Any, value: Any) -> None:
 
 
 def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
-                       method: str, membership: str, phase: int | str,
+                       method: str, wrap: Callable[[Tube], Tube], phase: int | str,
                        options: dict) -> TubeSchedule:
     """Guaranteed tubes over one period from ``phase``, refreshed where the sound method stops
     (:func:`~ocreach.control.tube.sound_drift_partition`), re-used every period.  MPC windows that
@@ -199,7 +206,6 @@ def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturban
         if len(_PARTITIONS) >= 8:
             _PARTITIONS.pop(next(iter(_PARTITIONS)))
         _PARTITIONS[key] = tubes
-    wrap = as_box if membership == "box" else (lambda t: t)
     by_phase = {t.k0 % M: wrap(t) for t in tubes}
 
     def build(k: int) -> Tube:
@@ -239,8 +245,7 @@ def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, dist
     between DE421 fit pieces: docs/intervals.md)."""
     from ocreach.control.ephemeris_tubes import along_reference_schedule
 
-    if membership not in MEMBERSHIPS:
-        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    wrap = _membership_wrap(membership)
     if phase != "apolune":
         raise ProblemError(f"phase along the ephemeris-corrected reference must be 'apolune' (the "
                            f"tubes restart at every apolune); got {phase!r}")
@@ -253,8 +258,7 @@ def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, dist
     G0 = _initial_generators(problem, initial)
     # the run's steps and the last MPC window (n_p steps after the last solve)
     end = min(ref.n_steps, ref.n_default + n_p + 1)
-    return along_reference_schedule(problem, ref, G0, disturbance, source,
-                                    wrap=as_box if membership == "box" else (lambda t: t),
+    return along_reference_schedule(problem, ref, G0, disturbance, source, wrap=wrap,
                                     options=options, end=end, model_on=plant.frame_model_on)
 
 
