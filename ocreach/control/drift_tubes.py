@@ -25,6 +25,7 @@ from ocreach.control.tube import (
     TubeSchedule,
     apolune_phase,
     linear_drift_tube,
+    linear_fallback,
     reach_drift_tube,
     sound_drift_partition,
 )
@@ -122,11 +123,7 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
             try:
                 return sound(k, method)
             except SolverError as err:  # e.g. taylor stops before perilune on the NRHO
-                lin = linear(k)
-                reason = " ".join(str(err).split())[:300]
-                return Tube(lin.centers, lin.generators, k0=lin.k0, guaranteed=False,
-                            source=f"{lin.source}; {method} failed", meta={
-                                **lin.meta, "fallback_from": method, "fallback_reason": reason})
+                return linear_fallback(linear(k), method, err)
     else:
         raise ProblemError(f"tube source must be one of {list(TUBE_SOURCES)}; got {source!r}")
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,

@@ -536,6 +536,16 @@ def linear_drift_tube(reference: TrackingReference, k0: int, length: int, initia
                                meta={"order": order, "initial": G0.tolist(), "W": Wg.tolist()})
 
 
+def linear_fallback(lin: Tube, method: str, err: Exception) -> Tube:
+    """The linear tube ``lin`` standing in for the sound ``method`` that failed with ``err``: not
+    guaranteed, its source labelled, ``meta["fallback_reason"]`` the error on one line (at most
+    300 characters)."""
+    reason = " ".join(str(err).split())[:300]
+    return Tube(lin.centers, lin.generators, k0=lin.k0, guaranteed=False,
+                source=f"{lin.source}; {method} failed",
+                meta={**lin.meta, "fallback_from": method, "fallback_reason": reason})
+
+
 def _drift_problem(problem, reference: TrackingReference, k0: int, length: int, initial: Any):
     """The zero-thrust problem from ``x_ref(k0) + G0 [-1, 1]^q`` on the reference grid
     ``t_{k0} .. t_{k0+length-1}`` (``a_max`` = 1e-300), in the reference's model (the problem's
@@ -649,5 +659,5 @@ def _head(tube: Tube, n: int) -> Tube:
 
 
 __all__ = ["CasadiGauge", "Tube", "TubeSchedule", "apolune_phase", "casadi_gauge_constraints",
-           "disturbance_input", "gauge", "linear_drift_tube", "reach_drift_tube",
+           "disturbance_input", "gauge", "linear_drift_tube", "linear_fallback", "reach_drift_tube",
            "secondary_distance", "sound_drift_partition"]
