@@ -23,10 +23,10 @@ from ocreach.control.station_keeping_paper import PAPER_N, PAPER_W, paper_initia
 from ocreach.control.tube import (
     Tube,
     TubeSchedule,
-    apolune_phase,
     linear_drift_tube,
     linear_fallback,
     reach_drift_tube,
+    refresh_phase,
     sound_drift_partition,
 )
 from ocreach.errors import ProblemError, SolverError
@@ -191,14 +191,12 @@ def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturban
     (:func:`~ocreach.control.tube.sound_drift_partition`), re-used every period.  MPC windows that
     cross a refresh take the next tube's sets, so no tube needs a lookahead."""
     M = reference.n_steps
-    p0 = apolune_phase(reference) if phase == "apolune" else phase
-    if isinstance(p0, str) or isinstance(p0, bool) or int(p0) != p0 or not 0 <= int(p0) < M:
-        raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
+    p0 = refresh_phase(reference, phase)
     opts = {**ADAPTIVE_TUBE_OPTIONS, **options}
-    key = partition_key(problem, reference, int(p0), G0, disturbance, method, opts)
+    key = partition_key(problem, reference, p0, G0, disturbance, method, opts)
     tubes = _PARTITIONS.get(key)
     if tubes is None:
-        tubes = sound_drift_partition(problem, reference, int(p0), int(p0) + M, G0, disturbance,
+        tubes = sound_drift_partition(problem, reference, p0, p0 + M, G0, disturbance,
                                       method, **opts)
         if len(_PARTITIONS) >= 8:
             _PARTITIONS.pop(next(iter(_PARTITIONS)))
