@@ -12,6 +12,7 @@ reference; :func:`tube_log` says which tube was used per refresh.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -22,9 +23,10 @@ from ocreach.control.station_keeping_paper import PAPER_N, PAPER_W, paper_initia
 from ocreach.control.tube import (
     Tube,
     TubeSchedule,
-    apolune_phase,
     linear_drift_tube,
+    linear_fallback,
     reach_drift_tube,
+    refresh_phase,
     sound_drift_partition,
 )
 from ocreach.errors import ProblemError, SolverError
@@ -61,6 +63,14 @@ def as_box(tube: Tube) -> Tube:
                 source=f"interval hull of {tube.source}", meta=tube.meta)
 
 
+def _membership_wrap(membership: str) -> Callable[[Tube], Tube]:
+    """The tube wrapper for ``membership`` (checked): :func:`as_box` for ``"box"``, else the
+    identity."""
+    if membership not in MEMBERSHIPS:
+        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    return as_box if membership == "box" else (lambda t: t)
+
+
 def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "paper",
                    disturbance: Any = PAPER_W, membership: str = "box", phase: int | str = "apolune",
                    every: int = 1, lookahead: int = PAPER_N, source: str = "linear",
@@ -82,15 +92,14 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
     """
-    if membership not in MEMBERSHIPS:
-        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    wrap = _membership_wrap(membership)
     G0 = _initial_generators(problem, initial)
     if isinstance(interval, str):
         if interval != "adaptive" or source not in ("taylor", "sdc"):
             raise ProblemError(f"interval must be a number of steps, None (every revolution) or "
                                f"'adaptive' (with tube source 'taylor' or 'sdc'); got "
                                f"{interval!r} with source {source!r}")
-        return _adaptive_schedule(problem, reference, G0, disturbance, source, membership, phase,
+        return _adaptive_schedule(problem, reference, G0, disturbance, source, wrap, phase,
                                   tube_options or {})
     length = (every * reference.n_steps if interval is None else int(interval)) + lookahead + 1
 
@@ -114,14 +123,9 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
             try:
                 return sound(k, method)
             except SolverError as err:  # e.g. taylor stops before perilune on the NRHO
-                lin = linear(k)
-                reason = " ".join(str(err).split())[:300]
-                return Tube(lin.centers, lin.generators, k0=lin.k0, guaranteed=False,
-                            source=f"{lin.source}; {method} failed", meta={
-                                **lin.meta, "fallback_from": method, "fallback_reason": reason})
+                return linear_fallback(linear(k), method, err)
     else:
         raise ProblemError(f"tube source must be one of {list(TUBE_SOURCES)}; got {source!r}")
-    wrap = as_box if membership == "box" else (lambda t: t)
     return TubeSchedule(lambda k: wrap(build(k)), reference, phase=phase, every=every,
                         lookahead=lookahead, reuse=True, interval=interval)
 
@@ -181,25 +185,22 @@ def _hash_value(h: Any, value: Any) -> None:
 
 
 def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,
-                       method: str, membership: str, phase: int | str,
+                       method: str, wrap: Callable[[Tube], Tube], phase: int | str,
                        options: dict) -> TubeSchedule:
     """Guaranteed tubes over one period from ``phase``, refreshed where the sound method stops
     (:func:`~ocreach.control.tube.sound_drift_partition`), re-used every period.  MPC windows that
     cross a refresh take the next tube's sets, so no tube needs a lookahead."""
     M = reference.n_steps
-    p0 = apolune_phase(reference) if phase == "apolune" else phase
-    if isinstance(p0, str) or isinstance(p0, bool) or int(p0) != p0 or not 0 <= int(p0) < M:
-        raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
+    p0 = refresh_phase(reference, phase)
     opts = {**ADAPTIVE_TUBE_OPTIONS, **options}
-    key = partition_key(problem, reference, int(p0), G0, disturbance, method, opts)
+    key = partition_key(problem, reference, p0, G0, disturbance, method, opts)
     tubes = _PARTITIONS.get(key)
     if tubes is None:
-        tubes = sound_drift_partition(problem, reference, int(p0), int(p0) + M, G0, disturbance,
+        tubes = sound_drift_partition(problem, reference, p0, p0 + M, G0, disturbance,
                                       method, **opts)
         if len(_PARTITIONS) >= 8:
             _PARTITIONS.pop(next(iter(_PARTITIONS)))
         _PARTITIONS[key] = tubes
-    wrap = as_box if membership == "box" else (lambda t: t)
     by_phase = {t.k0 % M: wrap(t) for t in tubes}
 
     def build(k: int) -> Tube:
@@ -239,8 +240,7 @@ def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, dist
     between DE421 fit pieces: docs/intervals.md)."""
     from ocreach.control.ephemeris_tubes import along_reference_schedule
 
-    if membership not in MEMBERSHIPS:
-        raise ProblemError(f"membership must be one of {MEMBERSHIPS}; got {membership!r}")
+    wrap = _membership_wrap(membership)
     if phase != "apolune":
         raise ProblemError(f"phase along the ephemeris-corrected reference must be 'apolune' (the "
                            f"tubes restart at every apolune); got {phase!r}")
@@ -253,8 +253,7 @@ def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, dist
     G0 = _initial_generators(problem, initial)
     # the run's steps and the last MPC window (n_p steps after the last solve)
     end = min(ref.n_steps, ref.n_default + n_p + 1)
-    return along_reference_schedule(problem, ref, G0, disturbance, source,
-                                    wrap=as_box if membership == "box" else (lambda t: t),
+    return along_reference_schedule(problem, ref, G0, disturbance, source, wrap=wrap,
                                     options=options, end=end, model_on=plant.frame_model_on)
 
 

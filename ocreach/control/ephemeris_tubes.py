@@ -37,6 +37,7 @@ from ocreach.control.tube import (
     Tube,
     TubeSchedule,
     linear_drift_tube,
+    linear_fallback,
     secondary_distance,
     sound_drift_partition,
 )
@@ -116,7 +117,7 @@ def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: An
                                    f"'{reference.name}' at steps {a}..{b}: {err}; use "
                                    f"{method + '-or-linear'!r} (linearised tube where it "
                                    f"cannot) or 'linear'") from err
-            reason = " ".join(str(err).split())[:300]
+            failure = err
         else:
             try:
                 # max_tubes: one per step unless the options cap it (as in the periodic schedule)
@@ -125,13 +126,11 @@ def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: An
             except SolverError as err:
                 if source == method:
                     raise
-                reason = " ".join(str(err).split())[:300]
+                failure = err
     lin = linear_drift_tube(reference, a, b - a, G0, disturbance, problem.velocity_dims)
     if source == "linear":
         return [lin]
-    return [Tube(lin.centers, lin.generators, k0=a, guaranteed=False,
-                 source=f"{lin.source}; {method} failed",
-                 meta={**lin.meta, "fallback_from": method, "fallback_reason": reason})]
+    return [linear_fallback(lin, method, failure)]
 
 
 def along_reference_schedule(problem, reference: TrackingReference, G0: Any, disturbance: Any,

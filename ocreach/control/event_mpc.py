@@ -108,9 +108,7 @@ class EventTriggeredMPC(MPCWrapper):
         self.reset()
 
     def setup(self, reference: TrackingReference, control_set_kind: str) -> EventTriggeredMPC:
-        if reference is not self.schedule.reference:
-            raise ProblemError("EventTriggeredMPC: the tube schedule was built on another reference")
-        self.mpc.setup(reference, control_set_kind)
+        self._setup_mpc(reference, control_set_kind)
         self.nu = reference.model.n_u
         self.reset()
         return self

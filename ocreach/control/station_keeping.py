@@ -284,9 +284,10 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     tube0 = schedule.tube(schedule.phase) if schedule is not None else None
     tubes, tubes_beyond = run_tube_logs(schedule, K, n_p)
     guaranteed = tubes_enclose_plant(tubes + tubes_beyond, plant, reference)
+    sources = sorted({t["source"] for t in tubes})
     for met in metrics.values():  # the tubes are shared; repeated per controller for clarity
         met["tube_guaranteed"] = guaranteed
-        met["tube_sources"] = sorted({t["source"] for t in tubes})
+        met["tube_sources"] = list(sources)
     off0 = results[controllers[0]].X[0] - ref.state(0)
     settings = {
         "problem": problem.id, "revolutions": float(K / ref.revolution_steps), "n_steps": K,
@@ -303,7 +304,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
         # the model whose drift the tubes enclose: "plant" or "cr3bp" (DE421 plant, CR3BP tubes)
         "tube_model": (None if not tubes else
                        "cr3bp" if plant == "ephemeris" and reference == "cr3bp" else "plant"),
-        "tubes": tubes, "tube_sources_used": sorted({t["source"] for t in tubes}),
+        "tubes": tubes, "tube_sources_used": sources,
         # refreshed after the last step, reached only by the last MPC predictions (counted in
         # tube_guaranteed)
         "tubes_in_last_predictions": tubes_beyond,

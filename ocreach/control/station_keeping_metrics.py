@@ -49,17 +49,17 @@ def station_keeping_metrics(res: SimResult, reference: TrackingReference,
     else:
         on = un > 0
         activations = _edges(on)
-    ks = np.arange(K + 1)
-    if schedule is None:  # no tube (no tube controller on the corrected reference): no gauges
-        return _deviation_metrics(res, reference, problem, controller, dv, on, activations,
-                                  None, None), None
-    refresh = np.array([schedule.refresh_step(int(k)) for k in ks])
-    gam = np.empty(K + 1)
-    for r in np.unique(refresh):  # one batched gauge call per tube
-        sel = refresh == r
-        gam[sel] = schedule.tube(int(r)).gauge(ks[sel], res.X[sel])
+    gam = off = None  # no tube (no tube controller on the corrected reference): no gauges
+    if schedule is not None:
+        ks = np.arange(K + 1)
+        refresh = np.array([schedule.refresh_step(int(k)) for k in ks])
+        gam = np.empty(K + 1)
+        for r in np.unique(refresh):  # one batched gauge call per tube
+            sel = refresh == r
+            gam[sel] = schedule.tube(int(r)).gauge(ks[sel], res.X[sel])
+        off = np.r_[~on, True]  # the final state has no control: off
     return _deviation_metrics(res, reference, problem, controller, dv, on, activations, gam,
-                              np.r_[~on, True]), gam  # the final state has no control: off
+                              off), gam
 
 
 def _deviation_metrics(res: SimResult, reference: TrackingReference, problem, controller,

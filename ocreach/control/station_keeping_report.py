@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import html
 import inspect
+import itertools
 import json
 from pathlib import Path
 from typing import Any
@@ -162,19 +163,15 @@ def terminal_set_lines(data: dict) -> list[str]:
 def tube_lines(tubes: list[dict]) -> list[str]:
     """One sentence per run of consecutive refresh intervals with the same tube (source and
     guarantee), in revolutions from the start of the run."""
-    out, i = [], 0
-    while i < len(tubes):
-        j = i
-        key = (tubes[i]["source"], tubes[i]["guaranteed"])
-        while j + 1 < len(tubes) and (tubes[j + 1]["source"], tubes[j + 1]["guaranteed"]) == key:
-            j += 1
-        a, b = tubes[i]["revolutions"][0], tubes[j]["revolutions"][1]
-        why = tubes[i].get("fallback_reason")
-        out.append(f"Tube used for revolutions {a:.3g}-{b:.3g} ({j - i + 1} refresh "
+    out = []
+    for key, group in itertools.groupby(tubes, key=lambda e: (e["source"], e["guaranteed"])):
+        group = list(group)
+        a, b = group[0]["revolutions"][0], group[-1]["revolutions"][1]
+        why = group[0].get("fallback_reason")
+        out.append(f"Tube used for revolutions {a:.3g}-{b:.3g} ({len(group)} refresh "
                    f"interval(s)): {key[0]}, "
                    + ("GUARANTEED (sound method)" if key[1] else "LINEARISED, not guaranteed")
                    + (f"; the sound method failed: {why}" if why else "") + ".")
-        i = j + 1
     return out
 
 

@@ -286,6 +286,16 @@ def apolune_phase(reference: TrackingReference, secondary: tuple[float, ...] | N
     return int(np.argmax(secondary_distance(reference, secondary, "apolune_phase")[:-1]))
 
 
+def refresh_phase(reference: TrackingReference, phase: int | str) -> int:
+    """The reference step ``phase`` names: ``"apolune"`` (:func:`apolune_phase`) or a step
+    ``0..M-1`` of the periodic reference."""
+    M = reference.n_steps
+    p = apolune_phase(reference) if isinstance(phase, str) and phase == "apolune" else phase
+    if isinstance(p, (str, bool)) or int(p) != p or not 0 <= int(p) < M:
+        raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
+    return int(p)
+
+
 def secondary_distance(reference: TrackingReference, secondary: tuple[float, ...] | None,
                        caller: str) -> np.ndarray:
     """Distance of every reference state from the secondary (default, CR3BP: the Moon at
@@ -333,15 +343,8 @@ class TubeSchedule:
             raise ProblemError(f"tube refresh needs a periodic reference (a period to refresh on) "
                                f"or starts (refresh steps along it); '{reference.name}' has none")
         M = reference.n_steps
-        if isinstance(phase, str):
-            if phase != "apolune":
-                raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got "
-                                   f"{phase!r}")
-            phase = apolune_phase(reference)
-        if isinstance(phase, bool) or int(phase) != phase or not 0 <= int(phase) < M:
-            raise ProblemError(f"phase must be 'apolune' or a reference step 0..{M - 1}; got {phase!r}")
         self.reference = reference
-        self.phase = int(phase)
+        self.phase = refresh_phase(reference, phase)
         self.every = check_count("every (revolutions between refreshes)", every, 1)
         self.lookahead = check_count("lookahead", lookahead, 0)
         self.interval = (self.every * M if interval is None
@@ -536,6 +539,16 @@ def linear_drift_tube(reference: TrackingReference, k0: int, length: int, initia
                                meta={"order": order, "initial": G0.tolist(), "W": Wg.tolist()})
 
 
+def linear_fallback(lin: Tube, method: str, err: Exception) -> Tube:
+    """The linear tube ``lin`` standing in for the sound ``method`` that failed with ``err``: not
+    guaranteed, its source labelled, ``meta["fallback_reason"]`` the error on one line (at most
+    300 characters)."""
+    reason = " ".join(str(err).split())[:300]
+    return Tube(lin.centers, lin.generators, k0=lin.k0, guaranteed=False,
+                source=f"{lin.source}; {method} failed",
+                meta={**lin.meta, "fallback_from": method, "fallback_reason": reason})
+
+
 def _drift_problem(problem, reference: TrackingReference, k0: int, length: int, initial: Any):
     """The zero-thrust problem from ``x_ref(k0) + G0 [-1, 1]^q`` on the reference grid
     ``t_{k0} .. t_{k0+length-1}`` (``a_max`` = 1e-300), in the reference's model (the problem's
@@ -649,5 +662,5 @@ def _head(tube: Tube, n: int) -> Tube:
 
 
 __all__ = ["CasadiGauge", "Tube", "TubeSchedule", "apolune_phase", "casadi_gauge_constraints",
-           "disturbance_input", "gauge", "linear_drift_tube", "reach_drift_tube",
-           "secondary_distance", "sound_drift_partition"]
+           "disturbance_input", "gauge", "linear_drift_tube", "linear_fallback", "reach_drift_tube",
+           "refresh_phase", "secondary_distance", "sound_drift_partition"]

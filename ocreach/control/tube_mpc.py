@@ -99,6 +99,7 @@ class MPCWrapper:
     """A controller built around an inner :class:`MPC` (``self.mpc``): its failures are the MPC's."""
 
     mpc: MPC
+    schedule: TubeSchedule
 
     @property
     def fallbacks(self) -> int:
@@ -107,6 +108,13 @@ class MPCWrapper:
     @property
     def events(self) -> list:
         return self.mpc.events
+
+    def _setup_mpc(self, reference: TrackingReference, control_set_kind: str) -> None:
+        """Set the inner MPC up on ``reference``, the one ``self.schedule`` was built on."""
+        if reference is not self.schedule.reference:
+            raise ProblemError(f"{type(self).__name__}: the tube schedule was built on another "
+                               f"reference")
+        self.mpc.setup(reference, control_set_kind)
 
 
 class TubeMPC(MPCWrapper):
@@ -138,9 +146,7 @@ class TubeMPC(MPCWrapper):
         self.tightening_exhausted = 0
 
     def setup(self, reference: TrackingReference, control_set_kind: str) -> TubeMPC:
-        if reference is not self.schedule.reference:
-            raise ProblemError("TubeMPC: the tube schedule was built on another reference")
-        self.mpc.setup(reference, control_set_kind)
+        self._setup_mpc(reference, control_set_kind)
         self.lqr = self.mpc.lqr
         reference.linearize()
         M = reference.n_steps

@@ -58,8 +58,12 @@ def default_inertial_units(central: str, mass0: float = 1.0, gm_of=gm) -> Units:
     """
     central = check_body(central, ORIGINS, "central")
     du_km = DU_EARTH_MOON_KM if central in ("earth", "moon", "emb") else AU_KM
-    ref = {"ssb": lambda: gm_of("sun"), "emb": lambda: gm_of("earth") + gm_of("moon")}.get(
-        central, lambda: gm_of(central))()
+    if central == "ssb":
+        ref = gm_of("sun")
+    elif central == "emb":
+        ref = gm_of("earth") + gm_of("moon")
+    else:
+        ref = gm_of(central)
     return Units(length=du_km * 1e3, time=float(np.sqrt(du_km**3 / ref)), mass=mass0,
                  name=f"{central}-centred (DU = {du_km:.10g} km, mu_{central} = 1)")
 
