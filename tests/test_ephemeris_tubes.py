@@ -207,3 +207,150 @@ def test_bad_input(nrho, eph):
     with pytest.raises(ProblemError, match="phase"):
         run_station_keeping(nrho, controllers=("tube-mpc",), revolutions=0.1,
                             plant="ephemeris", reference="ephemeris", phase=3)
+
+
+def _clenshaw_exact(c, x):
+    """``sum_j c_j T_j(x)`` in exact rational arithmetic."""
+    from fractions import Fraction
+
+    b1 = b2 = Fraction(0)
+    for ck in reversed(list(c)[1:]):
+        b1, b2 = Fraction(float(ck)) + 2 * x * b1 - b2, b1
+    return Fraction(float(c[0])) + x * b1 - b2
+
+
+def _fit_exact(fit, body, origin, t):
+    """The fit of ``position_expr`` (no window) at ``t`` seconds in exact arithmetic on its float
+    constants, read off its definition (piece polynomials, smoothstep blend) independently of
+    :mod:`ocreach.exact_chebyshev`."""
+    from fractions import Fraction
+
+    from ocreach.ephemeris import _SMOOTHSTEP, SECONDS_PER_DAY
+
+    def piece(k):
+        lo, hi = (v * SECONDS_PER_DAY for v in fit.piece_bounds_days[k])
+        tau = (2 * t - Fraction(lo + hi)) / Fraction(hi - lo)
+        return [_clenshaw_exact(row, tau) for row in fit._matrix(body, origin, k)]
+
+    out = piece(0)
+    for k in range(1, len(fit.coefficients)):
+        e0, e1 = fit._blend_seconds(k)
+        if t < Fraction(e0):
+            continue
+        nxt = piece(k)
+        if t < Fraction(e1):
+            u = (t - Fraction(e0)) / Fraction(e1 - e0)
+            w = Fraction(0)
+            for c in _SMOOTHSTEP.coef[::-1]:
+                w = w * u + Fraction(float(c))
+            out = [p + w * (q - p) for p, q in zip(out, nxt, strict=True)]
+        else:
+            out = nxt
+    return out
+
+
+def test_window_error_bound_covers_the_exact_difference():
+    """:meth:`EphemerisFit.window_error_bound` >= the exact (rational arithmetic) difference
+    between the fit and its re-expansion on a window at 161 points of the window (the ends
+    included), for windows at a piece's start, inside the blend and after it; and it is tight
+    (within 4x of the largest difference found).  The float differences of the two CasADi
+    expressions are within the bound plus their own rounding (a few ulps of the position)."""
+    from fractions import Fraction
+
+    import casadi as ca
+
+    from ocreach.ephemeris import SECONDS_PER_DAY, ephemeris_fit
+
+    fit = ephemeris_fit(["earth", "moon", "sun"], "2026-01-01 00:00:00", 74.0)
+    e, d = fit.edges_days[1], fit.blend_days
+    t = ca.SX.sym("t")
+    for lo, hi in ((0.0, 6.6), (e - 0.5 * d, e + 0.5 * d), (e + 2 * d, e + 9.0)):
+        W = (lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY)
+        ts = np.linspace(W[0], W[1], 161)
+        for body in ("earth", "sun"):
+            bound = fit.window_error_bound(body, "moon", *W)
+            q = fit._window_matrix(body, "moon", *W)
+            A, B = Fraction(W[0] + W[1]), Fraction(W[1] - W[0])
+            worst = np.zeros(3)
+            for tk in ts:
+                tf = Fraction(float(tk))
+                s = (2 * tf - A) / B
+                diff = [p - _clenshaw_exact(row, s) for p, row in
+                        zip(_fit_exact(fit, body, "moon", tf), q, strict=True)]
+                worst = np.maximum(worst, [abs(float(v)) for v in diff])
+            assert np.all(worst <= bound), (body, lo, worst, bound)
+            assert np.all(bound <= 4.0 * worst + 1e-12), (body, lo, worst, bound)
+            assert np.all(bound < 1e-6)  # km: the re-expansion is the fit up to ~1e-7 km
+            win = ca.Function("q", [t], [fit.position_expr(body, t, "moon", window=W)])
+            meas = np.abs(np.asarray(win(ts[None, :])).T - fit.position(body, ts, "moon"))
+            ulp = np.spacing(np.abs(fit.position(body, ts, "moon")).max(0))
+            assert np.all(meas.max(0) <= bound + 8 * ulp), (body, lo)
+
+
+def test_window_error_bound_of_the_second_derivative():
+    """The k = 2 bound covers the exact second derivative of the difference (rational Chebyshev
+    differentiation of both series, the chain-rule factors exact) on a window inside one piece."""
+    from fractions import Fraction
+
+    from ocreach.ephemeris import SECONDS_PER_DAY, ephemeris_fit
+
+    def der(c):  # Chebyshev derivative, exact
+        c = [Fraction(float(v)) for v in c]
+        n = len(c) - 1
+        out = [Fraction(0)] * max(n, 1)
+        for j in range(n, 0, -1):
+            out[j - 1] = (out[j + 1] if j + 1 < n else 0) + 2 * j * c[j]
+        out[0] /= 2
+        return out
+
+    fit = ephemeris_fit(["earth", "moon", "sun"], "2026-01-01 00:00:00", 74.0)
+    W = (3.0 * SECONDS_PER_DAY, 7.5 * SECONDS_PER_DAY)
+    bound = fit.window_error_bound("moon", "ssb", *W, derivative=2)
+    lo, hi = (v * SECONDS_PER_DAY for v in fit.piece_bounds_days[0])
+    Ap, Bp = Fraction(lo + hi), Fraction(hi - lo)
+    Aw, Bw = Fraction(W[0] + W[1]), Fraction(W[1] - W[0])
+    P = [der(der(r)) for r in fit._matrix("moon", "ssb", 0)]
+    Q = [der(der(r)) for r in fit._window_matrix("moon", "ssb", *W)]
+    worst = np.zeros(3)
+    for tk in np.linspace(W[0], W[1], 61):
+        tf = Fraction(float(tk))
+        tau, s = (2 * tf - Ap) / Bp, (2 * tf - Aw) / Bw
+        diff = [_clenshaw_exact(p, tau) * (2 / Bp) ** 2 - _clenshaw_exact(q, s) * (2 / Bw) ** 2
+                for p, q in zip(P, Q, strict=True)]
+        worst = np.maximum(worst, [abs(float(v)) for v in diff])
+    assert np.all(worst <= bound) and np.all(worst > 0), (worst, bound)
+
+
+def test_window_model_acceleration_error_is_bounded(nrho, eph):
+    """The frame model restricted to a window differs from the plant's full frame model by at
+    most its ``window_error["acceleration"]`` at states within ``radius`` of the Moon (the
+    reference's states and random ones up to the radius) and times across the window; and the
+    sound tubes carry the widened disturbance (``meta["model_error"]``)."""
+    ref, orbit = eph
+    plant = orbit.plant
+    t_lo, t_hi = float(ref.time(0)), float(ref.time(40))
+    win = plant.frame_model_on(t_lo, t_hi)
+    err = win.cache["window_error"]
+    assert 0 < err["acceleration"] < 1e-10 and 0.3 < err["radius"] < 0.6
+    full = plant.frame_model()
+    p = np.array(ref.params, float)
+    rng = np.random.default_rng(3)
+    centre = np.array(err["centre"])
+    worst = 0.0
+    for t in np.linspace(t_lo, t_hi, 41):
+        xs = [ref.state(int(np.argmin(np.abs(ref.time(np.arange(41)) - t))))]
+        for _ in range(4):
+            d = rng.normal(size=3)
+            r = centre + d / np.linalg.norm(d) * rng.uniform(0.05, 1.0) * err["radius"]
+            xs.append(np.concatenate([r, rng.normal(size=3)]))
+        for x in xs:
+            a = np.asarray(full.f_fun(x, np.zeros(3), t, p)).ravel()
+            b = np.asarray(win.f_fun(x, np.zeros(3), t, p)).ravel()
+            worst = max(worst, float(np.linalg.norm(a - b)))
+    assert worst <= err["acceleration"], (worst, err)
+    assert worst > 0  # the two models do differ (the test measures something)
+    tubes = interval_tubes(nrho, ref, 0, 5, paper_initial_set(nrho), PAPER_W, "taylor",
+                           {"max_tubes": 4}, plant.frame_model_on)
+    for t in tubes:
+        me = t.meta["model_error"]
+        assert me["acceleration"] > 0 and me["max_distance"] < me["radius"]
