@@ -377,3 +377,41 @@ def test_window_model_acceleration_error_is_bounded(nrho, eph):
     for t in tubes:
         me = t.meta["model_error"]
         assert me["acceleration"] > 0 and me["max_distance"] < me["radius"]
+
+
+def test_finite_horizon_terminal_set_is_the_one_at_the_horizon_end(nrho, eph):
+    """Along the non-periodic corrected reference the tube MPC's terminal set of the solve at
+    step ``k`` is ``P_(k+N) / alpha``, ``P`` the finite-horizon Riccati solution from ``P_M = Q``
+    computed here independently (the textbook form ``Q + A'PA - A'PB (R + B'PB)^-1 B'PA``); the
+    neighbouring steps' matrices differ by far more than the tolerance, so an index off by one
+    is detected.  The LQR's cost-to-go refuses steps past the reference's end."""
+    from ocreach.control.report import PAPER_Q, paper_pattern
+    from ocreach.control.tube_mpc import TubeMPC
+
+    ref, _ = eph
+    N = 15
+    sched = along_reference_schedule(nrho, ref, paper_initial_set(nrho), PAPER_W, "linear")
+    ctl = TubeMPC(paper_pattern(nrho, PAPER_Q[0], PAPER_Q[3]), np.ones(3), sched,
+                  disturbance=PAPER_W, velocity_dims=nrho.velocity_dims, n_p=N)
+    ctl.setup(ref, nrho.control_set.kind)
+    tl = ctl.mpc.terminal_lqr
+    M = ref.n_steps
+    A, B, Q, R = ref.A, ref.B, tl.Q, tl.R
+    P = [None] * (M + 1)
+    P[M] = Q
+    for k in range(M - 1, -1, -1):
+        Pn = P[k + 1]
+        S = R + B[k].T @ Pn @ B[k]
+        P[k] = Q + A[k].T @ Pn @ A[k] - A[k].T @ Pn @ B[k] @ np.linalg.solve(S, B[k].T @ Pn @ A[k])
+    S_last = ctl.n_starts - 1
+    for k in (0, S_last // 2, S_last):
+        Pf = ctl.terminal_matrix(k) * ctl.terminal_alpha
+        scale = np.abs(P[k + N]).max()
+        assert np.abs(Pf - P[k + N]).max() <= 1e-7 * scale, k
+        for off in (-1, 1):
+            assert np.abs(P[k + N + off] - P[k + N]).max() > 1e-4 * scale, (k, off)
+        np.testing.assert_allclose(ctl.mpc.terminal_weight(k), Pf, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_array_equal(tl.cost_to_go(M), Q)
+    for bad in (M + 1, -1, 2.5):
+        with pytest.raises(ProblemError, match="cost_to_go"):
+            tl.cost_to_go(bad)
