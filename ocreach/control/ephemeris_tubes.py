@@ -19,8 +19,9 @@ frame, :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model`):
   which tube was used (:func:`~ocreach.control.drift_tubes.tube_log`).
 
 The frame model of a long run joins two DE421 fit pieces in time with ``if_else``
-(:mod:`ocreach.ephemeris`), which the Lagrange remainder of ``taylor`` / ``sdc`` refuses, so the
-sound method runs per interval on ``model_on(t_a - dt, t_b + dt)``
+(:mod:`ocreach.ephemeris`): ``taylor`` accepts a switch on time alone but fails on a step across
+it, and the interval bounds of the pieces' degree-48 basis over a step are loose, so the sound
+method runs per interval on ``model_on(t_a - dt, t_b + dt)``
 (:meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
 that window without the ``if_else``, up to a difference bounded rigorously and added to the
 disturbance: :func:`with_model_error`, :func:`checked_model_error`); an interval across the
