@@ -185,8 +185,8 @@ class EphemerisPlant:
         Only the body positions change with the window (the frame ``C(t)`` is not from the
         ephemeris).  Per body ``b``: ``delta_b`` = 2-norm of
         :meth:`~ocreach.ephemeris.EphemerisFit.window_error_bound` (exact, km); ``n_b`` = a lower
-        bound of ``|r_b(t)|`` on the window (interval evaluation of the windowed position,
-        :class:`~ocreach.intervals.IntervalFunction`).  The acceleration ``g(d) = d / |d|^3`` has
+        bound of ``|r_b(t)|`` on the window (interval evaluation of the windowed position on
+        sub-intervals of at most an hour, :class:`~ocreach.intervals.IntervalFunction`).  The acceleration ``g(d) = d / |d|^3`` has
         the Jacobian ``(I - 3 d d^T / |d|^2) / |d|^3`` of spectral norm ``2 / |d|^3``, so by the
         mean value theorem on the segment between the two positions
         ``|Delta a_b| <= mu_b 2 delta_b (1 / m1^3 + 1 / m2^3)`` with ``m1 = n_b - delta_b -
@@ -209,9 +209,14 @@ class EphemerisPlant:
             delta[b] = float(np.linalg.norm(eph.window_error_bound(b, "moon", *win))) / du_km
             f = IntervalFunction(ca.Function("r", [t], [eph.position_expr(b, t, "moon",
                                                                           window=win)]))
-            (lo, hi), = f([np.array([win[0]])], [np.array([win[1]])])
-            gap = np.maximum(0.0, np.maximum(lo.ravel(), -hi.ravel()))
-            near[b] = float(np.linalg.norm(gap)) * (1 - 1e-12) / du_km
+            # boxes over sub-intervals of at most an hour: one box over days of an orbit arc
+            # would reach towards the Moon (a quarter revolution's box nearly touches it)
+            cuts = np.linspace(win[0], win[1], max(2, int(np.ceil((win[1] - win[0]) / 3600.0))
+                                                   + 1))
+            cuts[-1] = win[1]
+            (lo, hi), = f([cuts[None, :-1]], [cuts[None, 1:]])
+            gap = np.maximum(0.0, np.maximum(lo, -hi))  # (3, boxes)
+            near[b] = float(np.linalg.norm(gap, axis=0).min()) * (1 - 1e-12) / du_km
         radius = 0.5 * min(near.values()) if others else np.inf
         total = 0.0
         for b in others:
