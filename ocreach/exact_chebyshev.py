@@ -16,6 +16,7 @@ import math
 from collections.abc import Sequence
 from fractions import Fraction
 
+
 def _x_times(c: Sequence) -> list:
     """``s * sum_j c_j T_j(s)`` as a series (``s T_0 = T_1``,
     ``s T_j = (T_(j+1) + T_(j-1)) / 2``)."""
