@@ -541,6 +541,24 @@ def tucker_algorithm1(area: Callable[[float], float], p_c: float, theta: float, 
 SWEEP_PARAMS = ("observer", "fov_deg", "fov_shape", "p", "p_required", "t_max_days", "epoch", "model")
 
 
+def check_sweep_params(params: dict, where: str) -> FOV:
+    """The one check of the argument names of :func:`sweep_task` (``keep.custody`` of a sweep,
+    checked by the sweep driver before any task runs, and by the task) and of the required
+    ``fov_deg`` with ``fov_shape``; returns the FOV.  ``where`` names the caller in the
+    message."""
+    from ocreach.custody_report import make_fov
+
+    unknown = sorted(set(params) - set(SWEEP_PARAMS))
+    if unknown:
+        raise ProblemError(f"{where} has unknown argument(s) {unknown}; allowed: "
+                           f"{list(SWEEP_PARAMS)}")
+    if "fov_deg" not in params:
+        raise ProblemError(f"{where} needs fov_deg (full field-of-view angle in degrees, in "
+                           f"(0, 180))")
+    return make_fov(check_real("fov_deg", params["fov_deg"]),
+                    str(params.get("fov_shape", "circle")))
+
+
 def sweep_task(problem, result, **params) -> dict:
     """Custody of one sweep task (``keep.custody`` of :mod:`ocreach.sweep`): a plain JSON-able dict.
 
@@ -559,20 +577,15 @@ def sweep_task(problem, result, **params) -> dict:
     failing one or None when custody holds at every used time; custody already lost at the start
     gives ``t_safe_days`` None, ``t_loss_days`` 0 and ``lost_at_start``.  Radii in km, times in days.
     """
-    from ocreach.custody_report import make_fov, parse_observer
+    from ocreach.custody_report import parse_observer
     from ocreach.meb import minimum_enclosing_ball
 
-    unknown = sorted(set(params) - set(SWEEP_PARAMS))
-    if unknown:
-        raise ProblemError(f"custody sweep_task: unknown parameter(s) {unknown}; allowed: {list(SWEEP_PARAMS)}")
-    if "fov_deg" not in params:
-        raise ProblemError("custody sweep_task: parameter fov_deg (full FOV angle in deg, in (0, 180)) is required")
+    fov = check_sweep_params(params, "custody sweep_task")
+    shape = str(params.get("fov_shape", "circle"))
     if "p" in params and "p_required" in params and params["p"] != params["p_required"]:
         raise ProblemError(f"custody sweep_task: p={params['p']!r} and p_required={params['p_required']!r} "
                            "disagree; give one of them")
     p_req = check_probability(params.get("p_required", params.get("p", 0.95)))
-    shape = str(params.get("fov_shape", "circle"))
-    fov = make_fov(check_real("fov_deg", params["fov_deg"]), shape)
     model = str(params.get("model", "covered"))
     if model not in MODELS:
         raise ProblemError(f"custody sweep_task: model must be one of {MODELS}; got {model!r}")

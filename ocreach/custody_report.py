@@ -61,7 +61,7 @@ def make_fov(full_deg: float, shape: str) -> cu.FOV:
         return cu.FOV.circle(full_deg)
     if shape == "square":
         return cu.FOV.rect(full_deg)
-    raise ProblemError(f"--fov-shape must be 'circle' or 'square'; got {shape!r}")
+    raise ProblemError(f"fov_shape (--fov-shape) must be 'circle' or 'square'; got {shape!r}")
 
 
 @dataclass

@@ -437,9 +437,9 @@ class EphemerisFit:
         ``window = (lo, hi)`` (seconds after the epoch, ``lo < hi``): the expression only for
         ``lo <= t <= hi``, where the fit is a single polynomial (the branch of every ``if_else``
         that holds on the whole window), re-expanded as a Chebyshev series on the window itself
-        (:meth:`_window_matrix`; equal to the fit up to rounding, docs/intervals.md "Ephemeris
-        positions over a time interval"): no ``if_else`` (a model a sound reachability method
-        accepts), and an interval extension over a step that is not blown up by the piece's
+        (:meth:`_window_matrix`; the difference to the fit bounded by :meth:`window_error_bound`,
+        docs/intervals.md "Ephemeris positions over a time interval"): no ``if_else`` (a model a
+        sound reachability method accepts), and an interval extension over a step that is not blown up by the piece's
         degree-48 recurrence.  A window that reaches across a branch boundary (the start or end
         of a blend) raises :class:`ProblemError`.
         """
@@ -476,22 +476,91 @@ class EphemerisFit:
         """Degree of the single polynomial the fit is on ``[w_lo, w_hi]`` (seconds): the largest
         piece degree, plus 9 (:data:`_SMOOTHSTEP`) inside a blend.  Raises
         :class:`ProblemError` when the window reaches across a boundary of a blend."""
-        degree, blended = self.degrees[0], False
+        k, blended = self._window_branch(w_lo, w_hi)
+        if not blended:
+            return self.degrees[k]
+        return max(self.degrees[k - 1], self.degrees[k]) + _SMOOTHSTEP.degree()
+
+    def _window_branch(self, w_lo: float, w_hi: float) -> tuple[int, bool]:
+        """The branch of :meth:`position_expr`'s ``if_else`` chain that holds on the whole window
+        ``[w_lo, w_hi]`` (seconds): ``(k, False)`` piece ``k``, ``(k, True)`` the blend of pieces
+        ``k - 1`` and ``k``.  Raises :class:`ProblemError` when the window reaches across a
+        boundary of a blend."""
+        branch = (0, False)
         for k in range(1, len(self.coefficients)):
             e0, e1 = self._blend_seconds(k)
             if w_hi < e0:
                 continue
             if w_lo >= e0 and w_hi < e1:
-                degree, blended = max(self.degrees[k - 1], self.degrees[k]), True
+                branch = (k, True)
             elif w_lo >= e1:
-                degree, blended = self.degrees[k], False
+                branch = (k, False)
             else:
                 raise ProblemError(
                     f"window [{w_lo / SECONDS_PER_DAY:.6g}, {w_hi / SECONDS_PER_DAY:.6g}] d reaches "
                     f"across a boundary of the blend of DE421 fit pieces {k - 1} and {k} "
                     f"([{e0 / SECONDS_PER_DAY:.6g}, {e1 / SECONDS_PER_DAY:.6g}] d): no single "
                     f"smooth expression holds on it")
-        return degree + (_SMOOTHSTEP.degree() if blended else 0)
+        return branch
+
+    def window_error_bound(self, body: str, origin: str, w_lo: float, w_hi: float, *,
+                           derivative: int = 0) -> np.ndarray:
+        """Rigorous bound (3 ICRF coordinates, km/s^k) of ``|d^k/dt^k (p(t) - q(t))|`` for
+        ``w_lo <= t <= w_hi`` (seconds), ``p`` the fit as :meth:`position_expr` defines it (the
+        branch of its ``if_else`` chain on the window, read as exact real arithmetic on its float
+        constants) and ``q`` its re-expansion ``position_expr(..., window=(w_lo, w_hi))``.
+
+        Both are polynomials in ``s = (2 t - fl(w_lo + w_hi)) / fl(w_hi - w_lo)``: the piece's
+        series ``sum c_j T_j(tau)`` with ``tau = alpha s + beta`` (and, in a blend, the
+        smoothstep of ``gamma s + delta``) is re-expanded in ``s`` with exact rational
+        arithmetic (:mod:`ocreach.exact_chebyshev`), the window's coefficients subtracted, and
+        ``sup |sum e_j T_j^(k)(s)| <= sum |e_j| T_j^(k)(rho)`` (``rho = max(1, |s|)`` on the
+        window) times ``(2 / fl(w_hi - w_lo))^k``, rounded up to a float once.  This covers the
+        interpolation's rounding and the dropped tail (:data:`WINDOW_TAIL_ULPS`) together.  It
+        does not cover the rounding of a float evaluation of either expression (the plant's
+        integrator works at a far coarser tolerance)."""
+        from fractions import Fraction
+
+        from ocreach import exact_chebyshev as xc
+
+        key = ("window-bound", body, origin, float(w_lo), float(w_hi), int(derivative))
+        if key in self._cache:
+            return self._cache[key]
+        w_lo, w_hi = float(w_lo), float(w_hi)
+        q = self._window_matrix(body, origin, w_lo, w_hi)
+        k, blended = self._window_branch(w_lo, w_hi)
+        A_w, B_w = Fraction(w_lo + w_hi), Fraction(w_hi - w_lo)  # the floats the expression uses
+
+        def t_of_s(a: Fraction, b: Fraction) -> tuple[Fraction, Fraction]:
+            """``(2 t - a) / b`` as ``alpha s + beta`` (``t = (s B_w + A_w) / 2``)."""
+            return B_w / b, (A_w - a) / b
+
+        def piece(j: int) -> list:
+            lo, hi = self.piece_bounds_days[j]
+            lo, hi = lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY
+            alpha, beta = t_of_s(Fraction(lo + hi), Fraction(hi - lo))
+            return xc.compose_affine(list(self._matrix(body, origin, j)), alpha, beta)
+
+        rows = piece(k)
+        if blended:
+            prev = piece(k - 1)
+            e0, e1 = self._blend_seconds(k)
+            # w((t - e0) / fl(e1 - e0)), t - e0 = (s B_w + A_w - 2 e0) / 2
+            E = Fraction(e1 - e0)
+            gamma, delta = B_w / (2 * E), (A_w - 2 * Fraction(e0)) / (2 * E)
+            w = [Fraction(0)]
+            for c in _SMOOTHSTEP.coef[::-1]:  # Horner, as _smoothstep_expr
+                w = xc.add(xc.affine_times(w, gamma, delta), [Fraction(float(c))])
+            rows = [xc.add(p, xc.product(w, xc.add(r, p, -1))) for p, r in zip(prev, rows,
+                                                                                strict=True)]
+        s_lo, s_hi = (2 * Fraction(w_lo) - A_w) / B_w, (2 * Fraction(w_hi) - A_w) / B_w
+        rho = max(Fraction(1), abs(s_lo), abs(s_hi))
+        scale = (2 / B_w) ** int(derivative)
+        out = np.array([xc.float_up(xc.sup_bound(xc.add(r, [Fraction(float(v)) for v in qr], -1),
+                                                 rho, int(derivative)) * scale)
+                        for r, qr in zip(rows, q, strict=True)])
+        self._cache[key] = out
+        return out
 
     def _window_matrix(self, body: str, origin: str, w_lo: float, w_hi: float) -> np.ndarray:
         """Chebyshev coefficients (3, D+1) of ``body - origin`` (ICRF) re-expanded on the window

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -49,8 +50,17 @@ LIBM_ABS = 2.0**-1000
 #: (one call, faster for small arrays, e.g. the few boxes of one reachability step), larger ones
 #: by the scaled-ulp formula of :func:`_dn` (both sound; they may differ by one ulp).
 NEXTAFTER_MAX = 1024
-#: the rounding mode of the evaluation in progress (set by ``IntervalFunction.__call__``)
-_ROUNDING = {"nextafter": False}
+
+
+class _RoundingMode(threading.local):
+    """The rounding mode of the evaluation in progress in this thread (set by
+    ``IntervalFunction.__call__``; thread-local, so concurrent evaluations in other threads keep
+    their own)."""
+
+    nextafter = False
+
+
+_ROUNDING = _RoundingMode()
 #: Memory budget (bytes) of the value arrays of one evaluation chunk.
 CHUNK_BYTES = 2**27
 #: Target number of elements (rows x boxes) of the largest group's temporaries per chunk: boxes
@@ -107,7 +117,7 @@ def _dn(x):
     these five.  An overflowed
     ``x = +inf`` (the exact value is a finite number above the largest float) gives a float just
     below the largest float (``nextafter``: the largest float); NaN stays NaN."""
-    if _ROUNDING["nextafter"]:
+    if _ROUNDING.nextafter:
         return np.nextafter(x, -_INF)
     x = np.minimum(x, _FMAX)
     return x - (np.abs(x) * _ULP_REL + _ETA)
@@ -115,7 +125,7 @@ def _dn(x):
 
 def _up(x):
     """A float >= the successor of ``x`` (see :func:`_dn`); ``-inf`` gives about ``-FMAX``."""
-    if _ROUNDING["nextafter"]:
+    if _ROUNDING.nextafter:
         return np.nextafter(x, _INF)
     x = np.maximum(x, -_FMAX)
     return x + (np.abs(x) * _ULP_REL + _ETA)
@@ -516,7 +526,7 @@ _SIGNS = np.array([-1.0, 1.0]).reshape(2, 1, 1)
 
 def _round_pair(S, out):
     """``out[0] = _dn(S[0])``, ``out[1] = _up(S[1])`` (``S`` is not modified)."""
-    if _ROUNDING["nextafter"]:
+    if _ROUNDING.nextafter:
         return np.nextafter(S, _DIRS, out=out)
     np.minimum(S[0], _FMAX, out=out[0])
     np.maximum(S[1], -_FMAX, out=out[1])
@@ -922,14 +932,14 @@ class IntervalFunction:
         outs = [(np.zeros((k, B)), np.zeros((k, B))) for k in self._out_numel]
         cache_chunk = int(np.clip(CHUNK_GROUP_ELEMS // max(self._max_group, 1), 256, 2048))
         chunk = max(1, min(B, cache_chunk, CHUNK_BYTES // (16 * max(self.n_values, 1))))
-        previous = _ROUNDING["nextafter"]
-        _ROUNDING["nextafter"] = self._max_group * B <= NEXTAFTER_MAX
+        previous = _ROUNDING.nextafter
+        _ROUNDING.nextafter = self._max_group * B <= NEXTAFTER_MAX
         try:
             for s in range(0, B, chunk):
                 e = min(B, s + chunk)
                 self._eval_chunk(los, his, s, e, outs)
         finally:
-            _ROUNDING["nextafter"] = previous
+            _ROUNDING.nextafter = previous
         return outs
 
     def _eval_chunk(self, los, his, s, e, outs):

@@ -84,7 +84,7 @@ def test_sweep_task_real_mc_result(prob):
 
 def test_sweep_task_bad_input(prob):
     res, *_ = _sphere_result(prob, [0.0, 100.0])
-    with pytest.raises(ProblemError, match="unknown parameter.*fov_degs.*allowed"):
+    with pytest.raises(ProblemError, match="unknown argument.*fov_degs.*allowed"):
         sweep_task(prob, res, fov_degs=1.0)
     with pytest.raises(ProblemError, match="fov_deg"):
         sweep_task(prob, res)

@@ -727,3 +727,71 @@ def test_mixed_mul_div_group_matches_exact_ranges(rounding, monkeypatch):
     with pytest.raises(IntervalDomainError) as e:
         F([np.array([1.0, 1.0]), np.array([1.0, -1.0])], [np.array([2.0, 2.0]), np.array([2.0, 1.0])])
     assert e.value.op == "div" and e.value.box == 1
+
+
+def test_rounding_mode_is_per_thread():
+    """Two threads evaluate at once, one a large batch (scaled-ulp rounding), one a small one
+    (``np.nextafter`` rounding), interleaved deterministically: the large one pauses after its
+    first chunk while the small one is inside its evaluation.  Both results are bit for bit
+    those of the same evaluations run alone (with a module-wide mode each took the other's)."""
+    import threading
+
+    import casadi as ca
+
+    from ocreach import intervals as iv
+
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("f", [x], [ca.vertcat(x[0] * x[1] + ca.sin(x[0]) / (3 + x[1] ** 2),
+                                          ca.exp(x[0] - x[1]) * x[0])])
+    rng = np.random.default_rng(0)
+    big_lo = rng.uniform(-1, 1, size=(2, 6000))
+    big = ([big_lo], [big_lo + 1e-3])
+    small = ([big_lo[:, :1]], [big_lo[:, :1] + 1e-3])
+    fa, fb = iv.IntervalFunction(f), iv.IntervalFunction(f)
+    fa._native = fb._native = False  # the numpy evaluator, where the mode applies
+    ref_a, ref_b = fa(*big), fb(*small)
+    # the two modes do round differently here, so a mixed-up mode would show
+    fb2 = iv.IntervalFunction(f)
+    fb2._native = False
+    fb2._max_group = 10**9  # forces the scaled-ulp mode for the small evaluation
+    assert any(np.any(a != b) for pa, pb in zip(fb2(*small), ref_b, strict=True)
+               for a, b in zip(pa, pb, strict=True))
+
+    a_in, b_in, a_done = threading.Event(), threading.Event(), threading.Event()
+    chunk_a, chunk_b = fa._eval_chunk, fb._eval_chunk
+    first = {"a": True, "b": True}
+
+    def paused_a(*args):
+        chunk_a(*args)
+        if first["a"]:
+            first["a"] = False
+            a_in.set()
+            assert b_in.wait(30)
+
+    def paused_b(*args):
+        if first["b"]:
+            first["b"] = False
+            b_in.set()
+            assert a_done.wait(30)
+        chunk_b(*args)
+
+    fa._eval_chunk, fb._eval_chunk = paused_a, paused_b
+    out = {}
+
+    def run_a():
+        out["a"] = fa(*big)
+        a_done.set()
+
+    def run_b():
+        assert a_in.wait(30)
+        out["b"] = fb(*small)
+
+    threads = [threading.Thread(target=run_a), threading.Thread(target=run_b)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    for got, ref in ((out["a"], ref_a), (out["b"], ref_b)):
+        for (gl, gh), (rl, rh) in zip(got, ref, strict=True):
+            np.testing.assert_array_equal(gl, rl)
+            np.testing.assert_array_equal(gh, rh)

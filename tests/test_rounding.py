@@ -133,7 +133,7 @@ def test_interval_outward_rounding_nextafter_mode(monkeypatch):
     the neighbouring float, also for subnormals, infinities and NaN, like the formula mode."""
     import ocreach.intervals as iv
 
-    monkeypatch.setitem(iv._ROUNDING, "nextafter", True)
+    monkeypatch.setattr(iv._ROUNDING, "nextafter", True)
     x = np.array([0.0, -0.0, 5e-324, -5e-324, 2.0**-1022, 1.0, -1.0, 1.5, 1e308, -1e308, 3.0**40])
     assert np.all(iv._up(x) >= np.nextafter(x, np.inf)) and np.all(iv._up(x) > x)
     assert np.all(iv._dn(x) <= np.nextafter(x, -np.inf)) and np.all(iv._dn(x) < x)

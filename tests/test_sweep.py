@@ -299,6 +299,9 @@ def test_bad_problem_overrides_are_rejected_by_the_driver(tmp_path, problem, ove
     ({"keep": {"support": [[1.0, 0.0, 0.0]]}}, "keep.support directions have 3 entries"),
     ({"keep": {"custody": {"fov": 1.0}}}, "keep.custody has unknown argument(s) ['fov']; allowed:"),
     ({"keep": {"custody": {"observer": "L1"}}}, "keep.custody needs fov_deg"),
+    # the FOV value too, before any task runs (one check shared with custody.sweep_task)
+    ({"keep": {"custody": {"fov_deg": 180.0}}}, "must be in (0, 180) deg; got 180.0"),
+    ({"keep": {"custody": {"fov_deg": 1.0, "fov_shape": "hex"}}}, "'circle' or 'square'"),
     ({"state": [1.0, 2.0, 3.0]}, "state has 3 values; problem 'vdp' has 2 states ['x1', 'x2']"),
 ])
 def test_task_fields_are_checked_against_the_problem(task, expected):

@@ -305,3 +305,67 @@ def test_mass_varies_encloses_the_propellant_burn():
                       mass_varies=True)
     with pytest.raises(ProblemError, match="mass_varies"):
         ocreach.reach(p, "taylor", mass_varies="maybe")
+
+
+def _switched_model():
+    """``x' = [x1, -x0 + 0.2 u]`` before ``t = 0.55``, ``[x1, -2 x0 - 0.3 x1 + 0.2 u]`` after: an
+    ``if_else`` on time alone (and a comparison of time feeding a product)."""
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    t = ca.SX.sym("t")
+    a = ca.vertcat(x[1], -x[0] + 0.2 * u[0])
+    b = ca.vertcat(x[1], -2 * x[0] - 0.3 * x[1] + 0.2 * u[0])
+    f = ca.if_else(t < 0.55, a, b) + ca.vertcat(0, (t >= 0.55) * 0.1 * x[0] ** 2)
+    return Model.build("switched", x, u, f, t=t, control_set="box")
+
+
+def test_switch_on_time_alone_is_accepted_where_no_step_contains_it():
+    """taylor accepts ``if_else`` on time alone: on grids that stay on one side of the switch
+    its sets contain SciPy solutions of that side's branch (started at the initial box's corners
+    and inside, controls +-1 per step); a step whose closed time box contains the switch fails
+    with a SolverError (never a bound across it).  An if_else or comparison on the state, or
+    logic on it, is still refused."""
+    from scipy.integrate import solve_ivp
+
+    m = _switched_model()
+    Z0 = Zonotope([0.5, 0.0], np.diag([0.05, 0.05]))
+    rng = np.random.default_rng(2)
+    X0 = np.vstack([Z0.evaluate(np.array([[s1, s2] for s1 in (-1, 1) for s2 in (-1, 1)], float)),
+                    Z0.sample(12, rng)])
+
+    def rhs(tt, y, uk):
+        X = y.reshape(-1, 2)
+        if tt < 0.55:
+            d = np.column_stack([X[:, 1], -X[:, 0] + 0.2 * uk])
+        else:
+            d = np.column_stack([X[:, 1], -2 * X[:, 0] - 0.3 * X[:, 1] + 0.2 * uk
+                                 + 0.1 * X[:, 0] ** 2])
+        return d.ravel()
+
+    for grid in (np.linspace(0.0, 0.5, 6), np.linspace(0.6, 1.6, 6)):
+        p = Problem(id="switched", model=m, x0=np.array([0.5, 0.0]), grid=grid, initial_set=Z0)
+        res = ocreach.reach(p, "taylor")
+        assert res.meta["guaranteed"] and len(res.sets) == grid.size
+        U = np.where(rng.random((X0.shape[0], grid.size - 1)) < 0.5, -1.0, 1.0)
+        X = X0.copy()
+        for k in range(grid.size - 1):
+            sol = solve_ivp(rhs, (grid[k], grid[k + 1]), X.ravel(), args=(U[:, k],),
+                            method="DOP853", rtol=1e-11, atol=1e-13)
+            X = sol.y[:, -1].reshape(-1, 2)
+            assert union_gauge(res.sets[k + 1], X).max() <= 1.0 + 1e-9, (grid[0], k)
+    p = Problem(id="switched", model=m, x0=np.array([0.5, 0.0]),
+                grid=np.linspace(0.0, 1.0, 5), initial_set=Z0)  # step 2 is [0.5, 0.75]
+    with pytest.raises(SolverError, match="step 2") as info:
+        ocreach.reach(p, "taylor", max_halvings=2)
+    assert "undecided" in str(info.value)
+
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    t = ca.SX.sym("t")
+    for f in (ca.vertcat(x[1], ca.if_else(x[0] < 0, -x[0], x[0]) + u[0]),
+              ca.vertcat(x[1], (x[0] < t) * x[0] + u[0]),
+              ca.vertcat(x[1], ca.logic_not(x[0]) + u[0])):
+        m = Model.build("state-switch", x, u, f, t=t, control_set="box")
+        p = Problem(id="s", model=m, x0=np.array([0.5, 0.0]), grid=np.linspace(0, 1, 3))
+        with pytest.raises(ProblemError, match="not smooth"):
+            ocreach.reach(p, "taylor")

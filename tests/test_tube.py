@@ -711,7 +711,7 @@ def test_tube_mpc_terminal_set_gives_recursive_feasibility_in_closed_loop(halo, 
 
         def violation(self, k, x0, U):
             F = halo_ref.discretization.F
-            c, hw, r = tm._tightened_sets(k)
+            c, _, hw, r = tm._tightened_sets(k)
             X, xi = [], x0
             for i in range(N):
                 xi = np.asarray(F(xi, U[i], halo_ref.time(k + i), halo_ref.params)).ravel()
@@ -786,3 +786,20 @@ def test_tube_guarantee_counts_tubes_reached_only_by_the_last_predictions():
     assert [e["refresh_step"] for e in beyond] == [30] and not beyond[0]["guaranteed"]
     assert tubes_enclose_plant(tubes + beyond, "cr3bp", "cr3bp") is False
     assert run_tube_logs(None, 25, 15) == ([], [])
+
+
+def test_tube_mpc_floor_is_a_fraction_of_the_tube_itself(halo, halo_ref):
+    """An exhausted tightened half width is ``MIN_FRACTION`` of the tube's own half width,
+    bit for bit (it was re-derived as ``(hw - margin) + margin``, which a large margin rounds)."""
+    from ocreach.control.station_keeping_paper import PAPER_W
+    from ocreach.control.tube_mpc import MIN_FRACTION, TubeMPC
+
+    N = 4
+    sched = drift_schedule(halo, halo_ref, lookahead=N)
+    tm = TubeMPC(Q_PAPER, R_PAPER, sched, disturbance=PAPER_W, velocity_dims=halo.velocity_dims,
+                 n_p=N, terminal_set=False).setup(halo_ref, "ball")
+    tm.state_margin = tm.state_margin + 1e3  # consume every state constraint
+    _, hw, r = tm.tightened(5)
+    _, G = sched.window(5, N)
+    np.testing.assert_array_equal(hw, MIN_FRACTION * np.abs(G).sum(axis=2))
+    assert tm.tightening_exhausted == hw.size and np.all(r <= 1.0)

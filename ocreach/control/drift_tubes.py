@@ -236,7 +236,7 @@ def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, dist
     problem's defaults (not given) becomes ``"<method>-or-linear"``: guaranteed where the method
     encloses, the linearised tube (labelled) where it cannot.  The sound method runs on the
     plant's frame model restricted to each interval (:meth:`EphemerisPlant.frame_model_on`: the
-    same function there up to rounding, re-expanded on the window without the ``if_else``
+    same function there up to a rigorously bounded difference added to W, re-expanded on the window without the ``if_else``
     between DE421 fit pieces: docs/intervals.md)."""
     from ocreach.control.ephemeris_tubes import along_reference_schedule
 

@@ -153,10 +153,11 @@ class EphemerisPlant:
         return self.model.cached(("cr3bp_frame_model", self.t0, self.mu), self._build_frame_model)
 
     def frame_model_on(self, t_lo: float, t_hi: float):
-        """:meth:`frame_model` for reference times ``t_lo <= t <= t_hi`` only: the same function
-        there up to rounding (the fit re-expanded on the window), without the ``if_else`` between
-        DE421 fit pieces (``window`` of :func:`~ocreach.models.ephemeris.ephemeris_inertial`),
-        for sound reachability.  Raises
+        """:meth:`frame_model` for reference times ``t_lo <= t <= t_hi`` only, without the
+        ``if_else`` between DE421 fit pieces (``window`` of
+        :func:`~ocreach.models.ephemeris.ephemeris_inertial`: the fit re-expanded on the window),
+        for sound reachability; the same function there up to the acceleration difference that
+        ``model.cache["window_error"]`` bounds (:meth:`_window_error`).  Raises
         :class:`ProblemError` when the interval reaches across a boundary of a blend of pieces."""
         from ocreach.models.ephemeris import ephemeris_inertial
 
@@ -169,9 +170,71 @@ class EphemerisPlant:
                 self.bodies, "moon", self.epoch, self.span_days + 1.0, 1.0, 1.0, 1.0,
                 units=self.units, frame_acceleration=self.frame_acceleration,
                 ephemeris=self.ephemeris, window=window)
-            return self._build_frame_model(inertial, f"-window-{t_lo:.17g}-{t_hi:.17g}")
+            model = self._build_frame_model(inertial, f"-window-{t_lo:.17g}-{t_hi:.17g}")
+            model.cache["window_error"] = self._window_error(inertial.cache["window_seconds"])
+            return model
 
         return self.model.cached(("cr3bp_frame_model", self.t0, self.mu, window), build)
+
+    def _window_error(self, win: tuple[float, float]) -> dict:
+        """Rigorous bound on ``|f_full - f_window|`` (acceleration, DU/TU^2, 2-norm) of
+        :meth:`frame_model_on` over the window ``win`` (seconds after the epoch, as the inertial
+        model's ``position_expr`` got it), for CR3BP states with ``|r - (1 - mu) e_x| <= radius``
+        (returned with it; the caller checks its sets stay there).
+
+        Only the body positions change with the window (the frame ``C(t)`` is not from the
+        ephemeris).  Per body ``b``: ``delta_b`` = 2-norm of
+        :meth:`~ocreach.ephemeris.EphemerisFit.window_error_bound` (exact, km); ``n_b`` = a lower
+        bound of ``|r_b(t)|`` on the window (interval evaluation of the windowed position on
+        sub-intervals of at most an hour, :class:`~ocreach.intervals.IntervalFunction`).  The acceleration ``g(d) = d / |d|^3`` has
+        the Jacobian ``(I - 3 d d^T / |d|^2) / |d|^3`` of spectral norm ``2 / |d|^3``, so by the
+        mean value theorem on the segment between the two positions
+        ``|Delta a_b| <= mu_b 2 delta_b (1 / m1^3 + 1 / m2^3)`` with ``m1 = n_b - delta_b -
+        radius`` (``|r - r_b|``) and ``m2 = n_b - delta_b`` (the origin's term ``r_b / |r_b|^3``
+        of ``frame_acceleration="modelled"``); with ``"ephemeris"`` the origin's term is the
+        second derivative of the Moon's position, bounded by ``window_error_bound(derivative=2)``.
+        ``radius = n_min / 2`` (half the nearest perturbing body's distance).  ``C(t)^T`` keeps the
+        2-norm; the float arithmetic of this bound and ``C_0``'s orthogonality are covered by a
+        factor ``1 + 1e-9``."""
+        import casadi as ca
+
+        from ocreach.intervals import IntervalFunction
+
+        eph = self.ephemeris
+        du_km, tu = self.units.length / 1e3, self.units.time
+        t = ca.SX.sym("t")
+        others = [b for b in self.bodies if b != "moon"]
+        delta, near = {}, {}
+        for b in others:
+            delta[b] = float(np.linalg.norm(eph.window_error_bound(b, "moon", *win))) / du_km
+            f = IntervalFunction(ca.Function("r", [t], [eph.position_expr(b, t, "moon",
+                                                                          window=win)]))
+            # boxes over sub-intervals of at most an hour: one box over days of an orbit arc
+            # would reach towards the Moon (a quarter revolution's box nearly touches it)
+            cuts = np.linspace(win[0], win[1], max(2, int(np.ceil((win[1] - win[0]) / 3600.0))
+                                                   + 1))
+            cuts[-1] = win[1]
+            (lo, hi), = f([cuts[None, :-1]], [cuts[None, 1:]])
+            gap = np.maximum(0.0, np.maximum(lo, -hi))  # (3, boxes)
+            near[b] = float(np.linalg.norm(gap, axis=0).min()) * (1 - 1e-12) / du_km
+        radius = 0.5 * min(near.values()) if others else np.inf
+        total = 0.0
+        for b in others:
+            mu_b = eph.gm(b) * tu**2 / du_km**3
+            m1 = near[b] - delta[b] - radius
+            m2 = near[b] - delta[b]
+            if not (m1 > 0 and m2 > 0):
+                raise SolverError(f"window model error bound: body {b!r} comes within "
+                                  f"{near[b]:.3g} DU of the Moon on the window; no bound")
+            total += 2.0 * mu_b * delta[b] * (1.0 / m1**3
+                                              + (1.0 / m2**3 if self.frame_acceleration
+                                                 == "modelled" else 0.0))
+        if self.frame_acceleration == "ephemeris":
+            dd = float(np.linalg.norm(eph.window_error_bound("moon", "ssb", *win, derivative=2)))
+            total += dd * tu**2 / du_km
+        return {"acceleration": total * (1 + 1e-9), "radius": float(radius),
+                "centre": [1.0 - self.mu, 0.0, 0.0],
+                "position_km": {b: delta[b] * du_km for b in others}}
 
     def _build_frame_model(self, inertial=None, suffix: str = ""):
         import casadi as ca

@@ -19,10 +19,13 @@ frame, :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model`):
   which tube was used (:func:`~ocreach.control.drift_tubes.tube_log`).
 
 The frame model of a long run joins two DE421 fit pieces in time with ``if_else``
-(:mod:`ocreach.ephemeris`), which the Lagrange remainder of ``taylor`` / ``sdc`` refuses, so the
-sound method runs per interval on ``model_on(t_a - dt, t_b + dt)``
+(:mod:`ocreach.ephemeris`): ``taylor`` accepts a switch on time alone but fails on a step across
+it, and the interval bounds of the pieces' degree-48 basis over a step are loose, so the sound
+method runs per interval on ``model_on(t_a - dt, t_b + dt)``
 (:meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
-that window, up to rounding, without the ``if_else``); an interval across the blend of two pieces falls back
+that window without the ``if_else``, up to a difference bounded rigorously and added to the
+disturbance: :func:`with_model_error`, :func:`checked_model_error`); an interval across the
+blend of two pieces falls back
 (docs/validation.md "DE421 ephemeris plant, corrected reference: event-triggered and tube MPC").
 """
 from __future__ import annotations
@@ -80,7 +83,8 @@ def refresh_starts(reference: TrackingReference, end: int) -> list[int]:
 def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
                     model_on: Callable[[float, float], Any] | None) -> TrackingReference:
     """The reference with the model the sound method runs on over steps ``a .. b``: its own, or
-    ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval, up to rounding,
+    ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval up to its bounded
+    difference,
     without the ``if_else`` between ephemeris fit pieces, e.g.
     :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
     :class:`ProblemError` saying why the method cannot run on it."""
@@ -101,6 +105,52 @@ def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
     return dataclasses.replace(reference, model=model, A=None, B=None, cache={})
 
 
+def with_model_error(problem, disturbance: Any, model_error: dict | None) -> Any:
+    """The disturbance ``W`` plus the bound on the window model's acceleration error
+    (``model_error["acceleration"]``, a 2-norm, so a box of that radius on the velocity rates,
+    :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`): a number ``w``
+    becomes ``w + e``, any other disturbance the zonotope sum.  Unchanged without an error."""
+    if model_error is None or model_error["acceleration"] == 0.0:
+        return disturbance
+    e = float(model_error["acceleration"])
+    if disturbance is not None and np.ndim(disturbance) == 0 and not hasattr(disturbance, "dim"):
+        return float(disturbance) + e
+    from ocreach.reach.taylor import disturbance_zonotope
+    from ocreach.sets import Zonotope
+
+    n = problem.model.n_x
+    box = np.zeros((n, len(problem.velocity_dims)))
+    box[list(problem.velocity_dims), np.arange(box.shape[1])] = e
+    W = disturbance_zonotope(problem, disturbance)
+    if W is None:
+        return Zonotope(np.zeros(n), box)
+    return Zonotope(W.c, np.hstack([W.G, box]))
+
+
+def checked_model_error(tube: Tube, model_error: dict | None) -> Tube:
+    """``tube`` with ``meta["model_error"]``, after checking that its sound method's flowpipe
+    (``meta["flowpipe_hull"]``, every trajectory between the grid points) stays within
+    ``model_error["radius"]`` of the Moon, where the window model's error bound holds; raises
+    :class:`SolverError` if it does not (or cannot be checked)."""
+    if model_error is None:
+        return tube
+    hull = (tube.meta or {}).get("flowpipe_hull")
+    if hull is None:
+        raise SolverError(f"tube from step {tube.k0}: no flowpipe to check the window model's "
+                          f"error bound against")
+    centre = np.asarray(model_error["centre"], float)
+    lo, hi = np.asarray(hull[0][:3]) - centre, np.asarray(hull[1][:3]) - centre
+    far = float(np.linalg.norm(np.maximum(np.abs(lo), np.abs(hi)))) * (1 + 1e-9)
+    if not far < model_error["radius"]:
+        raise SolverError(f"tube from step {tube.k0} reaches {far:.6g} DU from the Moon; the "
+                          f"window model's error bound holds within {model_error['radius']:.6g}")
+    info = {"acceleration": float(model_error["acceleration"]),
+            "radius": float(model_error["radius"]), "max_distance": far,
+            "position_km": dict(model_error["position_km"])}
+    return Tube(tube.centers, tube.generators, k0=tube.k0, guaranteed=tube.guaranteed,
+                source=tube.source, meta={**tube.meta, "model_error": info})
+
+
 def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: Any,
                    disturbance: Any, source: str, options: dict,
                    model_on: Callable[[float, float], Any] | None = None) -> list[Tube]:
@@ -119,10 +169,13 @@ def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: An
                                    f"cannot) or 'linear'") from err
             failure = err
         else:
+            model_error = sound_ref.model.cache.get("window_error")
             try:
                 # max_tubes: one per step unless the options cap it (as in the periodic schedule)
-                return sound_drift_partition(problem, sound_ref, a, b, G0, disturbance, method,
-                                             **{"max_tubes": b - a, **options})
+                tubes = sound_drift_partition(problem, sound_ref, a, b, G0,
+                                              with_model_error(problem, disturbance, model_error),
+                                              method, **{"max_tubes": b - a, **options})
+                return [checked_model_error(t, model_error) for t in tubes]
             except SolverError as err:
                 if source == method:
                     raise
@@ -166,5 +219,5 @@ def along_reference_schedule(problem, reference: TrackingReference, G0: Any, dis
     return TubeSchedule(tubes.__getitem__, reference, starts=sorted(tubes), end=end)
 
 
-__all__ = ["SOURCES", "along_reference_schedule", "apolune_steps", "interval_tubes",
-           "refresh_starts", "sound_reference"]
+__all__ = ["SOURCES", "along_reference_schedule", "apolune_steps", "checked_model_error",
+           "interval_tubes", "refresh_starts", "sound_reference", "with_model_error"]

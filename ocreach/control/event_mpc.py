@@ -68,6 +68,15 @@ def trigger_signal(gammas: Any, beta: float = 0.7, m: int = 3, threshold: float 
     return np.array([trig.update(float(g)) for g in np.asarray(gammas, float)], dtype=bool)
 
 
+def check_anticipate(anticipate: Any) -> bool:
+    """``anticipate`` (the trigger fires on the predicted drift at the next refresh) as a bool;
+    :class:`ProblemError` unless it is True or False."""
+    if not isinstance(anticipate, (bool, np.bool_)):
+        raise ProblemError(f"anticipate must be True or False (run_station_keeping also takes None: "
+                           f"the problem's default); got {anticipate!r}")
+    return bool(anticipate)
+
+
 class EventTriggeredMPC(MPCWrapper):
     """Thrust off inside the tube; the tube-constrained MPC (soft) when the trigger is on.
 
@@ -92,9 +101,7 @@ class EventTriggeredMPC(MPCWrapper):
                  n_p: int = PAPER_N, n_c: int | None = None, tube_slack: float = 100.0,
                  target: float | None = None, fallback: LQR | None = None,
                  anticipate: bool = False, **mpc_options: Any) -> None:
-        if not isinstance(anticipate, (bool, np.bool_)):
-            raise ProblemError(f"anticipate must be True or False; got {anticipate!r}")
-        self.anticipate = bool(anticipate)
+        self.anticipate = check_anticipate(anticipate)
         self._to_refresh: dict[tuple[int, int], np.ndarray] = {}
         self.schedule = schedule
         self.trigger = trigger or EventTrigger()
@@ -161,4 +168,4 @@ class EventTriggeredMPC(MPCWrapper):
         return u
 
 
-__all__ = ["EventTrigger", "EventTriggeredMPC", "trigger_signal"]
+__all__ = ["EventTrigger", "EventTriggeredMPC", "check_anticipate", "trigger_signal"]

@@ -176,11 +176,18 @@ class LQR:
         return self.K[self.reference.gains_index(k)]
 
     def cost_to_go(self, k: int) -> np.ndarray:
-        """``P_k`` (cost on the normalised control); periodic/modular in ``k``."""
+        """``P_k`` (cost on the normalised control): modular in ``k`` along a periodic reference;
+        along a non-periodic one ``k`` must be in ``0..M`` (``P_M`` the terminal cost of the
+        reference's ``M`` steps), else :class:`ProblemError` (no cost-to-go beyond its end)."""
         ref = self.reference
         if ref.periodic:
             return self.P[k % ref.n_steps]
-        return self.P[min(k, self.P.shape[0] - 1)]
+        last = self.P.shape[0] - 1
+        if isinstance(k, bool) or int(k) != k or not 0 <= k <= last:
+            raise ProblemError(f"cost_to_go: step k must be in 0..{last} along the non-periodic "
+                               f"reference '{ref.name}' ({ref.n_steps} steps, P_0..P_{last}); "
+                               f"got {k!r}")
+        return self.P[int(k)]
 
     def unsaturated(self, k: int, x: np.ndarray) -> np.ndarray:
         ref = self.reference

@@ -20,7 +20,7 @@ import numpy as np
 from ocreach.control.drift_tubes import drift_schedule, ephemeris_drift_schedule, tube_log
 from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, PLANTS, EphemerisPlant
 from ocreach.control.ephemeris_reference import ephemeris_reference, reference_settings
-from ocreach.control.event_mpc import EventTrigger, EventTriggeredMPC
+from ocreach.control.event_mpc import EventTrigger, EventTriggeredMPC, check_anticipate
 from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
@@ -209,11 +209,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
             tube_interval = default.get("tube_interval")
         if anticipate is None:
             anticipate = default.get("anticipate")
-    anticipate = False if anticipate is None else anticipate
-    if not isinstance(anticipate, (bool, np.bool_)):
-        raise ProblemError(f"anticipate must be True, False or None (the problem's default); got "
-                           f"{anticipate!r}")
-    anticipate = bool(anticipate)
+    anticipate = check_anticipate(False if anticipate is None else anticipate)
     if reference == "ephemeris":
         ref, orbit = ephemeris_reference(problem, revolutions, epoch=epoch,
                                          bodies=ephemeris_bodies, dt=dt, n_sub=n_sub)

@@ -599,12 +599,23 @@ def reach_drift_tube(problem, reference: TrackingReference, k0: int, length: int
     zs = res.sets
     if zs is None or (failure is None and len(zs) != length):
         raise SolverError(f"{method} returned {0 if zs is None else len(zs)} sets; need {length}")
-    meta = {"method": method, "options": dict(options)}
+    meta = {"method": method, "options": dict(options),
+            "flowpipe_hull": _flowpipe_hull(res.tubes)}
     if failure is not None:
         meta["failure"] = failure
     return Tube.from_zonotopes([z.to_zonotope() for z in zs], k0=k0,
                                guaranteed=bool(res.meta.get("guaranteed", False)),
                                source=f"{method} (sound reachability)", meta=meta)
+
+
+def _flowpipe_hull(tubes: list | None) -> list[list[float]] | None:
+    """``[lo, hi]`` of the interval hulls of a result's time-interval sets (every trajectory of
+    the enclosed problem stays in them between the grid points), or None without them."""
+    if not tubes:
+        return None
+    hulls = [s.interval_hull() for s in tubes]
+    return [np.min([h.lo for h in hulls], axis=0).tolist(),
+            np.max([h.hi for h in hulls], axis=0).tolist()]
 
 
 def sound_drift_partition(problem, reference: TrackingReference, start: int, stop: int,

@@ -196,9 +196,9 @@ class TubeMPC(MPCWrapper):
         wrap = (lambda j: j % M) if ref.periodic else (lambda j: j)
         alphas = np.empty(S)
         for k in range(S):
-            _, hw, r = self._tightened_sets(k)
+            _, _, hw_t, _ = self._tightened_sets(k)
             j = wrap(k + N)
-            a_box = np.min(hw[N - 1] ** 2 / np.diag(Pinv[j]))
+            a_box = np.min(hw_t[N - 1] ** 2 / np.diag(Pinv[j]))
             # the appended LQR step -K d_N is the last control of the next problem (margin N - 1)
             k_next = wrap(k + 1) if ref.periodic else min(k + 1, S - 1)  # last solve: its own
             r_next = 1.0 - self.thrust_margin[k_next, N - 1]
@@ -233,18 +233,19 @@ class TubeMPC(MPCWrapper):
         self.tightening_exhausted = 0
         self.solve_times = self.mpc.solve_times
 
-    def _tightened_sets(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _tightened_sets(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(centres, tube half widths, tightened half widths (n_p, n_x), thrust radii (n_c,))``
+        of the solve at step ``k``, before the floors of :meth:`tightened`."""
         c, G = self.schedule.window(k, self.n_p)
         hw = np.abs(G).sum(axis=2)
         ph = self._phase(k)
         hw_t = hw - self.state_margin[ph, 1:]
         r = 1.0 - self.thrust_margin[ph, : self.mpc.n_c]
-        return c, hw_t, r
+        return c, hw, hw_t, r
 
     def tightened(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(centres (n_p, n_x), half widths (n_p, n_x), thrust radii (n_c,))`` at step ``k``."""
-        c, hw_t, r = self._tightened_sets(k)
-        hw = hw_t + self.state_margin[self._phase(k), 1:]
+        c, hw, hw_t, r = self._tightened_sets(k)
         floor_x, floor_u = MIN_FRACTION * hw, MIN_FRACTION
         self.tightening_exhausted += int(np.sum(hw_t < floor_x) + np.sum(r < floor_u))
         return c, np.maximum(hw_t, floor_x), np.clip(r, floor_u, 1.0)

@@ -198,6 +198,8 @@ def ephemeris_inertial(
                      f"(Patel & Scheeres Eq. 11); mass0 = {mass0} kg, T_max = {thrust} N, "
                      f"Isp = {isp} s"))
     model.cache["ephemeris"] = eph
+    if win is not None:  # the window in seconds, as position_expr got it (window_error_bound)
+        model.cache["window_seconds"] = win
     model.cache["frame"] = {"kind": "inertial", "central": central, "axes": frame,
                             "bodies": bodies, "frame_acceleration": frame_acceleration}
     return model

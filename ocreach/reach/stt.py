@@ -47,7 +47,7 @@ from ocreach.errors import ProblemError, SetError, SolverError, check_count, che
 from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
-from ocreach.reach.stt_split import check_split_options
+from ocreach.reach.stt_split import PartStep, check_split_options
 from ocreach.sets.pz_union import PZUnion
 
 if TYPE_CHECKING:
@@ -554,20 +554,21 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
                     with timer("other"):
                         dR = make_dependent(part.dR) if opt.lift_independent else part.dR
                         dZ = dR.cartesian(Uk)
-                    prepared.append([0.0, part, phi, x1, dZ])
+                    prepared.append(PartStep(part, phi, x1, dZ))
                 if opt.split is not None:
                     with timer("splitting"):
                         errs = self._truncation_errors(prepared, k, problem)
                         for rec, err in zip(prepared, errs):
-                            rec[0] = err
-                            eta_hist[k] = max(eta_hist[k], nonlinearity_index(rec[2], rec[4]))
+                            rec.err = err
+                            eta_hist[k] = max(eta_hist[k], nonlinearity_index(rec.phi, rec.dZ))
                     err_hist[k] = max(err_hist[k], max(errs))
                 room = opt.max_parts - len(new_parts) - len(pending)
-                worst = sorted((i for i, (err, part, *_) in enumerate(prepared)
-                                if err > opt.split_tol and part.dR.n_generators > 0),
-                               key=lambda i: -prepared[i][0])[:max(room, 0)]
+                worst = sorted((i for i, rec in enumerate(prepared)
+                                if rec.err > opt.split_tol and rec.part.dR.n_generators > 0),
+                               key=lambda i: -prepared[i].err)[:max(room, 0)]
                 pending = []
-                for i, (err, part, phi, x1, dZ) in enumerate(prepared):
+                for i, rec in enumerate(prepared):
+                    part, phi, x1, dZ = rec.part, rec.phi, rec.x1, rec.dZ
                     if i in worst:
                         with timer("splitting"):
                             pending.extend(self._split(part, phi))
@@ -617,21 +618,21 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         counts["part_stts"] += 1
         return [ph[0] for ph in r.phi], r.states[-1]
 
-    def _truncation_errors(self, prepared: list, k: int, problem: Problem) -> list[float]:
+    def _truncation_errors(self, prepared: list[PartStep], k: int, problem: Problem) -> list[float]:
         """Sampled truncation error of each part's step (:func:`ocreach.reach.stt_split.truncation_error`):
         the samples of all parts are propagated over ``[t_k, t_{k+1}]`` (held controls) in one batch."""
         from ocreach.flow import propagate
         from ocreach.reach.stt_split import error_samples, truncation_error
 
         opt, n_x = self.options, problem.model.n_x
-        S = [error_samples(dZ, seed=k) for _, _, _, _, dZ in prepared]
-        X0 = np.vstack([part.x_ref + s[:, :n_x] for (_, part, *_), s in zip(prepared, S)])
+        S = [error_samples(rec.dZ, seed=k) for rec in prepared]
+        X0 = np.vstack([rec.part.x_ref + s[:, :n_x] for rec, s in zip(prepared, S)])
         Uc = np.vstack([s[:, n_x:] for s in S])[:, None, :]
         X1 = propagate(self._model, X0, Uc, problem.grid[k:k + 2], p=problem.params, rtol=opt.rtol,
                        atol=opt.atol)[:, -1]
         ends = np.cumsum([len(s) for s in S])[:-1]
-        return [truncation_error(phi, s, x - x1)
-                for (_, _, phi, x1, _), s, x in zip(prepared, S, np.split(X1, ends))]
+        return [truncation_error(rec.phi, s, x - rec.x1)
+                for rec, s, x in zip(prepared, S, np.split(X1, ends))]
 
     def _split(self, part: _Part, phi: list[np.ndarray]) -> list[_Part]:
         """Split the part's deviation set in two (``options.split``: exact along a factor, or the

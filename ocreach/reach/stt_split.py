@@ -24,6 +24,7 @@ compact parts, at the price of the box (docs/validation.md, "STT splitting on nr
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -32,6 +33,20 @@ from ocreach.errors import ProblemError, check_count
 
 if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
+
+@dataclass
+class PartStep:
+    """One part's step in the split loop of :meth:`ocreach.reach.stt.STTReach.solve`: the part,
+    its step's STTs ``phi`` about its reference, the reference state ``x1`` at ``t_(k+1)``, the
+    step's set ``dZ = dR_k x U_k`` and the sampled truncation error ``err``
+    (:func:`truncation_error`; 0 until measured)."""
+
+    part: Any
+    phi: list
+    x1: np.ndarray
+    dZ: Any
+    err: float = 0.0
+
 
 #: how a part is split (``STTReach.Options.split``)
 SPLIT_MODES = ("factor", "box")

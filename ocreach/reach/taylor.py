@@ -70,9 +70,21 @@ from ocreach.sets.zonotope import Zonotope
 from ocreach.units import G0  # standard gravity [m/s^2] of the exhaust velocity Isp g0
 
 #: CasADi operations whose derivatives are not continuous: a Lagrange remainder over a box that
-#: straddles the kink would be wrong, so models using them are refused.
+#: straddles the kink would be wrong, so models using them are refused (but see
+#: :data:`TIME_SWITCH_OPS`).
 NONSMOOTH_OPS = ("OP_FABS", "OP_SIGN", "OP_IF_ELSE_ZERO", "OP_FMIN", "OP_FMAX", "OP_FLOOR",
-                 "OP_CEIL", "OP_FMOD", "OP_LT", "OP_LE", "OP_EQ", "OP_NE", "OP_COPYSIGN")
+                 "OP_CEIL", "OP_FMOD", "OP_LT", "OP_LE", "OP_EQ", "OP_NE", "OP_COPYSIGN",
+                 "OP_NOT", "OP_AND", "OP_OR")
+#: The switches among them (piecewise constant results) that are accepted when they depend on
+#: time alone: the condition of an ``if_else`` (its branches may depend on anything) and
+#: comparisons / logic of time.  Sound because the interval evaluator decides every condition
+#: over the step's closed time box ``[t, t + h]`` or raises (``undecided="error"``): on a step
+#: that contains no switch time ``f`` is one smooth branch on the whole box and the Lagrange
+#: remainder holds; a step whose closed box contains a switch time (also at its end) fails
+#: (after the halvings, a :class:`SolverError`), never a wrong bound.  The ``alg="dt"`` RK4 map
+#: evaluates ``f`` at fixed times, where every condition is decided.
+TIME_SWITCH_OPS = ("OP_IF_ELSE_ZERO", "OP_LT", "OP_LE", "OP_EQ", "OP_NE", "OP_NOT", "OP_AND",
+                   "OP_OR")
 #: relative inflation of the box on which the remainder is bounded (the continuity argument)
 BOX_INFLATE = 1e-9
 #: relative enlargement of the outer zonotope of the thrust ball (its facets' rounding)
@@ -152,15 +164,43 @@ class ZonotopeOptions:
 
 
 def check_smooth(model) -> None:
-    """Raise :class:`ProblemError` if ``f`` uses an operation with a discontinuous derivative."""
-    fun = ca.Function("f_check", [model.x, model.u, model.t, model.p], [model.f])
-    codes = {getattr(ca, name): name for name in NONSMOOTH_OPS if hasattr(ca, name)}
-    found = sorted({codes[fun.instruction_id(k)] for k in range(fun.n_instructions())
-                    if fun.instruction_id(k) in codes})
+    """Raise :class:`ProblemError` if ``f`` uses an operation with a discontinuous derivative,
+    other than a switch on time alone (:data:`TIME_SWITCH_OPS`)."""
+    found = nonsmooth_ops(model)
     if found:
         raise ProblemError(f"model {model.name!r} is not smooth: f uses {found}; the Lagrange "
                            "remainder of taylor/sdc needs twice continuously differentiable "
-                           "dynamics (replace fabs/if_else/fmin/fmax by smooth expressions)")
+                           "dynamics (replace fabs/if_else/fmin/fmax by smooth expressions; an "
+                           "if_else whose condition depends on time alone is accepted)")
+
+
+def nonsmooth_ops(model) -> list[str]:
+    """Names of the operations of ``f`` that :func:`check_smooth` refuses: every op of
+    :data:`NONSMOOTH_OPS` except a switch of :data:`TIME_SWITCH_OPS` whose deciding operands (an
+    ``if_else``'s condition, a comparison's or logic op's arguments) depend on ``t`` alone
+    (dependencies traced through the instruction list of ``f(x, u, t, p)``)."""
+    fun = ca.Function("f_check", [model.x, model.u, model.t, model.p], [model.f])
+    codes = {getattr(ca, name): name for name in NONSMOOTH_OPS if hasattr(ca, name)}
+    switches = {getattr(ca, name) for name in TIME_SWITCH_OPS if hasattr(ca, name)}
+    time_only = frozenset({2})  # input 2 of f_check is t
+    deps: dict[int, frozenset] = {}
+    found = set()
+    for k in range(fun.n_instructions()):
+        op, ins, outs = fun.instruction_id(k), fun.instruction_input(k), fun.instruction_output(k)
+        if op == ca.OP_OUTPUT:
+            continue
+        if op == ca.OP_INPUT:
+            deps[outs[0]] = frozenset({ins[0]})
+            continue
+        d = [deps.get(i, frozenset()) for i in ins]
+        if op in codes:
+            deciding = d[:1] if op == ca.OP_IF_ELSE_ZERO else d
+            if op not in switches or any(not s <= time_only for s in deciding):
+                found.add(codes[op])
+        dep = frozenset().union(*d)
+        for o in outs:
+            deps[o] = dep
+    return sorted(found)
 
 
 def initial_zonotope(problem: Problem) -> Zonotope:

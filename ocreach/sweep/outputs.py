@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.errors import SolverError
+from ocreach.errors import ProblemError, SolverError
 from ocreach.meb import minimum_enclosing_ball
 from ocreach.reach.directions import resolve_dims
 from ocreach.sweep.errors import SweepError
@@ -68,13 +68,12 @@ def check_keep(keep: dict[str, Any], problem) -> tuple[int, ...]:
         raise SweepError(f"keep.support directions have {len(keep['support'][0])} entries; keep.dims "
                          f"{keep['dims']!r} of problem {problem.id!r} has {len(dims)} ({names})")
     if keep["custody"] is not None:
-        from ocreach.custody import SWEEP_PARAMS
+        from ocreach.custody import check_sweep_params
 
-        unknown = sorted(set(keep["custody"]) - set(SWEEP_PARAMS))
-        if unknown:
-            raise SweepError(f"keep.custody has unknown argument(s) {unknown}; allowed: {list(SWEEP_PARAMS)}")
-        if "fov_deg" not in keep["custody"]:
-            raise SweepError("keep.custody needs fov_deg (full field-of-view angle in degrees, in (0, 180))")
+        try:
+            check_sweep_params(keep["custody"], "keep.custody")
+        except ProblemError as err:
+            raise SweepError(str(err)) from err
     return dims
 
 
