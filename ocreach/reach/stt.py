@@ -54,7 +54,7 @@ if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
 
 INPUT_SETS = ("box", "ball")
-BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz")
+BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz", "pz-compact")
 PRUNED_BOXES = ("exact", "bound")
 #: the default ``pruned_box`` (the only value ``engine="library"`` accepts: it prunes nothing)
 PRUNED_BOX_DEFAULT = "bound"
@@ -71,6 +71,9 @@ BALL_ZONOTOPE_GENERATORS_COARSE = {2: 6, 3: 10}
 #: one, because 30 generators per step make the reduction start 3x earlier and the reachable set
 #: looser from then on (nrho-flyby: +23 % against +6 % of the width after 10 steps, h_max 200)
 BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse"}
+#: ``ball_input="auto"`` in the other dimensions (1-D: the interval; 4-D and up: the compact
+#: products of :mod:`ocreach.sets.ball_pz`, support in [1, 1.03]; docs/validation.md, "4-D")
+BALL_INPUT_AUTO_ND = "pz-compact"
 REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
@@ -109,15 +112,19 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
     if kind == "box":
         U = box(n_u)
     elif kind == "ball" and ball == "auto":
-        return input_pz(kind, n_u, n_throttle, BALL_INPUT_AUTO.get(n_u, "zonotope"))
+        return input_pz(kind, n_u, n_throttle, BALL_INPUT_AUTO.get(n_u, BALL_INPUT_AUTO_ND))
     elif kind == "ball" and ball in ("zonotope", "zonotope-coarse") and n_u > 1:
         table = BALL_ZONOTOPE_GENERATORS if ball == "zonotope" else BALL_ZONOTOPE_GENERATORS_COARSE
         Z = _ball_zonotope(n_u, table.get(n_u, 2 * n_u))
         U = PolyZonotope.from_zonotope(Z, new_ids(Z.G.shape[1]))
+    elif kind == "ball" and ball == "pz-compact":
+        from ocreach.sets.ball_pz import compact_ball_pz
+
+        U = compact_ball_pz(n_u)                       # fresh identifiers
     elif kind == "ball":
         if ball not in BALL_INPUTS:
             raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {ball!r}")
-        U = unit_ball_pz(n_u, ids=new_ids(n_u))
+        U = unit_ball_pz(n_u)                          # fresh identifiers (n_u or more factors)
     else:
         raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
     return U.cartesian(box(n_throttle)) if n_throttle else U
