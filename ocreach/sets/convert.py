@@ -45,7 +45,9 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     Directions: 2-D: angles pi j / k (a regular 2k-gon, support in [1, 1 / cos(pi / 2k)]: 1.035 at
     k = 6, 1.026 at 7, 1.020 at 8); 3-D with k = 10: the axes through opposite vertices of the
     regular dodecahedron (support in [1, 1.096]); 3-D with k = 30: the spread directions of
-    :data:`ocreach.sets.ball_directions.SPREAD_3D_30` (support in [1, 1.027]); otherwise the n
+    :data:`ocreach.sets.ball_directions.SPREAD_3D_30` (support in [1, 1.027]); 4-D with k = 16
+    / 24: the spread directions ``SPREAD_4D_16`` / ``SPREAD_4D_24`` (support in [1, 1.147] /
+    [1, 1.099]; no 3 % zonotope in 4-D); otherwise the n
     axes plus pseudo-random unit directions (seeded; **loose**: no tightness guarantee, 2n
     generators in 4-D and up are far looser than 3 %, [1, 2.75] in 4-D with 8; a tight n-D ball
     is :func:`ocreach.sets.ball_pz.compact_ball_pz` or :func:`unit_ball_pz`).  All generators
@@ -53,7 +55,7 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     ball touches the facets from inside.  :func:`zonotope_support_range` gives the exact support
     range over the unit sphere.
     """
-    from ocreach.sets.ball_directions import SPREAD_3D_30
+    from ocreach.sets.ball_directions import SPREAD
     from ocreach.sets.contains import zonotope_halfspaces
     from ocreach.sets.zonotope import Zonotope
 
@@ -72,8 +74,8 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
         D = np.vstack([np.cos(t), np.sin(t)])
     elif n == 3 and k == 10:
         D = _dodecahedron_axes()
-    elif n == 3 and k == SPREAD_3D_30.shape[0]:
-        D = (SPREAD_3D_30 / np.linalg.norm(SPREAD_3D_30, axis=1, keepdims=True)).T
+    elif (n, k) in SPREAD:
+        D = (SPREAD[n, k] / np.linalg.norm(SPREAD[n, k], axis=1, keepdims=True)).T
     else:
         extra = k - n
         rng = np.random.default_rng(11)
