@@ -3,11 +3,13 @@
 
     python examples/stt_ball_input.py --problem nrho-flyby --steps 6 10 --h-max 60 200 --order 2
         [--inputs zonotope-coarse zonotope pz pz-compact b3] [--mc 1000] [--seed 3] [--dirs 52]
-        [--horizon K] [--ffoe 100]
+        [--horizon K] [--ffoe 100] [--direct]
 
 Truth: ``--mc`` Monte Carlo endpoints (``MonteCarlo(samples, seed)`` on the grid cut at step k;
 with ``--horizon K`` one grid of K steps for the MC, the optional ``--ffoe`` extremals and one STT
-run, evaluated at each of ``--steps``).  Metric: for ``--dirs`` Fibonacci directions d in position space, the
+run, evaluated at each of ``--steps``); ``--direct`` joins the support of the true reachable set by
+direct multiple shooting (:func:`ocreach.reach.direct.transcription_support`, per direction and
+step; the truth is then the larger of it and the MC support, and the width uses it too).  Metric: for ``--dirs`` Fibonacci directions d in position space, the
 excess ``(h_upper(d) - max_mc d.x) / (max_mc d.x - min_mc d.x)`` of the STT set's support upper
 bound (branch and bound on the set's own factors, ``support_bounds``) over the MC cloud, max over
 d, in % of the width; also the lower bound's excess and the warm runtime (median of ``--reps``).
@@ -62,6 +64,25 @@ def dro4():
     return dataclasses.replace(p, id="dro4", model=model, control_set=None, method_options={})
 
 
+def direct_support(p, k: int, pos: list, D: np.ndarray) -> np.ndarray:
+    """Support of the true reachable set at step k in the position directions ``D`` (cached)."""
+    from ocreach.reach.direct import transcription_support
+
+    key = (k, D.tobytes())
+    if key not in _DIRECT:
+        pk = dataclasses.replace(p, grid=p.grid[:k + 1])
+        out = []
+        for d in D:
+            z = np.zeros(p.model.n_x)
+            z[pos] = d
+            out.append(transcription_support(pk, z))
+        _DIRECT[key] = np.array(out)
+    return _DIRECT[key]
+
+
+_DIRECT: dict = {}
+
+
 def _input(kind, n_u, n_throttle=0, ball="pz"):
     """input_pz with the extra candidate "b3" (the compact 3-D leaf with 3 factors)."""
     if kind == "ball" and ball == "b3":
@@ -87,6 +108,7 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--horizon", type=int, default=0)
     ap.add_argument("--ffoe", type=int, default=0)
+    ap.add_argument("--direct", action="store_true")
     a = ap.parse_args(argv)
     stt_mod.input_pz = _input
     stt_mod.BALL_INPUTS = tuple(dict.fromkeys(stt_mod.BALL_INPUTS + ("b3",)))
@@ -114,7 +136,11 @@ def main(argv=None) -> list[dict]:
                 K = cut[k]
                 pk = dataclasses.replace(p, grid=p.grid[:K + 1])
                 X = truth[K][k][:, pos] @ D.T
-                hi, width = X.max(axis=0), X.max(axis=0) - X.min(axis=0)
+                hi, low = X.max(axis=0), X.min(axis=0)
+                if a.direct:
+                    hi = np.maximum(hi, direct_support(p, k, pos, D))
+                    low = np.minimum(low, -direct_support(p, k, pos, -D))
+                width = hi - low
                 for inp in a.inputs:
                     times = []
                     try:
