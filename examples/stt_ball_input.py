@@ -9,10 +9,13 @@ Truth: ``--mc`` Monte Carlo endpoints (``MonteCarlo(samples, seed)`` on the grid
 with ``--horizon K`` one grid of K steps for the MC, the optional ``--ffoe`` extremals and one STT
 run, evaluated at each of ``--steps``); ``--direct`` joins the support of the true reachable set by
 direct multiple shooting (:func:`ocreach.reach.direct.transcription_support`, per direction and
-step; the truth is then the larger of it and the MC support, and the width uses it too).  Metric: for ``--dirs`` Fibonacci directions d in position space, the
-excess ``(h_upper(d) - max_mc d.x) / (max_mc d.x - min_mc d.x)`` of the STT set's support upper
-bound (branch and bound on the set's own factors, ``support_bounds``) over the MC cloud, max over
-d, in % of the width; also the lower bound's excess and the warm runtime (median of ``--reps``).
+step; the truth is then the larger of it and the MC support, and the width uses it too).
+Metric: for ``--dirs`` directions d in position space (Fibonacci on the sphere, or the circle for
+two position coordinates), the excess ``(h_upper(d) - max_mc d.x) / (max_mc d.x - min_mc d.x)``
+of the STT set's support upper bound (branch and bound on the set's own factors,
+``support_bounds``) over the truth, max over d, in % of the width; also the lower bound's excess,
+the smallest margin ``min_d (h_upper(d) - max_mc d.x)`` (negative: a true point lies outside)
+and the warm runtime (median of ``--reps`` after one warm-up run).
 Input ``b3`` is the 12-generator 3-D leaf of :mod:`ocreach.sets.ball_pz` (3 factors).
 ``--problem dro4``: a test model with a 4-D ball input (not in the registry): ``dro``'s planar
 CR3BP with ``u`` in the unit ball of R^4, ``dv/dt += a_max u[0:2]`` (thrust) and

@@ -102,11 +102,12 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
     approximation; n_u = 3..5 the cube-to-ball polynomial, beyond the compact PZ); with
     ``ball="pz-compact"``: :func:`ocreach.sets.ball_pz.compact_ball_pz` (few factors, low degree,
     support <= 1.03 in every dimension; 10 / 16 generators in 3-D / 4-D); with
-    ``ball="zonotope"``: the outer zonotope :func:`ocreach.sets.unit_ball_zonotope` with :data:`BALL_ZONOTOPE_GENERATORS` generators
-    (``ball="zonotope-coarse"``: :data:`BALL_ZONOTOPE_GENERATORS_COARSE`; ``ball="auto"``: per
-    dimension :data:`BALL_INPUT_AUTO`, else :data:`BALL_INPUT_AUTO_ND`), one
-    linear factor each (looser as a set, but its zonotope enclosure is itself, so a reduction that
-    boxes it loses nothing more; docs/stt.md, "Ball input").
+    ``ball="zonotope"``: the outer zonotope :func:`ocreach.sets.unit_ball_zonotope` with
+    :data:`BALL_ZONOTOPE_GENERATORS` generators (``ball="zonotope-coarse"``:
+    :data:`BALL_ZONOTOPE_GENERATORS_COARSE`; ``ball="auto"``: per dimension
+    :data:`BALL_INPUT_AUTO`, else :data:`BALL_INPUT_AUTO_ND`), one linear factor each (looser as
+    a set, but its zonotope enclosure is itself, so a reduction that boxes it loses nothing more;
+    docs/stt.md, "Ball input").
     ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
     :meth:`ocreach.model.Model.throttle_relaxed` (own fresh factor).
     """

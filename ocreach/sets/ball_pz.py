@@ -12,9 +12,9 @@ odd by Borsuk's theorem; a non-zero degree puts ``y`` in the image, and the imag
 it needs no componentwise comparison with an exact cube-to-ball map.)
 
 **Lemma 2 (product).**  ``B^(p+q) = {(c x, s y) : (c, s) in B^2, x in B^p, y in B^q}``
-(take ``c = |x'|, s = |y'|``), so if ``D ⊇ B^2``, ``X ⊇ B^p``, ``Y ⊇ B^q`` are polynomial zonotopes
-with their own factors and radii ``R_D, R_X, R_Y``, the polynomial zonotope ``{(c x, s y)}``
-(products of monomials in disjoint factors: exact) contains ``B^(p+q)`` and has radius at most
+(take ``c = |x'|, s = |y'|``), so if ``D ⊇ B^2``, ``X ⊇ B^p``, ``Y ⊇ B^q`` are polynomial
+zonotopes with their own factors and radii ``R_D, R_X, R_Y``, the polynomial zonotope
+``{(c x, s y)}`` (products of monomials in disjoint factors: exact) contains ``B^(p+q)`` and has radius at most
 ``R_D max(R_X, R_Y)`` (``|c x|^2 + |s y|^2 <= (c^2 + s^2) max(|x|^2, |y|^2)``); its support over the
 unit sphere is in ``[1, R]``.
 
@@ -71,7 +71,8 @@ def _leaf(kind: str) -> list[dict]:
                 e[i], e[others[0]] = 1, 2 * k
                 poly[tuple(e)] = ck
         else:  # b3: c0 + c1 (x_j + x_k) + c2 x_j x_k
-            for sub, ck in (((), c[0]), ((others[0],), c[1]), ((others[1],), c[1]), (tuple(others), c[2])):
+            terms = (((), c[0]), ((others[0],), c[1]), ((others[1],), c[1]), (tuple(others), c[2]))
+            for sub, ck in terms:
                 e = [0] * n
                 e[i] = 1
                 for j in sub:
@@ -106,7 +107,8 @@ def _build(tree: Any) -> tuple[list[dict], int]:
     m = md + mx + my
     c = _shift(D[0], 0, mx + my)
     s = _shift(D[1], 0, mx + my)
-    comps = [_times(c, _shift(x, md, my)) for x in X] + [_times(s, _shift(y, md + mx, 0)) for y in Y]
+    comps = ([_times(c, _shift(x, md, my)) for x in X]
+             + [_times(s, _shift(y, md + mx, 0)) for y in Y])
     return comps, m
 
 
@@ -121,9 +123,9 @@ def compact_ball_plan(n: int, target: float = RADIUS_TARGET) -> tuple[Any, int, 
     Lemma-2 products of smaller plans (all splits ``n = p + q``, both 2-D leaves as the disk), the
     one with the fewest generators whose radius bound is <= ``target`` (ties: smaller radius).
 
-    n = 2: ``"d4"`` (4 generators, 1.0114); n = 3: ``("d4", "d4", "i")`` (10, 1.0229);
-    n = 4: ``("d4", "d4", "d4")`` (16, 1.0229); the count grows about like ``n^2.6``
-    (tests/test_ball_pz.py lists n <= 8).
+    n = 2: ``"d4"`` (4 generators, radius 1.0117); n = 3: ``("d4", "i", "d4")`` (10, 1.0235);
+    n = 4: ``("d4", "d4", "d4")`` (16, 1.0235); n = 5..8: 32 / 48 / 72 / 96 generators; the
+    count grows about like ``n^2.6`` (tests/test_ball_pz.py checks n <= 8).
     """
     n = int(n)
     if n < 1:

@@ -51,9 +51,9 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     axes plus pseudo-random unit directions (seeded; **loose**: no tightness guarantee, 2n
     generators in 4-D and up are far looser than 3 %, [1, 2.75] in 4-D with 8; a tight n-D ball
     is :func:`ocreach.sets.ball_pz.compact_ball_pz` or :func:`unit_ball_pz`).  All generators
-    get the common length ``1 / r_in``, where ``r_in`` is the inradius of the zonotope of unit directions (minimum facet offset), so the
-    ball touches the facets from inside.  :func:`zonotope_support_range` gives the exact support
-    range over the unit sphere.
+    get the common length ``1 / r_in``, where ``r_in`` is the inradius of the zonotope of unit
+    directions (minimum facet offset), so the ball touches the facets from inside.
+    :func:`zonotope_support_range` gives the exact support range over the unit sphere.
     """
     from ocreach.sets.ball_directions import SPREAD
     from ocreach.sets.contains import zonotope_halfspaces
