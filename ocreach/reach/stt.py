@@ -69,10 +69,11 @@ BALL_ZONOTOPE_GENERATORS = {2: 8, 3: 30, 4: 24}
 BALL_ZONOTOPE_GENERATORS_COARSE = {2: 6, 3: 10, 4: 16}
 #: ``ball_input="auto"`` (default) per input dimension, chosen by measurement (docs/validation.md,
 #: "Ball input within 3 % of the ball"): 2-D the 3 % zonotope (tighter dro sets, ~1.2x runtime);
-#: 3-D and 4-D the coarse zonotope: every 3 %-tight input (30 generators, the cube-to-ball PZ, the
-#: compact PZ) gives tighter sets while few reductions have happened but looser ones once the
-#: reduction boxes the input generators (nrho-flyby h_max 60, 10 steps: +108 % for the compact PZ
-#: against +39 %; elliptic-earth 40 steps: +558 % against +208 %; the 4-D test model likewise)
+#: 3-D and 4-D the coarse zonotope: the 3 %-tight inputs (the 30-generator zonotope, the compact
+#: PZ) give tighter sets while few reductions have happened but looser ones once the reduction
+#: boxes the input generators (nrho-flyby h_max 60, 10 steps: +108 % for the compact PZ against
+#: +39 %; elliptic-earth 40 steps: +558 % against +208 %; the 4-D test model likewise); the
+#: cube-to-ball PZ (48 generators in 3-D) is looser throughout
 BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse", 4: "zonotope-coarse"}
 #: ``ball_input="auto"`` in the other dimensions: 1-D the interval, 5-D and up the compact PZ of
 #: :mod:`ocreach.sets.ball_pz` (support in [1, 1.03]; not measured on a problem, chosen because

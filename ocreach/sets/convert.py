@@ -177,7 +177,8 @@ def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
       The cube-to-ball polynomial is not extended beyond n = 5: ``t_i`` has ``2^(n-1) - 1``
       monomials and its powers many more (n = 6 with degree 2: ~1,500 generators).
     * n > 5: :func:`ocreach.sets.ball_pz.compact_ball_pz` (products of small balls, radius
-      <= 1.03 by construction: 48 / 72 / 96 generators for n = 6 / 7 / 8).
+      <= 1.03 by construction: 48 / 72 / 96 generators for n = 6 / 7 / 8; 8 / 11 / 14 factors,
+      so ``ids``, if given, needs one identifier per factor).
 
     Why n = 2..5 contain the ball.  Write the map as ``F(a)_i = a_i s_i(a)`` and the exact
     square/cube-to-ball map as ``F0(a)_i = a_i r_i(a)`` with ``r_i = sqrt(1 - t_i)``.  Every dropped
