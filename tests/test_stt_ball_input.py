@@ -96,9 +96,27 @@ def test_zonotope_ball_input_is_linear_in_fresh_factors_and_contains_the_ball(n,
         ocreach.reach(get_problem("vdp"), "stt", ball_input="disk")
 
 
-@pytest.mark.parametrize("n, k", [(2, 8), (3, 10)])
+@pytest.mark.parametrize("n, k", [(1, 1), (2, 8), (3, 10), (4, 16), (5, 7)])
 def test_auto_ball_input_per_dimension(n, k):
-    assert input_pz("ball", n, 0, ball="auto").n_factors == k
+    """1-D the interval, 2-D 8 generators, 3-D / 4-D the coarse zonotope (by measurement), 5-D
+    the compact PZ (7 factors, 32 generators)."""
+    U = input_pz("ball", n, 0, ball="auto")
+    assert U.n_factors == k
+    if n in (3, 4):
+        assert U.n_generators == k and np.all(U.E.sum(axis=0) == 1)
+
+
+@pytest.mark.parametrize("k, exact", [(16, 1.1466), (24, 1.0990)])
+def test_4d_ball_zonotope_spread_directions(k, exact):
+    """4-D spread directions: exact range (facet offsets, vertex norms) confirmed by 400,000
+    random unit directions (inside the range, and the sampled maximum close to it)."""
+    Z = unit_ball_zonotope(4, k)
+    lo, hi = zonotope_support_range(Z)
+    assert lo == pytest.approx(1.0, abs=1e-12) and hi <= exact
+    rng = np.random.default_rng(5)
+    X = rng.standard_normal((400_000, 4))
+    h = np.abs((X / np.linalg.norm(X, axis=1, keepdims=True)) @ Z.G).sum(axis=1)
+    assert h.min() >= lo - 1e-12 and h.max() <= hi + 1e-12 and h.max() >= hi - 0.01
 
 
 def test_nd_ball_zonotope_contains_the_ball():

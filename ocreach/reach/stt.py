@@ -54,23 +54,31 @@ if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
 
 INPUT_SETS = ("box", "ball")
-BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz")
+BALL_INPUTS = ("auto", "zonotope", "zonotope-coarse", "pz", "pz-compact")
 PRUNED_BOXES = ("exact", "bound")
 #: the default ``pruned_box`` (the only value ``engine="library"`` accepts: it prunes nothing)
 PRUNED_BOX_DEFAULT = "bound"
 #: generators of the zonotope ball input per input dimension, ``ball_input="zonotope"``: support
-#: over the unit sphere in [1, 1.03] (exact, :func:`ocreach.sets.zonotope_support_range`):
-#: 2-D a regular 16-gon (<= 1.0196), 3-D 30 spread directions (<= 1.0269); other dimensions 2 n
-#: (looser, docs/stt.md "Ball input").  Measured on dro and nrho-flyby in docs/validation.md.
-BALL_ZONOTOPE_GENERATORS = {2: 8, 3: 30}
-#: ``ball_input="zonotope-coarse"`` (the default before issue 12's 3 % target): 2-D regular
-#: 12-gon (<= 1.0353), 3-D dodecahedral axes (<= 1.0954)
-BALL_ZONOTOPE_GENERATORS_COARSE = {2: 6, 3: 10}
+#: over the unit sphere (exact, :func:`ocreach.sets.zonotope_support_range`) in [1, 1.03] in 2-D
+#: (regular 16-gon, <= 1.0196) and 3-D (30 spread directions, <= 1.0269); 4-D 24 spread directions
+#: (<= 1.099: no 4-D zonotope within 3 % was found); other dimensions 2 n (axes + random
+#: directions, loose: [1, 2.75] in 4-D).  Measured in docs/validation.md "Ball input within 3 %".
+BALL_ZONOTOPE_GENERATORS = {2: 8, 3: 30, 4: 24}
+#: ``ball_input="zonotope-coarse"``: 2-D regular 12-gon (<= 1.0353), 3-D dodecahedral axes
+#: (<= 1.0954), 4-D 16 spread directions (<= 1.147)
+BALL_ZONOTOPE_GENERATORS_COARSE = {2: 6, 3: 10, 4: 16}
 #: ``ball_input="auto"`` (default) per input dimension, chosen by measurement (docs/validation.md,
-#: "Zonotope ball input"): 2-D the 3 % zonotope (tighter dro sets, ~1.2x runtime); 3-D the coarse
-#: one, because 30 generators per step make the reduction start 3x earlier and the reachable set
-#: looser from then on (nrho-flyby: +23 % against +6 % of the width after 10 steps, h_max 200)
-BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse"}
+#: "Ball input within 3 % of the ball"): 2-D the 3 % zonotope (tighter dro sets, ~1.2x runtime);
+#: 3-D and 4-D the coarse zonotope: the 3 %-tight inputs (the 30-generator zonotope, the compact
+#: PZ) give tighter sets while few reductions have happened but looser ones once the reduction
+#: boxes the input generators (nrho-flyby h_max 60, 10 steps: +108 % for the compact PZ against
+#: +39 %; elliptic-earth 40 steps: +558 % against +208 %; the 4-D test model likewise); the
+#: cube-to-ball PZ (48 generators in 3-D) is looser throughout
+BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse", 4: "zonotope-coarse"}
+#: ``ball_input="auto"`` in the other dimensions: 1-D the interval, 5-D and up the compact PZ of
+#: :mod:`ocreach.sets.ball_pz` (support in [1, 1.03]; not measured on a problem, chosen because
+#: the only zonotope there is the loose 2 n one, which lost at every horizon in 4-D)
+BALL_INPUT_AUTO_ND = "pz-compact"
 REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
@@ -92,12 +100,15 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
 
     ``"box"``: ``[-1, 1]^n_u`` (exact, one factor per component); ``"ball"`` with ``ball="pz"``:
     the unit ball by Foss Eq. 16 (n_u = 2; :func:`ocreach.sets.unit_ball_pz`, a slight outer
-    approximation); with ``ball="zonotope"``: the outer zonotope
-    :func:`ocreach.sets.unit_ball_zonotope` with :data:`BALL_ZONOTOPE_GENERATORS` generators
-    (``ball="zonotope-coarse"``: :data:`BALL_ZONOTOPE_GENERATORS_COARSE`; ``ball="auto"``: per
-    dimension :data:`BALL_INPUT_AUTO`), one
-    linear factor each (looser as a set, but its zonotope enclosure is itself, so a reduction that
-    boxes it loses nothing more; docs/stt.md, "Ball input").
+    approximation; n_u = 3..5 the cube-to-ball polynomial, beyond the compact PZ); with
+    ``ball="pz-compact"``: :func:`ocreach.sets.ball_pz.compact_ball_pz` (few factors, low degree,
+    support <= 1.03 in every dimension; 10 / 16 generators in 3-D / 4-D); with
+    ``ball="zonotope"``: the outer zonotope :func:`ocreach.sets.unit_ball_zonotope` with
+    :data:`BALL_ZONOTOPE_GENERATORS` generators (``ball="zonotope-coarse"``:
+    :data:`BALL_ZONOTOPE_GENERATORS_COARSE`; ``ball="auto"``: per dimension
+    :data:`BALL_INPUT_AUTO`, else :data:`BALL_INPUT_AUTO_ND`), one linear factor each (looser as
+    a set, but its zonotope enclosure is itself, so a reduction that boxes it loses nothing more;
+    docs/stt.md, "Ball input").
     ``n_throttle = 1`` appends the relaxed throttle ``s in [-1, 1]`` of
     :meth:`ocreach.model.Model.throttle_relaxed` (own fresh factor).
     """
@@ -109,15 +120,19 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
     if kind == "box":
         U = box(n_u)
     elif kind == "ball" and ball == "auto":
-        return input_pz(kind, n_u, n_throttle, BALL_INPUT_AUTO.get(n_u, "zonotope"))
+        return input_pz(kind, n_u, n_throttle, BALL_INPUT_AUTO.get(n_u, BALL_INPUT_AUTO_ND))
     elif kind == "ball" and ball in ("zonotope", "zonotope-coarse") and n_u > 1:
         table = BALL_ZONOTOPE_GENERATORS if ball == "zonotope" else BALL_ZONOTOPE_GENERATORS_COARSE
         Z = _ball_zonotope(n_u, table.get(n_u, 2 * n_u))
         U = PolyZonotope.from_zonotope(Z, new_ids(Z.G.shape[1]))
+    elif kind == "ball" and ball == "pz-compact":
+        from ocreach.sets.ball_pz import compact_ball_pz
+
+        U = compact_ball_pz(n_u)                       # fresh identifiers
     elif kind == "ball":
         if ball not in BALL_INPUTS:
             raise ProblemError(f"ball_input must be one of {BALL_INPUTS}; got {ball!r}")
-        U = unit_ball_pz(n_u, ids=new_ids(n_u))
+        U = unit_ball_pz(n_u)                          # fresh identifiers (n_u or more factors)
     else:
         raise ProblemError(f"input_set must be one of {INPUT_SETS}; got {kind!r}")
     return U.cartesian(box(n_throttle)) if n_throttle else U

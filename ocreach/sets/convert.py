@@ -2,7 +2,8 @@
 
 * interval -> zonotope -> polynomial zonotope (exact);
 * unit ball -> polynomial zonotope (Foss et al. Eq. 16 for n = 2; a cube-to-ball polynomial for
-  n = 3, see :func:`unit_ball_pz`) and -> outer zonotope with k generators.
+  n = 3..5, the compact products of :mod:`ocreach.sets.ball_pz` for n > 5, see
+  :func:`unit_ball_pz`) and -> outer zonotope with k generators.
 """
 from __future__ import annotations
 
@@ -44,14 +45,17 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
     Directions: 2-D: angles pi j / k (a regular 2k-gon, support in [1, 1 / cos(pi / 2k)]: 1.035 at
     k = 6, 1.026 at 7, 1.020 at 8); 3-D with k = 10: the axes through opposite vertices of the
     regular dodecahedron (support in [1, 1.096]); 3-D with k = 30: the spread directions of
-    :data:`ocreach.sets.ball_directions.SPREAD_3D_30` (support in [1, 1.027]); otherwise the n
-    axes plus pseudo-random unit directions (seeded; no tightness guarantee: 2n generators in
-    4-D and up are looser than 3 %).  All generators get the common length ``1 / r_in``, where
-    ``r_in`` is the inradius of the zonotope of unit directions (minimum facet offset), so the
-    ball touches the facets from inside.  :func:`zonotope_support_range` gives the exact support
-    range over the unit sphere.
+    :data:`ocreach.sets.ball_directions.SPREAD_3D_30` (support in [1, 1.027]); 4-D with k = 16
+    / 24: the spread directions ``SPREAD_4D_16`` / ``SPREAD_4D_24`` (support in [1, 1.147] /
+    [1, 1.099]; no 3 % zonotope in 4-D); otherwise the n
+    axes plus pseudo-random unit directions (seeded; **loose**: no tightness guarantee, 2n
+    generators in 4-D and up are far looser than 3 %, [1, 2.75] in 4-D with 8; a tight n-D ball
+    is :func:`ocreach.sets.ball_pz.compact_ball_pz` or :func:`unit_ball_pz`).  All generators
+    get the common length ``1 / r_in``, where ``r_in`` is the inradius of the zonotope of unit
+    directions (minimum facet offset), so the ball touches the facets from inside.
+    :func:`zonotope_support_range` gives the exact support range over the unit sphere.
     """
-    from ocreach.sets.ball_directions import SPREAD_3D_30
+    from ocreach.sets.ball_directions import SPREAD
     from ocreach.sets.contains import zonotope_halfspaces
     from ocreach.sets.zonotope import Zonotope
 
@@ -70,8 +74,8 @@ def unit_ball_zonotope(n: int, k: int | None = None) -> Zonotope:
         D = np.vstack([np.cos(t), np.sin(t)])
     elif n == 3 and k == 10:
         D = _dodecahedron_axes()
-    elif n == 3 and k == SPREAD_3D_30.shape[0]:
-        D = (SPREAD_3D_30 / np.linalg.norm(SPREAD_3D_30, axis=1, keepdims=True)).T
+    elif (n, k) in SPREAD:
+        D = (SPREAD[n, k] / np.linalg.norm(SPREAD[n, k], axis=1, keepdims=True)).T
     else:
         extra = k - n
         rng = np.random.default_rng(11)
@@ -168,8 +172,13 @@ def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
       boundary; n = 3: ``u1 = a1 sqrt(1 - a2^2/2 - a3^2/2 + a2^2 a3^2 / 3)``), with the square root
       replaced by the polynomial :func:`_upper_sqrt_poly` of degree 3 (n = 3, 4; 48 / 256
       generators) or 2 (n = 5; 405) fitted from above on ``[0, 1 - 1/n]`` (the range of ``t``):
-      radius at most 1.003 / 1.003 / 1.023 on dense boundary samples (n = 3 / 4 / 5).
-    * n > 5: the outer zonotope :func:`unit_ball_zonotope` (2n generators) as a PZ.
+      radius at most 1.003 / 1.003 / 1.023 on dense boundary samples (n = 3 / 4 / 5; proved
+      <= 1.0012 / 1.0030 / 1.0230 by Bernstein bounds of ``|F|^2`` in tests/test_ball_pz.py).
+      The cube-to-ball polynomial is not extended beyond n = 5: ``t_i`` has ``2^(n-1) - 1``
+      monomials and its powers many more (n = 6 with degree 2: ~1,500 generators).
+    * n > 5: :func:`ocreach.sets.ball_pz.compact_ball_pz` (products of small balls, radius
+      <= 1.03 by construction: 48 / 72 / 96 generators for n = 6 / 7 / 8; 8 / 11 / 14 factors,
+      so ``ids``, if given, needs one identifier per factor).
 
     Why n = 2..5 contain the ball.  Write the map as ``F(a)_i = a_i s_i(a)`` and the exact
     square/cube-to-ball map as ``F0(a)_i = a_i r_i(a)`` with ``r_i = sqrt(1 - t_i)``.  Every dropped
@@ -222,7 +231,9 @@ def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
                     cols.append(g)
                     exps.append(e)
         return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=int).T, ids).compact()
-    return PolyZonotope.from_zonotope(unit_ball_zonotope(n), ids)
+    from ocreach.sets.ball_pz import compact_ball_pz
+
+    return compact_ball_pz(n, ids)
 
 
 def _upper_sqrt_poly(t_max: float, deg: int) -> np.ndarray:

@@ -1,0 +1,90 @@
+"""Finite proofs for polynomial-zonotope balls (used by tests/test_ball_pz.py).
+
+A ball candidate ``F(a) = sum_h G[:, h] prod_k a_k^E[k, h]`` (centre 0, factors in [-1, 1]) whose
+components each have one parity pattern of exponents has ``|F|^2`` a polynomial in ``x = a^2``
+(:func:`squared_norm_in_squares`), and ``|F|`` is unchanged by flipping the sign of any factor.
+Bounds of a polynomial on ``[0, 1]^m`` are proved by Bernstein coefficients with subdivision
+(:func:`max_over_unit_box`): on a box the polynomial lies between its smallest and largest
+Bernstein coefficients, the vertex coefficients are values, and subdivision converges
+quadratically.  So a returned True is a proof (up to floating-point round-off), not a sample.
+"""
+from __future__ import annotations
+
+import itertools
+from math import comb
+
+import numpy as np
+
+
+def _values(G, E, A):
+    """``F`` at the factor values ``A`` (N, m)."""
+    M = np.prod(A[:, :, None] ** np.asarray(E)[None, :, :], axis=1)   # (N, h)
+    return M @ np.asarray(G, float).T
+
+
+def squared_norm_in_squares(G, E):
+    """``|F|^2`` as a polynomial in ``x = a^2`` (dense coefficient tensor), or None when some
+    component mixes parity patterns (then it is not one)."""
+    G, E = np.asarray(G, float), np.asarray(E, int)
+    terms: dict = {}
+    for i in range(G.shape[0]):
+        hs = np.flatnonzero(G[i])
+        if len({tuple(E[:, h] % 2) for h in hs}) > 1:
+            return None
+        for h1, h2 in itertools.product(hs, hs):
+            e = tuple((E[:, h1] + E[:, h2]) // 2)
+            terms[e] = terms.get(e, 0.0) + G[i, h1] * G[i, h2]
+    C = np.zeros(tuple(np.max(np.array(list(terms)), axis=0) + 1))
+    for e, v in terms.items():
+        C[e] += v
+    return C
+
+
+def _axis_matrices(d, lo, s):
+    """(N, d+1, d+1): monomial coefficients in x on [lo, lo + s] -> Bernstein coefficients in
+    t = (x - lo) / s (substitution x = lo + s t, then the monomial-to-Bernstein change of basis)."""
+    T = np.zeros((lo.shape[0], d + 1, d + 1))            # new_j = sum_i c_i C(i, j) lo^(i-j) s^j
+    for i in range(d + 1):
+        for j in range(i + 1):
+            T[:, j, i] = comb(i, j) * lo ** (i - j) * s ** j
+    B = np.array([[comb(k, j) / comb(d, j) if j <= k else 0.0 for j in range(d + 1)] for k in range(d + 1)])
+    return np.einsum("kj,nji->nki", B, T)
+
+
+def max_over_unit_box(C, bound, max_level=30, max_boxes=2_000_000):
+    """Prove ``p(x) <= bound`` on ``[0, 1]^m`` (``C``: dense coefficients of ``p``).  A box is
+    settled when its largest Bernstein coefficient is <= ``bound``, else split in 2^m; a vertex
+    value above ``bound`` is a counterexample.  Returns (proved, largest vertex value seen)."""
+    C = np.asarray(C, float)
+    m = C.ndim
+    lo, s, seen = np.zeros((1, m)), 1.0, -np.inf
+    kids = np.array(list(itertools.product((0.0, 1.0), repeat=m)))
+    for _ in range(max_level):
+        Bc = np.broadcast_to(C, (lo.shape[0],) + C.shape).copy()
+        for ax in range(m):
+            M = _axis_matrices(C.shape[ax] - 1, lo[:, ax], np.full(lo.shape[0], s))
+            Bc = np.moveaxis(np.einsum("nki,n...i->n...k", M, np.moveaxis(Bc, ax + 1, -1)), -1, ax + 1)
+        corners = Bc[(slice(None),) + tuple(slice(None, None, max(C.shape[ax] - 1, 1)) for ax in range(m))]
+        seen = max(seen, float(corners.max()))
+        if seen > bound:
+            return False, seen
+        open_ = Bc.reshape(lo.shape[0], -1).max(axis=1) > bound
+        if not open_.any():
+            return True, seen
+        s /= 2
+        lo = (lo[open_][:, None, :] + s * kids[None]).reshape(-1, m)
+        if lo.shape[0] > max_boxes:
+            return False, seen
+    return False, seen
+
+
+def face_at_least(C, k, bound, **kw):
+    """Prove ``p >= bound`` on the face ``x_k = 1`` of ``[0, 1]^m``."""
+    return max_over_unit_box(-np.asarray(C).sum(axis=k), -bound, **kw)[0]
+
+
+def boundary_at_least_one(G, E):
+    """Prove ``|F| >= 1`` on the boundary of the factor cube (every face ``a_k = +-1`` is the
+    face ``x_k = 1``)."""
+    C = squared_norm_in_squares(G, E)
+    return C is not None and all(face_at_least(C, k, 1.0) for k in range(C.ndim))
