@@ -447,3 +447,21 @@ def test_window_model_error_with_the_ephemeris_frame_acceleration(nrho, eph):
             b = np.asarray(win.f_fun(x, np.zeros(3), t, p)).ravel()
             worst = max(worst, float(np.linalg.norm(a - b)))
     assert 0.5 * err["acceleration"] <= worst <= err["acceleration"], (worst, err)
+
+
+def test_window_error_bound_bad_input():
+    """A reversed, empty or non-finite window and a derivative order that is not an integer >= 0
+    raise a ProblemError naming the parameter (a reversed window used to return numbers, the
+    empty one a ZeroDivisionError, derivative=-1 or 1.5 a silently meaningless "bound")."""
+    from ocreach.ephemeris import SECONDS_PER_DAY, ephemeris_fit
+
+    fit = ephemeris_fit(["earth", "moon", "sun"], "2026-01-01 00:00:00", 74.0)
+    W = (1.0 * SECONDS_PER_DAY, 2.0 * SECONDS_PER_DAY)
+    for lo, hi in ((W[1], W[0]), (W[0], W[0]), (np.nan, W[1]), (W[0], np.inf)):
+        with pytest.raises(ProblemError, match="window must be"):
+            fit.window_error_bound("earth", "moon", lo, hi)
+    for k in (-1, 1.5, True, "2"):
+        with pytest.raises(ProblemError, match="derivative"):
+            fit.window_error_bound("earth", "moon", *W, derivative=k)
+    assert np.all(fit.window_error_bound("earth", "moon", *W, derivative=2.0) > 0)
+
