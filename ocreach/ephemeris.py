@@ -35,7 +35,7 @@ import casadi as ca
 import numpy as np
 import numpy.polynomial.chebyshev as cheb
 
-from ocreach.errors import ProblemError
+from ocreach.errors import ProblemError, check_count
 from ocreach.units import AU
 
 #: Astronomical unit (IAU 2012), km; the default distance unit of heliocentric models.
@@ -444,9 +444,7 @@ class EphemerisFit:
         of a blend) raises :class:`ProblemError`.
         """
         if window is not None:
-            w_lo, w_hi = (float(w) for w in window)
-            if not (np.isfinite(w_lo) and np.isfinite(w_hi) and w_lo < w_hi):
-                raise ProblemError(f"window must be (lo, hi) seconds with lo < hi; got {window!r}")
+            w_lo, w_hi = _check_window(window)
             self._branch_on(w_lo, w_hi)
             C = self._window_matrix(body, origin, w_lo, w_hi)
             out = ca.mtimes(ca.DM(C), _basis((2.0 * t - (w_lo + w_hi)) / (w_hi - w_lo),
@@ -518,15 +516,18 @@ class EphemerisFit:
         window) times ``(2 / fl(w_hi - w_lo))^k``, rounded up to a float once.  This covers the
         interpolation's rounding and the dropped tail (:data:`WINDOW_TAIL_ULPS`) together.  It
         does not cover the rounding of a float evaluation of either expression (the plant's
-        integrator works at a far coarser tolerance)."""
+        integrator works at a far coarser tolerance).  :class:`ProblemError` unless ``w_lo <
+        w_hi`` are finite and ``derivative`` is an integer >= 0 (or if the window reaches across a
+        boundary of a blend)."""
         from fractions import Fraction
 
         from ocreach import exact_chebyshev as xc
 
-        key = ("window-bound", body, origin, float(w_lo), float(w_hi), int(derivative))
+        w_lo, w_hi = _check_window((w_lo, w_hi))
+        derivative = check_count("derivative (order k of d^k/dt^k)", derivative, 0)
+        key = ("window-bound", body, origin, w_lo, w_hi, derivative)
         if key in self._cache:
             return self._cache[key]
-        w_lo, w_hi = float(w_lo), float(w_hi)
         q = self._window_matrix(body, origin, w_lo, w_hi)
         k, blended = self._window_branch(w_lo, w_hi)
         A_w, B_w = Fraction(w_lo + w_hi), Fraction(w_hi - w_lo)  # the floats the expression uses
@@ -555,9 +556,9 @@ class EphemerisFit:
                                                                                 strict=True)]
         s_lo, s_hi = (2 * Fraction(w_lo) - A_w) / B_w, (2 * Fraction(w_hi) - A_w) / B_w
         rho = max(Fraction(1), abs(s_lo), abs(s_hi))
-        scale = (2 / B_w) ** int(derivative)
+        scale = (2 / B_w) ** derivative
         out = np.array([xc.float_up(xc.sup_bound(xc.add(r, [Fraction(float(v)) for v in qr], -1),
-                                                 rho, int(derivative)) * scale)
+                                                 rho, derivative) * scale)
                         for r, qr in zip(rows, q, strict=True)])
         self._cache[key] = out
         return out
@@ -603,6 +604,18 @@ BLEND_FRACTION = 0.05
 #: Degree-9 smoothstep on [0, 1]: 0 -> 1 with zero derivatives of orders 1..4 at both ends (C^4).
 _SMOOTHSTEP = np.polynomial.Polynomial(
     [0.0] * 5 + [comb(4 + j, j) * comb(9, 4 - j) * (-1.0) ** j for j in range(5)])
+
+
+def _check_window(window) -> tuple[float, float]:
+    """``window = (lo, hi)`` (seconds after the epoch) as floats; :class:`ProblemError` unless
+    both are finite and ``lo < hi``."""
+    try:
+        w_lo, w_hi = (float(w) for w in window)
+    except (TypeError, ValueError) as err:
+        raise ProblemError(f"window must be (lo, hi) seconds with lo < hi; got {window!r}") from err
+    if not (np.isfinite(w_lo) and np.isfinite(w_hi) and w_lo < w_hi):
+        raise ProblemError(f"window must be (lo, hi) seconds with lo < hi; got {window!r}")
+    return w_lo, w_hi
 
 
 def _smoothstep_expr(s):

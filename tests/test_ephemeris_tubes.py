@@ -447,3 +447,97 @@ def test_window_model_error_with_the_ephemeris_frame_acceleration(nrho, eph):
             b = np.asarray(win.f_fun(x, np.zeros(3), t, p)).ravel()
             worst = max(worst, float(np.linalg.norm(a - b)))
     assert 0.5 * err["acceleration"] <= worst <= err["acceleration"], (worst, err)
+
+
+def test_window_error_bound_bad_input():
+    """A reversed, empty or non-finite window and a derivative order that is not an integer >= 0
+    raise a ProblemError naming the parameter (a reversed window used to return numbers, the
+    empty one a ZeroDivisionError, derivative=-1 or 1.5 a silently meaningless "bound")."""
+    from ocreach.ephemeris import SECONDS_PER_DAY, ephemeris_fit
+
+    fit = ephemeris_fit(["earth", "moon", "sun"], "2026-01-01 00:00:00", 74.0)
+    W = (1.0 * SECONDS_PER_DAY, 2.0 * SECONDS_PER_DAY)
+    for lo, hi in ((W[1], W[0]), (W[0], W[0]), (np.nan, W[1]), (W[0], np.inf)):
+        with pytest.raises(ProblemError, match="window must be"):
+            fit.window_error_bound("earth", "moon", lo, hi)
+    for k in (-1, 1.5, True, "2"):
+        with pytest.raises(ProblemError, match="derivative"):
+            fit.window_error_bound("earth", "moon", *W, derivative=k)
+    assert np.all(fit.window_error_bound("earth", "moon", *W, derivative=2.0) > 0)
+
+
+def test_window_error_bound_of_derivatives_inside_the_blend():
+    """The k = 1, 2 bounds on a window inside the blend of two pieces (the smoothstep product's
+    derivatives) cover the exact derivatives of the difference, from central differences of the
+    difference evaluated in rational arithmetic (step 1e-3 s: the difference's higher
+    derivatives make the truncation ~1e-25 of the values) at 13 points, and (largest
+    coordinate) within 3x of them."""
+    from fractions import Fraction
+
+    from ocreach.ephemeris import SECONDS_PER_DAY, ephemeris_fit
+
+    fit = ephemeris_fit(["earth", "moon", "sun"], "2026-01-01 00:00:00", 74.0)
+    e, d = fit.edges_days[1], fit.blend_days
+    W = ((e - 0.9 * d) * SECONDS_PER_DAY, (e + 0.9 * d) * SECONDS_PER_DAY)
+    A, B = Fraction(W[0] + W[1]), Fraction(W[1] - W[0])
+    h = Fraction(1, 1000)
+    for body, origin in (("sun", "moon"), ("moon", "ssb")):
+        q = fit._window_matrix(body, origin, *W)
+
+        def diff(t, body=body, origin=origin, q=q):
+            s = (2 * t - A) / B
+            return [p - _clenshaw_exact(row, s) for p, row in
+                    zip(_fit_exact(fit, body, origin, t), q, strict=True)]
+
+        worst = np.zeros((2, 3))
+        for tk in np.linspace(W[0] + 1.0, W[1] - 1.0, 13):
+            t = Fraction(float(tk))
+            a, m, b = diff(t + h), diff(t), diff(t - h)
+            d1 = [(x - z) / (2 * h) for x, z in zip(a, b, strict=True)]
+            d2 = [(x - 2 * y + z) / h**2 for x, y, z in zip(a, m, b, strict=True)]
+            worst = np.maximum(worst, [[abs(float(v)) for v in d1], [abs(float(v)) for v in d2]])
+        for k in (1, 2):
+            bound = fit.window_error_bound(body, origin, *W, derivative=k)
+            assert np.all(worst[k - 1] <= bound), (body, k, worst[k - 1], bound)
+            assert bound.max() <= 3.0 * worst[k - 1].max(), (body, k, worst[k - 1], bound)
+
+
+def test_model_error_widens_w_and_is_checked_against_the_flowpipe(nrho):
+    """``with_model_error`` adds the acceleration bound to every velocity rate, whatever form W
+    has (number, radii, zonotope, None), and leaves W alone without an error;
+    ``checked_model_error`` raises when the flowpipe's box reaches the radius (a corner, not a
+    face, being the farthest point) or is missing, and records the distance otherwise."""
+    from ocreach.control.ephemeris_tubes import checked_model_error, with_model_error
+    from ocreach.errors import SolverError
+    from ocreach.reach.taylor import disturbance_zonotope
+    from ocreach.sets import Zonotope
+
+    vd = list(nrho.velocity_dims)
+    pos = [i for i in range(6) if i not in vd]
+    err = {"acceleration": 2e-9, "radius": 0.5, "centre": [0.98, 0.0, 0.0],
+           "position_km": {"earth": 1e-9}}
+    assert with_model_error(nrho, 1e-7, None) == 1e-7
+    assert with_model_error(nrho, 1e-7, {**err, "acceleration": 0.0}) == 1e-7
+    assert with_model_error(nrho, 1e-7, err) == 1e-7 + 2e-9
+    radii = np.arange(1.0, 7.0) * 1e-8
+    for W in (None, radii, Zonotope(np.zeros(6), np.diag(radii))):
+        got = disturbance_zonotope(nrho, with_model_error(nrho, W, err))
+        base = np.zeros(6) if W is None else np.abs(disturbance_zonotope(nrho, W).G).sum(axis=1)
+        extra = np.abs(got.G).sum(axis=1) - base
+        np.testing.assert_allclose(extra[vd], 2e-9, rtol=1e-12)
+        np.testing.assert_array_equal(extra[pos], 0.0)
+
+    def tube(lo, hi):
+        c = np.array([[0.98, 0.0, 0.0, 0.0, 0.0, 0.0]] * 2)
+        return Tube(c, np.zeros((2, 6, 1)), k0=3, guaranteed=True, source="taylor",
+                    meta={"flowpipe_hull": [lo + [0.0] * 3, hi + [0.0] * 3]})
+
+    ok = checked_model_error(tube([0.98 - 0.28, -0.28, -0.28], [0.98 + 0.1, 0.1, 0.1]), err)
+    assert ok.meta["model_error"]["max_distance"] == pytest.approx(0.28 * 3**0.5)
+    assert ok.guaranteed and ok.k0 == 3 and ok.meta["flowpipe_hull"]
+    # every face within 0.3 of the centre, the corner 0.52 away: refused
+    with pytest.raises(SolverError, match="from step 3 reaches"):
+        checked_model_error(tube([0.98 - 0.3, -0.3, -0.3], [0.98 + 0.3, 0.3, 0.3]), err)
+    with pytest.raises(SolverError, match="no flowpipe"):
+        checked_model_error(Tube(np.zeros((1, 6)), np.zeros((1, 6, 1)), k0=3), err)
+    assert checked_model_error(ok, None) is ok

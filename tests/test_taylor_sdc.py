@@ -369,3 +369,25 @@ def test_switch_on_time_alone_is_accepted_where_no_step_contains_it():
         p = Problem(id="s", model=m, x0=np.array([0.5, 0.0]), grid=np.linspace(0, 1, 3))
         with pytest.raises(ProblemError, match="not smooth"):
             ocreach.reach(p, "taylor")
+
+
+def test_time_switch_hidden_from_the_trace_is_still_refused():
+    """What the instruction trace of ``check_smooth`` cannot see is refused elsewhere: an
+    ``if_else`` on the state inside a call node (a ``never_inline`` Function) passes the trace
+    but the interval evaluator refuses the call (ProblemError, no result); ``sdc`` refuses the
+    switch on time alone (it needs autonomous dynamics)."""
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    t = ca.SX.sym("t")
+    g = ca.Function("g", [t, x], [ca.if_else(x[0] < t, 1.0, 2.0)], {"never_inline": True})
+    m = Model.build("hidden", x, u, ca.vertcat(x[1], g(t, x) * x[0] + u[0]), t=t,
+                    control_set="box")
+    p = Problem(id="hidden", model=m, x0=np.array([0.5, 0.0]), grid=np.linspace(0.0, 1.0, 3),
+                initial_set=Zonotope([0.5, 0.0], np.diag([0.05, 0.05])))
+    with pytest.raises(ProblemError, match="call"):
+        ocreach.reach(p, "taylor")
+    m = _switched_model()
+    p = Problem(id="switched", model=m, x0=np.array([0.5, 0.0]), grid=np.linspace(0.0, 0.5, 3),
+                initial_set=Zonotope([0.5, 0.0], np.diag([0.05, 0.05])))
+    with pytest.raises(ProblemError, match="autonomous"):
+        ocreach.reach(p, "sdc")

@@ -126,9 +126,13 @@ def ephemeris_inertial(
     ``frame="eclipj2000"`` uses ecliptic J2000 axes (Patel & Scheeres Sec. 6).
     ``span_days``: days from the epoch the model must be valid for (negative for backward
     propagation; see :class:`ocreach.ephemeris.EphemerisFit`).
-    ``window = (lo, hi)`` (model time, TU after the epoch): the same dynamics for ``lo <= t <=
-    hi`` only, without the ``if_else`` between fit pieces
-    (:meth:`~ocreach.ephemeris.EphemerisFit.position_expr`), so sound reachability accepts it.
+    ``window = (lo, hi)`` (model time, TU after the epoch): the dynamics for ``lo <= t <= hi``
+    only, without the ``if_else`` between fit pieces, the fit re-expanded on the window
+    (:meth:`~ocreach.ephemeris.EphemerisFit.position_expr`): not the same function but within
+    :meth:`~ocreach.ephemeris.EphemerisFit.window_error_bound` of it (positions; ``cache[
+    "window_seconds"]`` is the window it takes), so a sound method run on it encloses the full
+    model only with that difference added to its disturbance, as
+    :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on` does.
     """
     bodies = _bodies(bodies)
     central = check_body(central, ORIGINS, "central")
