@@ -149,9 +149,10 @@ def support_range(S, D: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
     return sb.lower, sb.upper
 
 
-def measure(problem, opts: dict, D: np.ndarray, truth: list, ref: np.ndarray) -> dict:
+def measure(problem, opts: dict, D: np.ndarray, truth: list, ref: np.ndarray,
+            divergence_factor: float = 1e30) -> dict:
     """One STT run (warm: the second of two), its runtime and its extents / margins per time."""
-    m = STTReach(**{"ball_input": BALL_INPUT, **opts}, divergence_factor=1e30)
+    m = STTReach(**{"ball_input": BALL_INPUT, **opts}, divergence_factor=divergence_factor)
     rec: dict = {"options": opts}
     try:
         m.solve(problem)  # warm-up (compiled code, caches)

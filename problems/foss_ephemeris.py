@@ -45,7 +45,7 @@ def check_x0(x0) -> np.ndarray:
     return arr
 
 
-def flyby_model(epoch: str | float = EPOCH, t_final: float = 1.0, a_max: float = 0.0,
+def flyby_model(epoch: str | float | tuple[float, float] = EPOCH, t_final: float = 1.0, a_max: float = 0.0,
                 circular: bool = False) -> Model:
     """The synodic ephemeris model of Foss Eq. 6-7 (Sun, Earth, Moon, Venus; fixed DU/TU of Foss
     Sec. 4) valid for ``t_final`` TU (plus 10 %) after ``epoch`` (TDB); ``circular=True``: the
