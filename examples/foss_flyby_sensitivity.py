@@ -1,7 +1,8 @@
 """Foss Sec. 4.2 (nrho-flyby): how much does the two-digit x1 of the paper decide the flyby, and
 does any x1 it allows make the paper's STT run (n = 2, h_max = 60) work?
 
-    python examples/foss_flyby_sensitivity.py [--sobol 256] [--stt] [--half 0.005] [--out docs/figures]
+    python examples/foss_flyby_sensitivity.py [--sobol 256] [--stt] [--half 0.005] [--full]
+        [--out docs/figures]
 
 1. Perilune (closest Moon approach within 1 TU, ballistic, :func:`perilune`) for x1 over the
    rounding box ``x1 +- 0.005`` of every component: the nominal x1, the 64 corners and ``--sobol``
@@ -14,13 +15,17 @@ does any x1 it allows make the paper's STT run (n = 2, h_max = 60) work?
    point, and the sweep point at the median: the representative x1 for
    ``examples/foss_fig6_nrho.py --x0 ...``.
 4. ``--stt``: for every x1 of the sweep, the paper's run ``stt`` n = 2, h_max = 60 and the
-   reduction-light n = 2, h_max = 200 (10-generator zonotope ball input, ``ball_input =
+   reduction-light n = 2, h_max = 200 (by default; 10-generator zonotope ball input, ``ball_input =
    "zonotope-coarse"``) against max(1,000 ode extremals, 1,000 MC) at every time (extent ratio,
    branch-and-bound support bounds, containment margin; :func:`foss_fig6_nrho.measure`) and the
    pointwise error of the composed order-2 STT polynomial over the MC extent
    (:func:`foss_fig6_nrho.pointwise_errors`).
 
-Prints tables; writes ``OUT/foss_flyby_sensitivity.json``.
+``--half`` widens the box (to look beyond the rounding), ``--reading`` runs the STT sweep under
+another reading of item 2 (``--reading "x1 in"``: x1 in units of the Earth-Moon distance),
+``--stt-runs`` picks the runs (``o2_h60``, ``o2_h200``, ``o2_h400``).  Prints tables; writes
+``OUT/foss_flyby_sensitivity[_halfH][_x1][_RUNS].json`` (per time: min / median / max over the x1;
+per x1: perilune and a summary; ``--full`` keeps every x1's arrays).
 """
 from __future__ import annotations
 
@@ -43,7 +48,10 @@ HALF = 0.005
 #: the paper's epoch read as UTC, in TDB (TDB - UTC = 37 leap seconds + 32.184 s in 2024)
 EPOCH_UTC = "2024-05-01 12:01:09.184"
 #: the STT runs of ``--stt`` (foss_fig6_nrho.RUNS-style options; ball input fixed there)
-STT_RUNS = {"o2_h60": dict(order=2, h_max=60), "o2_h200": dict(order=2, h_max=200)}
+STT_RUN_OPTIONS = {"o2_h60": dict(order=2, h_max=60), "o2_h200": dict(order=2, h_max=200),
+                   "o2_h400": dict(order=2, h_max=400)}
+#: the default selection (``--stt-runs``)
+STT_RUNS = ("o2_h60", "o2_h200")
 #: the issue's target: extent within this factor of the truth's at every time
 TARGET = 1.5
 
@@ -102,7 +110,8 @@ def extreme_perilune(model, start: np.ndarray, sign: float, half: float = HALF,
     return X0 + half * best, sign * obj(best)
 
 
-def stt_sweep(pts: np.ndarray, extremals: int = 1000, overrides: dict | None = None) -> list[dict]:
+def stt_sweep(pts: np.ndarray, extremals: int = 1000, overrides: dict | None = None,
+              runs: tuple[str, ...] = STT_RUNS) -> list[dict]:
     """The STT runs of :data:`STT_RUNS` and the order-2 pointwise error for every x1 in ``pts``
     (``overrides``: further options of nrho-flyby, e.g. the epoch)."""
     import sys
@@ -116,14 +125,46 @@ def stt_sweep(pts: np.ndarray, extremals: int = 1000, overrides: dict | None = N
         tr = truth_data(p, extremals)
         rec = {"x0": x.tolist(), "truth_extent": np.maximum(tr["ode_extent"], tr["mc_extent"]).tolist(),
                "pointwise_err_order2": pointwise_errors(p, tr["mc"], orders=(2,))["order2"]}
-        for name, opts in STT_RUNS.items():
-            r = measure(p, opts, tr["D"], tr["support"], tr["ref"], divergence_factor=1e250)
+        for name in runs:
+            r = measure(p, STT_RUN_OPTIONS[name], tr["D"], tr["support"], tr["ref"], divergence_factor=1e250)
             rec[name] = {k: r[k] for k in ("extent_ratio_lower", "extent_ratio_upper", "margin_over_extent", "error")
                          if k in r}
         out.append(rec)
         if i % 20 == 0:
             print(f"  stt sweep {i + 1}/{len(pts)}", flush=True)
     return out
+
+
+def by_time(sw: list[dict], runs: tuple[str, ...] = STT_RUNS) -> dict:
+    """Per time: min / median / max over the swept x1 of the extent ratios (lower, upper bounds),
+    the margin, the order-2 pointwise error and the truth extent; and how many exceed TARGET."""
+    def stats(a):
+        a = np.asarray(a, float)
+        return {"min": np.nanmin(a, axis=0).tolist(), "median": np.nanmedian(a, axis=0).tolist(),
+                "max": np.nanmax(a, axis=0).tolist()}
+
+    out = {"pointwise_err_order2": stats([r["pointwise_err_order2"] for r in sw]),
+           "truth_extent": stats([r["truth_extent"] for r in sw])}
+    for name in runs:
+        ok = [r[name] for r in sw if "error" not in r[name]]
+        out[name] = {"runs": len(ok), "errors": len(sw) - len(ok)}
+        if ok:
+            lo = np.array([r["extent_ratio_lower"] for r in ok])
+            out[name].update(lower=stats(lo), upper=stats([r["extent_ratio_upper"] for r in ok]),
+                             margin=stats([r["margin_over_extent"] for r in ok]),
+                             n_lower_over_target=(lo > TARGET).sum(axis=0).tolist())
+    return out
+
+
+def compact(obj, digits: int = 5):
+    """``obj`` with floats rounded to ``digits`` significant digits (a small JSON file)."""
+    if isinstance(obj, float):
+        return float(f"{obj:.{digits}g}") if np.isfinite(obj) else obj
+    if isinstance(obj, dict):
+        return {k: compact(v, digits) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [compact(v, digits) for v in obj]
+    return obj
 
 
 def first_time(times: np.ndarray, values, limit: float) -> float:
@@ -139,6 +180,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--stt", action="store_true", help="also the STT runs for every sweep point")
     ap.add_argument("--extremals", type=int, default=1000)
     ap.add_argument("--out", default="docs/figures")
+    ap.add_argument("--stt-runs", default=",".join(STT_RUNS),
+                    help=f"comma-separated STT runs of --stt, from {sorted(STT_RUN_OPTIONS)}")
+    ap.add_argument("--full", action="store_true", help="keep every x1's STT arrays in the JSON")
     ap.add_argument("--half", type=float, default=HALF, help="half width of the box (default: the rounding)")
     ap.add_argument("--reading", default="paper", help="the reading of the paper for --stt: a name of "
                     "variants() starting with this text (e.g. 'x1 in units')")
@@ -188,14 +232,20 @@ def main(argv=None) -> dict:
         pts = tf(pts)
         r = perilune(model, pts)
         d, tt = r["distance_km"], r["time"]
-        sw = stt_sweep(pts, a.extremals, kw)
-        report["stt_sweep"] = sw
+        runs = tuple(r for r in a.stt_runs.split(",") if r)
+        bad = [r for r in runs if r not in STT_RUN_OPTIONS]
+        if bad or not runs:
+            raise SystemExit(f"--stt-runs {a.stt_runs!r}: names from {sorted(STT_RUN_OPTIONS)}")
+        sw = stt_sweep(pts, a.extremals, kw, runs)
+        report["stt_by_time"] = by_time(sw, runs)
+        if a.full:
+            report["stt_sweep"] = sw
         report["stt_sweep_seconds"] = time.perf_counter() - t0
         times = np.asarray(get_problem("nrho-flyby").grid)
         rows = []
         for i, rec in enumerate(sw):
             row = {"perilune_km": float(d[i]), "perilune_time": float(tt[i])}
-            for name in STT_RUNS:
+            for name in runs:
                 r = rec[name]
                 if "error" in r:
                     row[name] = None
@@ -211,7 +261,7 @@ def main(argv=None) -> dict:
             row["pointwise_err_at_1"] = float(rec["pointwise_err_order2"][-1])
             rows.append(row)
         report["stt_summary"] = rows
-        for name in STT_RUNS:
+        for name in runs:
             ok = [r for r in rows if r[name] is not None]
             npass = sum(r[name]["passes"] for r in ok)
             ft = np.array([r[name]["first_t_lower_over_target"] for r in ok])
@@ -222,19 +272,20 @@ def main(argv=None) -> dict:
         # by perilune distance
         order = np.argsort(d)
         print(f"\n{'perilune km':>12s} {'t_peri':>6s} | " + " | ".join(
-            f"{n}: first t > {TARGET}x, max ratio" for n in STT_RUNS) + " | order-2 err > 0.1 from, err at 1 TU")
+            f"{n}: first t > {TARGET}x, max ratio" for n in runs) + " | order-2 err > 0.1 from, err at 1 TU")
         for i in order[:: max(1, len(order) // 25)].tolist() + [int(order[-1])]:
             row = rows[i]
             cells = []
-            for n in STT_RUNS:
+            for n in runs:
                 c = row[n]
                 cells.append("error" if c is None else f"{c['first_t_lower_over_target']:5.2f} {c['max_ratio_lower']:9.3g}")
             print(f"{row['perilune_km']:12.0f} {row['perilune_time']:6.3f} | " + " | ".join(cells)
                   + f" | {row['first_t_pointwise_err_over_0.1']:5.2f} {row['pointwise_err_at_1']:9.3g}")
     out = Path(a.out)
     name = "foss_flyby_sensitivity" + ("" if a.half == HALF else f"_half{a.half:g}") + (
-        "" if a.reading == "paper" else "_" + a.reading.split()[0].replace(" ", "_")) + ".json"
-    atomic_write_text(out / name, json.dumps(report, indent=1))
+        "" if a.reading == "paper" else "_" + a.reading.split()[0].replace(" ", "_")) + (
+        "" if a.stt_runs == ",".join(STT_RUNS) else "_" + a.stt_runs.replace(",", "_")) + ".json"
+    atomic_write_text(out / name, json.dumps(compact(report), separators=(",", ":")))
     print(f"wrote {out / name}")
     return report
 
