@@ -40,8 +40,9 @@ from scipy.optimize import minimize
 from scipy.stats import qmc
 
 from ocreach.problem import get_problem
-from ocreach.problems.foss_ephemeris import EPOCH, X0, flyby_model, moon_position, perilune
+from ocreach.problems.foss_ephemeris import EPOCH, MOON_RADIUS_KM, X0, flyby_model, perilune
 from ocreach.reach.result import atomic_write_text
+from ocreach.units import EARTH_MOON_FOSS
 
 #: half width of the rounding box of the paper's two-digit x1 (``--half`` widens it to look beyond)
 HALF = 0.005
@@ -66,18 +67,19 @@ def box_points(n_sobol: int, half: float = HALF, seed: int = 0) -> tuple[np.ndar
 
 
 def summary(d: np.ndarray, t: np.ndarray, interior: np.ndarray) -> dict:
+    """Percentiles of the perilune distances ``d`` (km) and of the times ``t`` of the interior ones."""
     q = [0, 5, 25, 50, 75, 95, 100]
     return {"distance_km_percentiles": dict(zip(map(str, q), np.percentile(d, q).tolist())),
             "time_percentiles": dict(zip(map(str, q), np.percentile(t[interior], q).tolist()))
             if interior.any() else {},
             "interior": int(interior.sum()), "n": int(d.size),
-            "below_moon_radius": int((d < 1737.4).sum())}
+            "below_moon_radius": int((d < MOON_RADIUS_KM).sum())}
 
 
 def variants() -> dict:
     """Readings of the paper's setup: name -> (problem overrides of nrho-flyby or None for the
     CR3BP, transform of x1, model)."""
-    du = 3.825e5
+    du = EARTH_MOON_FOSS.length / 1e3  # km
     base = flyby_model()
     d_em = float(np.linalg.norm(base.cache["ephemeris"].position("moon", 0.0, "earth")))  # km at t0
     scale = d_em / du
@@ -90,7 +92,7 @@ def variants() -> dict:
         f"x1 in units of d_EM(t0) = {d_em:.0f} km": ({}, lambda X: X * scale),
     }
     out = {name: (kw, tf, flyby_model(kw["epoch"]) if kw else base) for name, (kw, tf) in readings.items()}
-    out["CR3BP (circular, DU = 382,500 km)"] = (None, same, flyby_model(circular=True))
+    out[f"CR3BP (circular, DU = {du:,.0f} km)"] = (None, same, flyby_model(circular=True))
     return out
 
 
