@@ -18,7 +18,9 @@ order 2 fails.
    extreme samples per part.
 4. Figure like Foss Fig. 6: x-y and y-z projections of the split order-1 sets with 100 extremals,
    and the extent ratio of every run against time.
-Writes ``OUT/foss_fig6_<problem>.png`` and ``OUT/foss_fig6_<problem>.json``.
+Writes ``OUT/foss_fig6_<problem>.png`` and ``OUT/foss_fig6_<problem>.json``; with ``--x0 X,Y,Z,VX,VY,VZ``
+(another x1, e.g. from ``examples/foss_flyby_sensitivity.py``) and/or ``--epoch`` the files are
+``OUT/foss_fig6_<problem>_<tag>.*`` (``--tag``, default from x0).
 """
 from __future__ import annotations
 
@@ -40,7 +42,10 @@ from ocreach.reach.stt import STTReach, stt_polynomial
 from ocreach.sets import PZUnion
 from ocreach.sets.pz_exact import support_bounds
 
-#: STT runs measured (name -> options); all with the problem's ball input (``ball_input="auto"``)
+#: STT runs measured (name -> options); all with the problem's ball input as 10-generator zonotopes
+#: (``ball_input="zonotope-coarse"``, passed explicitly so a change of the default does not change
+#: the runs, see :data:`BALL_INPUT`)
+BALL_INPUT = "zonotope-coarse"
 RUNS = {
     "o2_h60": dict(order=2, h_max=60),
     "o2_h60_box64": dict(order=2, h_max=60, split="box", max_parts=64),
@@ -144,9 +149,10 @@ def support_range(S, D: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
     return sb.lower, sb.upper
 
 
-def measure(problem, opts: dict, D: np.ndarray, truth: list, ref: np.ndarray) -> dict:
+def measure(problem, opts: dict, D: np.ndarray, truth: list, ref: np.ndarray,
+            divergence_factor: float = 1e30) -> dict:
     """One STT run (warm: the second of two), its runtime and its extents / margins per time."""
-    m = STTReach(**opts, divergence_factor=1e30)
+    m = STTReach(**{"ball_input": BALL_INPUT, **opts}, divergence_factor=divergence_factor)
     rec: dict = {"options": opts}
     try:
         m.solve(problem)  # warm-up (compiled code, caches)
@@ -175,32 +181,61 @@ def measure(problem, opts: dict, D: np.ndarray, truth: list, ref: np.ndarray) ->
     return rec
 
 
+def truth_data(p, extremals: int = 1000, mc_samples: int = 1000, directions: int = 64) -> dict:
+    """The truth the STT sets are measured against: ``mc_samples`` Monte Carlo endpoints (seed 3)
+    and ``extremals`` ``ode`` extremals per time; ``D`` (Fibonacci directions in position space),
+    ``ref`` (ballistic reference states), ``support[k]`` = max over the true points of ``D x`` at
+    time k, and the extents ``max_d (h(d) - d^T x_ref)`` of the ode and MC points per time."""
+    mc = ocreach.reach(p, "mc", samples=mc_samples, seed=3)
+    ode = ocreach.reach(p, "ode", samples=extremals)
+    D = sphere_directions(directions)
+    ref = stt_flow(p.model, p.x0, np.zeros((p.n_segments, p.model.n_u)), p.grid, 1, p=p.params).states
+
+    def extent(res):
+        return [float(np.max((np.asarray(P)[:, :3] - ref[k, :3]) @ D.T)) for k, P in enumerate(res.points)]
+
+    pts = [np.vstack([np.asarray(mc.points[k])[:, :3], np.asarray(ode.points[k])[:, :3]]) for k in range(p.grid.size)]
+    return {"mc": mc, "ode": ode, "D": D, "ref": ref, "support": [(P @ D.T).max(axis=0) for P in pts],
+            "ode_extent": extent(ode), "mc_extent": extent(mc)}
+
+
+def parse_x0(text: str) -> list[float]:
+    """``"0.91,-0.01,0.16,0.03,-0.08,0.01"`` (or a JSON list) -> 6 floats (checked by the problem)."""
+    return [float(v) for v in text.strip().strip("[]").split(",") if v.strip()]
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser()
     ap.add_argument("--problem", default="nrho-flyby")
     ap.add_argument("--out", default="docs/figures")
     ap.add_argument("--extremals", type=int, default=1000)
     ap.add_argument("--runs", default="", help="comma-separated names of RUNS (default: all)")
+    ap.add_argument("--x0", default=None, help="initial state X,Y,Z,VX,VY,VZ (DU, DU/TU; default the problem's)")
+    ap.add_argument("--epoch", default=None, help="TDB epoch of t = 0 (default the problem's)")
+    ap.add_argument("--tag", default=None, help="file name suffix with --x0 / --epoch (default from x0)")
+    ap.add_argument("--no-partition", action="store_true", help="skip the ideal-parts measurement")
     a = ap.parse_args(argv)
     out = Path(a.out)
-    p = get_problem(a.problem)
-    mc = ocreach.reach(p, "mc", samples=1000, seed=3)
-    ode = ocreach.reach(p, "ode", samples=a.extremals)
-    report: dict = {"problem": p.id, "times": p.grid.tolist(), "load_average": os.getloadavg(),
+    overrides = {k: v for k, v in (("x0", None if a.x0 is None else parse_x0(a.x0)), ("epoch", a.epoch))
+                 if v is not None}
+    p = get_problem(a.problem, **overrides)
+    stem = f"foss_fig6_{p.id}"
+    if overrides:
+        stem += "_" + (a.tag or "x0_" + "_".join(f"{v:.4f}" for v in p.x0))
+    tr = truth_data(p, a.extremals)
+    mc, ode, D, ref, truth_support = tr["mc"], tr["ode"], tr["D"], tr["ref"], tr["support"]
+    report: dict = {"problem": p.id, "x0": p.x0.tolist(), "epoch": p.extra.get("epoch"),
+                    "times": p.grid.tolist(), "load_average": os.getloadavg(),
                     "blas_threads": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
-                    "pointwise_err_over_extent": pointwise_errors(p, mc),
-                    "ideal_parts_err_over_extent": partition_errors(p, mc)}
-    D = sphere_directions(64)
-    ref = stt_flow(p.model, p.x0, np.zeros((p.n_segments, p.model.n_u)), p.grid, 1, p=p.params).states
-    pts = [np.vstack([np.asarray(mc.points[k])[:, :3], np.asarray(ode.points[k])[:, :3]]) for k in range(p.grid.size)]
-    truth = [(P @ D.T).max(axis=0) for P in pts]
-    report["ode_extent"] = [float(np.max((np.asarray(P)[:, :3] - ref[k, :3]) @ D.T)) for k, P in enumerate(ode.points)]
-    report["mc_extent"] = [float(np.max((np.asarray(P)[:, :3] - ref[k, :3]) @ D.T)) for k, P in enumerate(mc.points)]
+                    "pointwise_err_over_extent": pointwise_errors(p, mc)}
+    if not a.no_partition:
+        report["ideal_parts_err_over_extent"] = partition_errors(p, mc)
+    report["ode_extent"], report["mc_extent"] = tr["ode_extent"], tr["mc_extent"]
     runs = {}
     for name, opts in RUNS.items():
         if a.runs and name not in a.runs.split(","):
             continue
-        runs[name] = measure(p, opts, D, truth, ref)
+        runs[name] = measure(p, opts, D, truth_support, ref)
         r = runs[name]
         print(name, "error" if "error" in r else f"{r['runtime_s']:.2f} s", "parts", r.get("parts", [0])[-1],
               "ratio", " ".join(f"{v:.3g}" for v in r.get("extent_ratio_upper", [])[1::2]),
@@ -240,12 +275,13 @@ def main(argv=None) -> dict:
     ax.set_ylabel("STT extent / max(ode, mc) extent")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
-    fig.suptitle(f"{p.id}: STT sets and 100 ode extremals, t = 0..{p.grid[-1]:g} TU")
+    start = "" if not overrides else f" (x0 = {np.array2string(p.x0, precision=4, separator=', ')}, epoch {p.extra['epoch']})"
+    fig.suptitle(f"{p.id}{start}: STT sets and 100 ode extremals, t = 0..{p.grid[-1]:g} TU")
     fig.tight_layout()
-    save_figure(fig, out / f"foss_fig6_{p.id}.png", dpi=130)
-    atomic_write_text(out / f"foss_fig6_{p.id}.json", json.dumps(report, indent=1))
+    save_figure(fig, out / f"{stem}.png", dpi=130)
+    atomic_write_text(out / f"{stem}.json", json.dumps(report, indent=1))
     for key in ("pointwise_err_over_extent", "ideal_parts_err_over_extent"):
-        for k2, v2 in report[key].items():
+        for k2, v2 in report.get(key, {}).items():
             if isinstance(v2, list):
                 print(key, k2, " ".join(f"{v:.3g}" for v in v2[1::2]))
     return report
