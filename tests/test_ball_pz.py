@@ -9,6 +9,7 @@ support bounds in random directions (within [1, 1.03]) and a Bernstein proof of 
 from __future__ import annotations
 
 import itertools
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -28,9 +29,12 @@ from ocreach.sets.pz_exact import find_witnesses, support_bounds
 from _ball_certify import (
     _values,
     boundary_at_least_one,
+    boundary_at_least_one_exact,
     face_at_least,
     max_over_unit_box,
+    max_over_unit_box_exact,
     squared_norm_in_squares,
+    squared_norm_in_squares_exact,
 )
 
 LEAVES = [("d4", 2), ("d6", 2), ("b3", 3)]
@@ -94,6 +98,47 @@ def test_cube_to_ball_pz_radius_is_proved_within_3_percent(n):
     P = unit_ball_pz(n)
     C = squared_norm_in_squares(np.asarray(P.G), P.E)
     assert max_over_unit_box(C, {3: 1.0012, 4: 1.0030, 5: 1.0230}[n] ** 2, max_boxes=200_000)[0]
+
+
+def test_exact_certifier_matches_dense_evaluation():
+    """The exact-rational certifier: proved above the dense maximum + 1e-3, refused below it."""
+    rng = np.random.default_rng(1)
+    for m, deg in [(1, 4), (2, 3), (3, 2)]:
+        C = rng.normal(size=(deg + 1,) * m)
+        g = np.linspace(0, 1, 101 if m < 3 else 41)
+        X = np.array(list(itertools.product(g, repeat=m)))
+        vals = np.zeros(len(X))
+        for e in itertools.product(range(deg + 1), repeat=m):
+            vals += C[e] * np.prod(X ** np.array(e), axis=1)
+        top = vals.max()
+        Cq = np.vectorize(Fraction, otypes=[object])(C)
+        assert max_over_unit_box_exact(Cq, top + 1e-3)[0]
+        assert not max_over_unit_box_exact(Cq, top - 1e-3)[0]
+
+
+@pytest.mark.parametrize("kind, n", LEAVES)
+def test_leaf_proofs_hold_in_exact_arithmetic(kind, n):
+    """The float certificates above round in |F|^2's coefficients and in the Bernstein basis
+    change; redone in exact rationals (the stored float coefficients taken exactly), the leaves'
+    containment (|F| >= 1 on the boundary) and radius (max |F| <= LEAF_RADIUS) are proofs without
+    a round-off caveat; a set shrunk by 0.1 % and a radius 1e-4 below are refused."""
+    P = compact_ball_pz(n, plan=kind)
+    G, E = np.asarray(P.G), np.asarray(P.E)
+    assert boundary_at_least_one_exact(G, E)
+    assert not boundary_at_least_one_exact(0.999 * G, E)
+    C = squared_norm_in_squares_exact(G, E)
+    R = Fraction(LEAF_RADIUS[kind])
+    assert max_over_unit_box_exact(C, R * R)[0]
+    assert not max_over_unit_box_exact(C, (R - Fraction(1, 10_000)) ** 2)[0]
+
+
+def test_cube_to_ball_3d_proofs_hold_in_exact_arithmetic():
+    """unit_ball_pz(3) (48 generators): |F| >= 1 on the boundary (dense sampling: min 1.00003,
+    a thin margin) and radius <= 1.0012, in exact rationals."""
+    P = unit_ball_pz(3)
+    G, E = np.asarray(P.G), np.asarray(P.E)
+    assert boundary_at_least_one_exact(G, E)
+    assert max_over_unit_box_exact(squared_norm_in_squares_exact(G, E), Fraction(1.0012) ** 2)[0]
 
 
 # ------------------------------------------------------------------ products: n-D
