@@ -28,8 +28,9 @@ inequality holds with a margin that a finite certificate can see):
 * ``"i"``: 1-D, the interval [-1, 1].
 
 :data:`LEAF_RADIUS` holds radii proved in tests/test_ball_pz.py (``|F| >= 1`` on the boundary and
-``max |F| <= R`` over the cube, by adaptive subdivision with Lipschitz bounds of the monomials,
-i.e. a finite proof, not a sample).  :func:`compact_ball_pz` builds the n-D ball from the leaves
+``max |F| <= R`` over the cube, by Bernstein bounds of ``|F|^2`` as a polynomial in the squared
+factors with subdivision, i.e. a finite proof, not a sample; done in floating point and, for the
+leaves, again in exact rational arithmetic, so it holds for the coefficients as stored).  :func:`compact_ball_pz` builds the n-D ball from the leaves
 by Lemma 2 with the fewest generators whose radius bound is at most :data:`RADIUS_TARGET`.
 """
 from __future__ import annotations
