@@ -132,13 +132,25 @@ def test_leaf_proofs_hold_in_exact_arithmetic(kind, n):
     assert not max_over_unit_box_exact(C, (R - Fraction(1, 10_000)) ** 2)[0]
 
 
-def test_cube_to_ball_3d_proofs_hold_in_exact_arithmetic():
-    """unit_ball_pz(3) (48 generators): |F| >= 1 on the boundary (dense sampling: min 1.00003,
-    a thin margin) and radius <= 1.0012, in exact rationals."""
-    P = unit_ball_pz(3)
+@pytest.mark.parametrize("n, R", [(3, 1.0012), (4, 1.0030)])
+def test_cube_to_ball_proofs_hold_in_exact_arithmetic(n, R):
+    """unit_ball_pz(3 / 4) (48 / 256 generators): |F| >= 1 on the boundary of the factor cube (so
+    Lemma 1 of ball_pz gives containment directly; dense sampling in 3-D: min 1.00003, a thin
+    margin) and radius <= R, in exact rationals (n = 5 takes ~25 s exact: float below)."""
+    P = unit_ball_pz(n)
     G, E = np.asarray(P.G), np.asarray(P.E)
+    assert P.n_factors == n and np.all(E.sum(axis=0) % 2 == 1) and np.all(P.c == 0)
     assert boundary_at_least_one_exact(G, E)
-    assert max_over_unit_box_exact(squared_norm_in_squares_exact(G, E), Fraction(1.0012) ** 2)[0]
+    assert max_over_unit_box_exact(squared_norm_in_squares_exact(G, E), Fraction(R) ** 2)[0]
+
+
+def test_cube_to_ball_5d_boundary_certificate():
+    """unit_ball_pz(5): |F| >= 1 on the boundary (Lemma 1 containment), float certifier."""
+    P = unit_ball_pz(5)
+    G, E = np.asarray(P.G), np.asarray(P.E)
+    assert P.n_factors == 5 and np.all(E.sum(axis=0) % 2 == 1) and np.all(P.c == 0)
+    assert boundary_at_least_one(G, E)
+    assert not boundary_at_least_one(0.995 * G, E)
 
 
 # ------------------------------------------------------------------ products: n-D
