@@ -227,6 +227,10 @@ def test_compact_ball_bad_input():
         compact_ball_pz(3, plan="d4")
     with pytest.raises(SetError, match="no plan with radius <= 1.001"):
         compact_ball_plan(4, 1.001)
+    # ids: one per factor (8 for n = 6), not one per dimension; named in the message
+    with pytest.raises(SetError, match=r"ids must hold one identifier per factor, 8 for n=6"):
+        unit_ball_pz(6, ids=list(range(6)))
+    assert list(compact_ball_pz(6, ids=list(range(100, 108))).id) == list(range(100, 108))
 
 
 # ------------------------------------------------------------------ the stt input

@@ -421,11 +421,15 @@ class STTReach(Method):
         ``input_set`` [None]: ``"box"`` or ``"ball"``; None = the problem's control set.
         ``ball_input`` ["auto"]: representation of a ball input: ``"auto"`` (per input
         dimension :data:`BALL_INPUT_AUTO`: ``"zonotope"`` in 2-D, ``"zonotope-coarse"`` in
-        3-D, chosen by measurement), ``"zonotope"`` (outer
-        zonotope within 3 % of the ball: 8 generators in 2-D, 30 in 3-D; tighter reachable sets
-        after reductions, see docs/stt.md), ``"zonotope-coarse"`` (6 / 10 generators, within
-        3.5 % / 9.6 %; the default before issue 12's 3 % target) or ``"pz"`` (Foss Eq. 16 in
-        2-D, the cube-to-ball polynomial in 3-D).
+        3-D and 4-D, chosen by measurement; 1-D the interval, 5-D and up ``"pz-compact"``,
+        :data:`BALL_INPUT_AUTO_ND`, not measured on a problem), ``"zonotope"`` (outer
+        zonotope: 8 generators in 2-D and 30 in 3-D, within 3 % of the ball; 24 in 4-D, within
+        9.9 %; 2 n loose random directions beyond; tighter reachable sets after reductions, see
+        docs/stt.md), ``"zonotope-coarse"`` (6 / 10 / 16 generators in 2-D / 3-D / 4-D, within
+        3.5 % / 9.6 % / 14.7 %), ``"pz"`` (Foss Eq. 16 in 2-D, the cube-to-ball polynomial
+        in 3-D to 5-D, the compact PZ beyond) or ``"pz-compact"`` (products of small
+        polynomial balls, :func:`ocreach.sets.ball_pz.compact_ball_pz`, within 3 % in every
+        dimension).
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
         ``split`` [None]: how a part is split where the STT polynomial is not valid over it
         (:mod:`ocreach.reach.stt_split`): ``"factor"`` (exact, halves the dependent factor with

@@ -173,6 +173,9 @@ def compact_ball_pz(n: int, ids: Any = None, plan: Any = None):
     comps, m = _build(tree)
     if len(comps) != n:
         raise SetError(f"compact_ball_pz: plan {tree!r} is {len(comps)}-D, not n={n}")
+    if ids is not None and np.atleast_1d(np.asarray(ids)).shape != (m,):
+        raise SetError(f"compact_ball_pz: ids must hold one identifier per factor, {m} for n={n} "
+                       f"(plan {tree!r}); got shape {np.atleast_1d(np.asarray(ids)).shape}")
     cols, exps = [], []
     for i, poly in enumerate(comps):
         for e, v in poly.items():
@@ -180,8 +183,7 @@ def compact_ball_pz(n: int, ids: Any = None, plan: Any = None):
             g[i] = v
             cols.append(g)
             exps.append(e)
-    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T,
-                        ids if ids is not None else None)
+    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T, ids)
 
 
 def plan_radius(tree: Any) -> float:
