@@ -168,7 +168,11 @@ def max_over_unit_box_exact(C, bound, max_level=40, max_boxes=20_000):
     return True, count
 
 
-def boundary_at_least_one_exact(G, E):
-    """:func:`boundary_at_least_one` in exact rational arithmetic."""
+def boundary_at_least_one_exact(G, E, r=1):
+    """:func:`boundary_at_least_one` in exact rational arithmetic (``|F| >= r`` with ``r``, a float
+    or ``Fraction``, taken exactly; default 1)."""
+    from fractions import Fraction
+
     C = squared_norm_in_squares_exact(G, E)
-    return C is not None and all(max_over_unit_box_exact(-C.sum(axis=k), -1)[0] for k in range(C.ndim))
+    r2 = Fraction(r) ** 2
+    return C is not None and all(max_over_unit_box_exact(-C.sum(axis=k), -r2)[0] for k in range(C.ndim))
