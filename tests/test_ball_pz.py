@@ -127,7 +127,7 @@ def test_leaf_proofs_hold_in_exact_arithmetic(kind, n):
     assert boundary_at_least_one_exact(G, E)
     assert not boundary_at_least_one_exact(0.999 * G, E)
     if n == 2:   # the disks' margin, which covers the products' rounding (ball_pz docstring)
-        assert boundary_at_least_one_exact(G, E, Fraction(10005, 10000))
+        assert boundary_at_least_one_exact(G, E, Fraction(10004, 10000))
         assert not boundary_at_least_one_exact(G, E, Fraction(10007, 10000))
     C = squared_norm_in_squares_exact(G, E)
     R = Fraction(LEAF_RADIUS[kind])

@@ -33,9 +33,10 @@ factors with subdivision, i.e. a finite proof, not a sample; done in floating po
 leaves, again in exact rational arithmetic, so it holds for the coefficients as stored).  :func:`compact_ball_pz` builds the n-D ball from the leaves
 by Lemma 2 with the fewest generators whose radius bound is at most :data:`RADIUS_TARGET`.
 The products' coefficients are float products of the leaves' (relative error ~1e-16); the leaves
-used as the disk keep ``|F| >= 1.0005`` on the boundary (d6: ``c0 = 1.0005`` at ``a2 = 0``; d4
-sampled 1.0006), so the exact product contains 1.0005 times the ball (scale ``(c, s)`` in the
-proof of Lemma 2) and the rounding (~1e-15 per point) stays far inside that margin.
+used as the disk keep ``|F| >= 1.0004`` on the boundary (proved exactly in tests/test_ball_pz.py;
+d6 touches ``c0 = 1.0005`` at ``a2 = 0``, d4 ~1.0006), so the exact product contains 1.0004 times
+the ball (scale ``(c, s)`` in the proof of Lemma 2) and the rounding (~1e-15 per point) stays far
+inside that margin.
 """
 from __future__ import annotations
 
