@@ -77,7 +77,9 @@ BALL_ZONOTOPE_GENERATORS_COARSE = {2: 6, 3: 10, 4: 16}
 BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse", 4: "zonotope-coarse"}
 #: ``ball_input="auto"`` in the other dimensions: 1-D the interval, 5-D and up the compact PZ of
 #: :mod:`ocreach.sets.ball_pz` (support in [1, 1.03]; not measured on a problem, chosen because
-#: the only zonotope there is the loose 2 n one, which lost at every horizon in 4-D)
+#: the only zonotope there is the loose 2 n one; in 4-D the compact PZ beat that one up to 10
+#: steps but lost to it at 15 (+90 % / +144 % against +64 % / +76 %, h_max 400 / 200), so for
+#: long horizons in 5-D and up this default is unverified)
 BALL_INPUT_AUTO_ND = "pz-compact"
 REDUCTIONS = ("pca", "girard")
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
@@ -419,11 +421,15 @@ class STTReach(Method):
         ``input_set`` [None]: ``"box"`` or ``"ball"``; None = the problem's control set.
         ``ball_input`` ["auto"]: representation of a ball input: ``"auto"`` (per input
         dimension :data:`BALL_INPUT_AUTO`: ``"zonotope"`` in 2-D, ``"zonotope-coarse"`` in
-        3-D, chosen by measurement), ``"zonotope"`` (outer
-        zonotope within 3 % of the ball: 8 generators in 2-D, 30 in 3-D; tighter reachable sets
-        after reductions, see docs/stt.md), ``"zonotope-coarse"`` (6 / 10 generators, within
-        3.5 % / 9.6 %; the default before issue 12's 3 % target) or ``"pz"`` (Foss Eq. 16 in
-        2-D, the cube-to-ball polynomial in 3-D).
+        3-D and 4-D, chosen by measurement; 1-D the interval, 5-D and up ``"pz-compact"``,
+        :data:`BALL_INPUT_AUTO_ND`, not measured on a problem), ``"zonotope"`` (outer
+        zonotope: 8 generators in 2-D and 30 in 3-D, within 3 % of the ball; 24 in 4-D, within
+        9.9 %; 2 n loose random directions beyond; tighter reachable sets after reductions, see
+        docs/stt.md), ``"zonotope-coarse"`` (6 / 10 / 16 generators in 2-D / 3-D / 4-D, within
+        3.5 % / 9.6 % / 14.7 %), ``"pz"`` (Foss Eq. 16 in 2-D, the cube-to-ball polynomial
+        in 3-D to 5-D, the compact PZ beyond) or ``"pz-compact"`` (products of small
+        polynomial balls, :func:`ocreach.sets.ball_pz.compact_ball_pz`, within 3 % in every
+        dimension).
         ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
         ``split`` [None]: how a part is split where the STT polynomial is not valid over it
         (:mod:`ocreach.reach.stt_split`): ``"factor"`` (exact, halves the dependent factor with

@@ -28,9 +28,15 @@ inequality holds with a margin that a finite certificate can see):
 * ``"i"``: 1-D, the interval [-1, 1].
 
 :data:`LEAF_RADIUS` holds radii proved in tests/test_ball_pz.py (``|F| >= 1`` on the boundary and
-``max |F| <= R`` over the cube, by adaptive subdivision with Lipschitz bounds of the monomials,
-i.e. a finite proof, not a sample).  :func:`compact_ball_pz` builds the n-D ball from the leaves
+``max |F| <= R`` over the cube, by Bernstein bounds of ``|F|^2`` as a polynomial in the squared
+factors with subdivision, i.e. a finite proof, not a sample; done in floating point and, for the
+leaves, again in exact rational arithmetic, so it holds for the coefficients as stored).  :func:`compact_ball_pz` builds the n-D ball from the leaves
 by Lemma 2 with the fewest generators whose radius bound is at most :data:`RADIUS_TARGET`.
+The products' coefficients are float products of the leaves' (relative error ~1e-16); the leaves
+used as the disk keep ``|F| >= 1.0004`` on the boundary (proved exactly in tests/test_ball_pz.py;
+d6 touches ``c0 = 1.0005`` at ``a2 = 0``, d4 ~1.0006), so the exact product contains 1.0004 times
+the ball (scale ``(c, s)`` in the proof of Lemma 2) and the rounding (~1e-15 per point) stays far
+inside that margin.
 """
 from __future__ import annotations
 
@@ -172,6 +178,9 @@ def compact_ball_pz(n: int, ids: Any = None, plan: Any = None):
     comps, m = _build(tree)
     if len(comps) != n:
         raise SetError(f"compact_ball_pz: plan {tree!r} is {len(comps)}-D, not n={n}")
+    if ids is not None and np.atleast_1d(np.asarray(ids)).shape != (m,):
+        raise SetError(f"compact_ball_pz: ids must hold one identifier per factor, {m} for n={n} "
+                       f"(plan {tree!r}); got shape {np.atleast_1d(np.asarray(ids)).shape}")
     cols, exps = [], []
     for i, poly in enumerate(comps):
         for e, v in poly.items():
@@ -179,8 +188,7 @@ def compact_ball_pz(n: int, ids: Any = None, plan: Any = None):
             g[i] = v
             cols.append(g)
             exps.append(e)
-    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T,
-                        ids if ids is not None else None)
+    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T, ids)
 
 
 def plan_radius(tree: Any) -> float:
