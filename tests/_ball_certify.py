@@ -23,19 +23,25 @@ def _values(G, E, A):
     return M @ np.asarray(G, float).T
 
 
-def squared_norm_in_squares(G, E):
+def squared_norm_in_squares(G, E, exact=False):
     """``|F|^2`` as a polynomial in ``x = a^2`` (dense coefficient tensor), or None when some
-    component mixes parity patterns (then it is not one)."""
+    component mixes parity patterns (then it is not one).  ``exact``: in exact rationals (an
+    object array of ``Fraction``; floats are dyadic rationals, so the stored generators are read
+    exactly), else in floats."""
+    from fractions import Fraction
+
     G, E = np.asarray(G, float), np.asarray(E, int)
+    num = (lambda v: Fraction(float(v))) if exact else float
     terms: dict = {}
     for i in range(G.shape[0]):
         hs = np.flatnonzero(G[i])
         if len({tuple(E[:, h] % 2) for h in hs}) > 1:
             return None
         for h1, h2 in itertools.product(hs, hs):
-            e = tuple((E[:, h1] + E[:, h2]) // 2)
-            terms[e] = terms.get(e, 0.0) + G[i, h1] * G[i, h2]
-    C = np.zeros(tuple(np.max(np.array(list(terms)), axis=0) + 1))
+            e = tuple(int(v) for v in (E[:, h1] + E[:, h2]) // 2)
+            terms[e] = terms.get(e, num(0)) + num(G[i, h1]) * num(G[i, h2])
+    shape = tuple(int(v) for v in np.max(np.array(list(terms)), axis=0) + 1)
+    C = np.full(shape, num(0), dtype=object) if exact else np.zeros(shape)
     for e, v in terms.items():
         C[e] += v
     return C
@@ -98,26 +104,6 @@ def boundary_at_least_one(G, E):
 # coefficients are represented exactly), with de Casteljau halving (exact), so their True is a
 # proof for the coefficients exactly as stored.  Pure Python: meant for the small leaves.
 
-def squared_norm_in_squares_exact(G, E):
-    """:func:`squared_norm_in_squares` in exact rationals (object array of ``Fraction``)."""
-    from fractions import Fraction
-
-    G, E = np.asarray(G, float), np.asarray(E, int)
-    terms: dict = {}
-    for i in range(G.shape[0]):
-        hs = np.flatnonzero(G[i])
-        if len({tuple(E[:, h] % 2) for h in hs}) > 1:
-            return None
-        for h1, h2 in itertools.product(hs, hs):
-            e = tuple(int(v) for v in (E[:, h1] + E[:, h2]) // 2)
-            terms[e] = terms.get(e, Fraction(0)) + Fraction(float(G[i, h1])) * Fraction(float(G[i, h2]))
-    shape = tuple(int(v) for v in np.max(np.array(list(terms)), axis=0) + 1)
-    C = np.full(shape, Fraction(0), dtype=object)
-    for e, v in terms.items():
-        C[e] += v
-    return C
-
-
 def _to_bernstein_exact(C):
     """Bernstein coefficients on ``[0, 1]^m`` of the dense monomial coefficients ``C`` (exact)."""
     from fractions import Fraction
@@ -173,6 +159,6 @@ def boundary_at_least_one_exact(G, E, r=1):
     or ``Fraction``, taken exactly; default 1)."""
     from fractions import Fraction
 
-    C = squared_norm_in_squares_exact(G, E)
+    C = squared_norm_in_squares(G, E, exact=True)
     r2 = Fraction(r) ** 2
     return C is not None and all(max_over_unit_box_exact(-C.sum(axis=k), -r2)[0] for k in range(C.ndim))

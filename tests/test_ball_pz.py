@@ -34,7 +34,6 @@ from _ball_certify import (
     max_over_unit_box,
     max_over_unit_box_exact,
     squared_norm_in_squares,
-    squared_norm_in_squares_exact,
 )
 
 LEAVES = [("d4", 2), ("d6", 2), ("b3", 3)]
@@ -46,20 +45,6 @@ def _unit(rng, N, n):
 
 
 # ------------------------------------------------------------------ the certifiers can fail
-def test_bernstein_bound_matches_dense_evaluation():
-    """max over [0, 1]^m of random polynomials: proved above the dense maximum + 1e-3, refused
-    below the dense maximum (a counterexample is found)."""
-    rng = np.random.default_rng(0)
-    for m, deg in [(1, 4), (2, 3), (3, 2)]:
-        C = rng.normal(size=(deg + 1,) * m)
-        g = np.linspace(0, 1, 201 if m < 3 else 61)
-        X = np.array(list(itertools.product(g, repeat=m)))
-        vals = np.zeros(len(X))
-        for e in itertools.product(range(deg + 1), repeat=m):
-            vals += C[e] * np.prod(X ** np.array(e), axis=1)
-        top = vals.max()
-        assert max_over_unit_box(C, top + 1e-3)[0]
-        assert not max_over_unit_box(C, top - 1e-3)[0]
 
 
 def test_boundary_certificate_refuses_a_set_inside_the_ball():
@@ -100,20 +85,32 @@ def test_cube_to_ball_pz_radius_is_proved_within_3_percent(n):
     assert max_over_unit_box(C, {3: 1.0012, 4: 1.0030, 5: 1.0230}[n] ** 2, max_boxes=200_000)[0]
 
 
-def test_exact_certifier_matches_dense_evaluation():
-    """The exact-rational certifier: proved above the dense maximum + 1e-3, refused below it."""
-    rng = np.random.default_rng(1)
+def _float_certifier(C, bound):
+    return max_over_unit_box(C, bound)[0]
+
+
+def _exact_certifier(C, bound):
+    return max_over_unit_box_exact(np.vectorize(Fraction, otypes=[object])(C), bound)[0]
+
+
+@pytest.mark.parametrize("certify, seed, grid", [(_float_certifier, 0, (201, 61)),
+                                                 (_exact_certifier, 1, (101, 41))],
+                         ids=["float", "exact"])
+def test_certifier_matches_dense_evaluation(certify, seed, grid):
+    """max over [0, 1]^m of random polynomials: the Bernstein certifier (floats, and exact
+    rationals) proves the dense maximum + 1e-3 and refuses the dense maximum - 1e-3 (a
+    counterexample is found)."""
+    rng = np.random.default_rng(seed)
     for m, deg in [(1, 4), (2, 3), (3, 2)]:
         C = rng.normal(size=(deg + 1,) * m)
-        g = np.linspace(0, 1, 101 if m < 3 else 41)
+        g = np.linspace(0, 1, grid[0] if m < 3 else grid[1])
         X = np.array(list(itertools.product(g, repeat=m)))
         vals = np.zeros(len(X))
         for e in itertools.product(range(deg + 1), repeat=m):
             vals += C[e] * np.prod(X ** np.array(e), axis=1)
         top = vals.max()
-        Cq = np.vectorize(Fraction, otypes=[object])(C)
-        assert max_over_unit_box_exact(Cq, top + 1e-3)[0]
-        assert not max_over_unit_box_exact(Cq, top - 1e-3)[0]
+        assert certify(C, top + 1e-3)
+        assert not certify(C, top - 1e-3)
 
 
 @pytest.mark.parametrize("kind, n", LEAVES)
@@ -129,7 +126,7 @@ def test_leaf_proofs_hold_in_exact_arithmetic(kind, n):
     if n == 2:   # the disks' margin, which covers the products' rounding (ball_pz docstring)
         assert boundary_at_least_one_exact(G, E, Fraction(10004, 10000))
         assert not boundary_at_least_one_exact(G, E, Fraction(10007, 10000))
-    C = squared_norm_in_squares_exact(G, E)
+    C = squared_norm_in_squares(G, E, exact=True)
     R = Fraction(LEAF_RADIUS[kind])
     assert max_over_unit_box_exact(C, R * R)[0]
     assert not max_over_unit_box_exact(C, (R - Fraction(1, 10_000)) ** 2)[0]
@@ -144,7 +141,7 @@ def test_cube_to_ball_proofs_hold_in_exact_arithmetic(n, R):
     G, E = np.asarray(P.G), np.asarray(P.E)
     assert P.n_factors == n and np.all(E.sum(axis=0) % 2 == 1) and np.all(P.c == 0)
     assert boundary_at_least_one_exact(G, E)
-    assert max_over_unit_box_exact(squared_norm_in_squares_exact(G, E), Fraction(R) ** 2)[0]
+    assert max_over_unit_box_exact(squared_norm_in_squares(G, E, exact=True), Fraction(R) ** 2)[0]
 
 
 def test_cube_to_ball_5d_boundary_certificate():

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets.convert import _poly_mul  # product of polynomials as {exponent tuple: coefficient}
 
 #: issue 12's target: the input set's support within 3 % of the ball's
 RADIUS_TARGET = 1.03
@@ -92,15 +93,6 @@ def _shift(poly: dict, before: int, after: int) -> dict:
     return {(0,) * before + e + (0,) * after: v for e, v in poly.items()}
 
 
-def _times(p: dict, q: dict) -> dict:
-    """Product of two polynomials in disjoint factors (exponent tuples of equal length)."""
-    out: dict = {}
-    for (ea, ca), (eb, cb) in itertools.product(p.items(), q.items()):
-        e = tuple(x + y for x, y in zip(ea, eb))
-        out[e] = out.get(e, 0.0) + ca * cb
-    return out
-
-
 def _build(tree: Any) -> tuple[list[dict], int]:
     """Component polynomials and factor count of a plan tree: a leaf name or
     ``(disk, left, right)`` (Lemma 2)."""
@@ -113,8 +105,8 @@ def _build(tree: Any) -> tuple[list[dict], int]:
     m = md + mx + my
     c = _shift(D[0], 0, mx + my)
     s = _shift(D[1], 0, mx + my)
-    comps = ([_times(c, _shift(x, md, my)) for x in X]
-             + [_times(s, _shift(y, md + mx, 0)) for y in Y])
+    comps = ([_poly_mul(c, _shift(x, md, my)) for x in X]
+             + [_poly_mul(s, _shift(y, md + mx, 0)) for y in Y])
     return comps, m
 
 
