@@ -24,8 +24,10 @@ if TYPE_CHECKING:
     from ocreach.sets.zonotope import Zonotope
 
 _METHODS = ("girard", "pca")
-#: ``group`` values of :func:`reduce_pz` (None: every removed monomial enclosed on its own).
-GROUPS = (None, "parallel")
+#: ``group`` values of :func:`reduce_pz` (None: every removed monomial enclosed on its own;
+#: ``"parallel"``: removed parallel monomials enclosed together; ``"parallel-keep"`` /
+#: ``"parallel-drop"``: also a group split by the kept/removed ranking is kept / removed whole).
+GROUPS = (None, "parallel", "parallel-keep", "parallel-drop")
 #: removed generators whose unit directions agree to this (after sign normalisation, on a grid of
 #: this spacing) form one group; the residual off the group's direction is boxed on its own.
 PARALLEL_RTOL = 1e-6
@@ -155,9 +157,12 @@ def scalar_range(alpha: np.ndarray, E: np.ndarray, tol: float = 0.02, max_boxes:
     The upper bounds of the branch and bound of :func:`ocreach.sets.pz_exact.support_bounds` on the
     1-D polynomial zonotope ``<0, alpha, [], E>`` in the directions +1 and -1, intersected with
     the monomial-wise interval sum (odd monomials ``[-|alpha|, |alpha|]``, all-even ones between 0
-    and ``alpha``), so the range is never wider than the separate enclosures it replaces.
+    and ``alpha``), so the range is never wider than the separate enclosures it replaces.  When
+    points of ``{-1, 0, 1}^p`` (all for p <= 5, else 243 fixed random ones) attain the interval
+    sum within ``tol`` of its width, the interval sum is returned at once (it is then the range
+    up to ``tol``; most groups of generic sets are such).
     """
-    from ocreach.sets.polyzonotope import PolyZonotope
+    from ocreach.sets.polyzonotope import PolyZonotope, monomial_values
     from ocreach.sets.pz_exact import support_bounds
 
     E = np.asarray(E, dtype=np.int64)
@@ -172,6 +177,14 @@ def scalar_range(alpha: np.ndarray, E: np.ndarray, tol: float = 0.02, max_boxes:
     keep = ~const
     if not keep.any():
         return c0, c0
+    # the interval sum is attained (within tol) at points of {-1, 0, 1}^p: no branch and bound
+    p = E.shape[0]
+    pts = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * p)).reshape(p, -1).T if p <= 5 else \
+        np.random.default_rng(0).integers(-1, 2, (243, p)).astype(float)
+    vals = c0 + monomial_values(pts, E[:, keep]) @ alpha[keep]
+    slack = tol * (hi_n - lo_n)
+    if vals.max() >= hi_n - slack and vals.min() <= lo_n + slack:
+        return lo_n, hi_n
     P = PolyZonotope._own(np.array([c0]), alpha[None, keep].astype(float), np.zeros((1, 0)),
                           E[:, keep], np.arange(E.shape[0], dtype=np.int64))
     sb = support_bounds(P, np.array([[1.0], [-1.0]]), tol=tol, max_boxes=max_boxes, max_iter=max_iter)
@@ -200,7 +213,7 @@ def enclose_removed(G: np.ndarray, E: np.ndarray, group: str | None = None,
 
     if group is None:
         return enclose_monomials(G, E)
-    check_group(group)
+    check_group(group)                                      # every other value groups
     groups = parallel_groups(G, rtol)
     if len(groups) > max_groups:  # the range costs ~10 ms a group: only the widest groups
         width = np.array([np.linalg.norm(G[:, g], axis=0).sum() for g in groups])
@@ -230,6 +243,41 @@ def enclose_removed(G: np.ndarray, E: np.ndarray, group: str | None = None,
     return shift + rs, np.hstack([rg, np.column_stack(gens), np.diag(up(err, 2))])
 
 
+def regroup_keep(G: np.ndarray, dep: np.ndarray, keep: np.ndarray, norms: np.ndarray,
+                 group: str | None, rtol: float = PARALLEL_RTOL) -> np.ndarray:
+    """The kept/removed split ``keep`` (m,) of the candidate generators ``G`` (n, m) (``dep``:
+    dependent ones) with the groups of parallel dependent generators it splits made whole:
+    ``"parallel-keep"`` keeps the removed members of such a group and removes as many of the
+    smallest other kept generators (the count stays; groups with the most removed weight
+    first, a group that does not fit stays split); ``"parallel-drop"`` removes the kept
+    members (fewer generators; the group is then enclosed by its range,
+    :func:`enclose_removed`).  Other ``group`` values: ``keep`` unchanged."""
+    if group not in ("parallel-keep", "parallel-drop") or keep.all() or not keep.any():
+        return keep
+    idx = np.flatnonzero(dep)
+    mixed = [idx[g] for g in parallel_groups(G[:, idx], rtol) if 0 < keep[idx[g]].sum() < g.size]
+    if not mixed:
+        return keep
+    keep = keep.copy()
+    members = np.concatenate(mixed)
+    if group == "parallel-drop":
+        keep[members] = False
+        return keep
+    # keep: the groups with the most removed weight first, each only while the other kept
+    # generators (smallest first, not members of a group made whole) can make room for it
+    protected = np.zeros(keep.size, dtype=bool)
+    for g in sorted(mixed, key=lambda g: -norms[g][~keep[g]].sum()):
+        extra = int((~keep[g]).sum())
+        free = np.flatnonzero(keep & ~protected)
+        free = free[~np.isin(free, g)]
+        if extra > free.size:
+            continue
+        keep[free[np.argsort(norms[free], kind="stable")[:extra]]] = False
+        keep[g] = True
+        protected[g] = True
+    return keep
+
+
 def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca", group: str | None = None) -> PolyZonotope:
     """Reduce a polynomial zonotope to at most ``h_max`` generators in total (dependent + independent).
 
@@ -239,6 +287,8 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca", group: str | No
     ``group="parallel"``: the removed dependent generators that are (nearly) parallel are
     enclosed together by the range of their scalar polynomial (:func:`enclose_removed`), which
     keeps the cancellations between their monomials; None (default): each on its own.
+    ``"parallel-keep"`` / ``"parallel-drop"``: as ``"parallel"``, and a group that the ranking
+    splits is kept / removed whole (:func:`regroup_keep`).
     """
     from ocreach.sets.polyzonotope import PolyZonotope
 
@@ -259,6 +309,8 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca", group: str | No
         keep_idx = np.zeros(0, dtype=np.int64)
     keep = np.zeros(h + q, dtype=bool)
     keep[keep_idx] = True
+    if group in ("parallel-keep", "parallel-drop"):
+        keep = regroup_keep(np.hstack([pz.G, pz.GI]), np.arange(h + q) < h, keep, norms, group)
     kd, ki = keep[:h], keep[h:]
     # enclose the removed dependent part
     shift, Gz = enclose_removed(pz.G[:, ~kd], pz.E[:, ~kd], group)
