@@ -55,15 +55,32 @@ def assert_contains_pointwise(orig, red, rng, N=120):
         assert lp_in_zonotope(np.zeros(red.dim), red.GI, x - xd, tol=1e-9)
 
 
+@pytest.mark.parametrize("group", ["parallel", "parallel-keep", "parallel-drop"])
 @SET
 @given(seed=st.integers(0, 10_000), n=st.integers(1, 3), q=st.integers(0, 2))
-def test_grouped_reduction_contains_every_point_with_the_same_factors(seed, n, q):
+def test_grouped_reduction_contains_every_point_with_the_same_factors(group, seed, n, q):
     rng = np.random.default_rng(seed)
     pz = grouped_pz(rng, n, int(rng.integers(1, 4)), 3, 4, 5, q)
     h_max = int(rng.integers(n, pz.n_generators))
-    red = R.reduce_pz(pz, h_max, "pca", group="parallel")
+    red = R.reduce_pz(pz, h_max, "pca", group=group)
     assert red.n_generators <= h_max
     assert_contains_pointwise(pz, red, rng)
+
+
+def test_regroup_keep_makes_split_groups_whole_within_the_budget():
+    rng = np.random.default_rng(1)
+    d = rng.standard_normal(3)
+    G = np.column_stack([3 * d, 0.1 * d, 0.05 * d] + [rng.standard_normal(3) for _ in range(5)])
+    norms = np.linalg.norm(G, axis=0)
+    dep = np.ones(8, dtype=bool)
+    keep = np.zeros(8, dtype=bool)
+    keep[np.argsort(-norms)[:4]] = True
+    assert keep[0] and not keep[1:3].any()                   # the ranking splits the group
+    kk = R.regroup_keep(G, dep, keep, norms, "parallel-keep")
+    assert kk.sum() == keep.sum() and kk[:3].all()
+    kd = R.regroup_keep(G, dep, keep, norms, "parallel-drop")
+    assert not kd[:3].any() and (kd[3:] == keep[3:]).all()
+    assert (R.regroup_keep(G, dep, keep, norms, "parallel") == keep).all()
 
 
 @SET
@@ -147,7 +164,7 @@ def test_default_is_unchanged_and_fused_equals_library_with_groups():
     assert R.reduce_pz(pz, 8, "pca").support(np.eye(3)).tolist() == \
         R.reduce_pz(pz, 8, "pca", group=None).support(np.eye(3)).tolist()
     L = phi[0] @ pz + tensor_map(phi[1] / 2.0, pz)
-    for group in (None, "parallel"):
+    for group in R.GROUPS:
         F = fused_step(phi, pz, 15, group=group)
         Lr = R.reduce_pz(L, 15, "pca", group=group)
         D = rng.standard_normal((20, 2))
