@@ -52,10 +52,10 @@ def assert_contains_pointwise(orig, red, rng, N=120):
     else:                                                   # only constant monomials kept
         Xd = np.tile(red.c + red.G.sum(axis=1), (N, 1))
     for x, xd in zip(X, Xd):
-        assert lp_in_zonotope(np.zeros(red.dim), red.GI, x - xd, tol=1e-9)
+        assert lp_in_zonotope(np.zeros(red.dim), red.GI, x - xd)   # tol 1e-7 (HiGHS)
 
 
-@pytest.mark.parametrize("group", ["parallel", "parallel-keep", "parallel-drop"])
+@pytest.mark.parametrize("group", ["parallel", "parallel-drop"])
 @SET
 @given(seed=st.integers(0, 10_000), n=st.integers(1, 3), q=st.integers(0, 2))
 def test_grouped_reduction_contains_every_point_with_the_same_factors(group, seed, n, q):
@@ -67,7 +67,7 @@ def test_grouped_reduction_contains_every_point_with_the_same_factors(group, see
     assert_contains_pointwise(pz, red, rng)
 
 
-def test_regroup_keep_makes_split_groups_whole_within_the_budget():
+def test_regroup_drop_removes_split_groups_whole():
     rng = np.random.default_rng(1)
     d = rng.standard_normal(3)
     G = np.column_stack([3 * d, 0.1 * d, 0.05 * d] + [rng.standard_normal(3) for _ in range(5)])
@@ -76,31 +76,11 @@ def test_regroup_keep_makes_split_groups_whole_within_the_budget():
     keep = np.zeros(8, dtype=bool)
     keep[np.argsort(-norms)[:4]] = True
     assert keep[0] and not keep[1:3].any()                   # the ranking splits the group
-    kk = R.regroup_keep(G, dep, keep, norms, "parallel-keep")
-    assert kk.sum() == keep.sum() and kk[:3].all()
-    kd = R.regroup_keep(G, dep, keep, norms, "parallel-drop")
+    kd = R.regroup_drop(G, dep, keep, "parallel-drop")
     assert not kd[:3].any() and (kd[3:] == keep[3:]).all()
-    assert (R.regroup_keep(G, dep, keep, norms, "parallel") == keep).all()
-
-
-@SET
-@given(seed=st.integers(0, 10_000))
-def test_grouped_enclosure_of_removed_part_contains_it_and_is_not_wider(seed):
-    rng = np.random.default_rng(seed)
-    pz = grouped_pz(rng, 2, 3, 2, 5, 3)
-    shift, Z = R.enclose_removed(pz.G, pz.E, "parallel")
-    shift0, Z0 = enclose_monomials(pz.G, pz.E)
-    A = rng.uniform(-1, 1, (4000, pz.n_factors))
-    A[:500] = np.sign(A[:500])
-    Y = PolyZonotope(np.zeros(2), pz.G, None, pz.E, pz.id).evaluate(A)
-    D = np.c_[np.cos(np.linspace(0, np.pi, 16)), np.sin(np.linspace(0, np.pi, 16))]
-    D = np.vstack([D, -D])
-    sup = D @ shift + np.abs(D @ Z).sum(axis=1)
-    sup0 = D @ shift0 + np.abs(D @ Z0).sum(axis=1)
-    assert np.all(sup >= (Y @ D.T).max(axis=0) - 1e-12)     # contains the sampled part
-    # the group's range is intersected with the monomial-wise sum: never wider (up to the
-    # nearly parallel residuals, ~1e-9, each boxed on its own)
-    assert np.all(sup <= sup0 + 1e-8 * (1 + np.abs(Z0).sum())), (sup - sup0).max()
+    assert (R.regroup_drop(G, dep, keep, "parallel") == keep).all()
+    dep[:3] = False                                          # only dependent generators group
+    assert (R.regroup_drop(G, dep, keep, "parallel-drop") == keep).all()
 
 
 def ball_like(c0=1.0, c1=-0.31):

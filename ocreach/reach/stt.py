@@ -364,7 +364,7 @@ def _merge_products(cols, tris, ka):
 def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned, group=None):
     """Reduction (as ``reduce_pz``) before the exponent matrix is formed; see :func:`fused_step`."""
     from ocreach.sets import PolyZonotope
-    from ocreach.sets.reduce import box_generators, enclose_removed, regroup_keep
+    from ocreach.sets.reduce import box_generators, enclose_removed, regroup_drop
 
     p = dZ.n_factors
     n = Gm.shape[0]
@@ -383,8 +383,7 @@ def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned, gr
         keep_mask[:] = False
         if n_keep:
             keep_mask[np.argpartition(-norms, n_keep - 1)[:n_keep]] = True
-    if group in ("parallel-keep", "parallel-drop"):
-        keep_mask = regroup_keep(Gb[:, cand], dep[cand], keep_mask, norms, group)
+    keep_mask = regroup_drop(Gb[:, cand], dep[cand], keep_mask, group)
     kept, removed = cand[keep_mask], cand[~keep_mask]
     kd = kept[dep[kept]]
     ki = kept[ind[kept]]
@@ -483,8 +482,8 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         ones together by the range of their scalar polynomial
         (:func:`ocreach.sets.reduce.enclose_removed`; keeps e.g. ``a1 (c0 + c1 a2^2)`` of a
         compact PZ ball input within its range instead of ``|c0| + |c1|``);
-        ``"parallel-keep"`` / ``"parallel-drop"`` also keep / remove whole a group the ranking
-        splits (:func:`ocreach.sets.reduce.regroup_keep`).  Opt-in, measured
+        ``"parallel-drop"`` also removes whole a group the ranking splits
+        (:func:`ocreach.sets.reduce.regroup_drop`).  Opt-in, measured
         in docs/validation.md "Grouped reduction of parallel monomials".
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """

@@ -25,9 +25,9 @@ if TYPE_CHECKING:
 
 _METHODS = ("girard", "pca")
 #: ``group`` values of :func:`reduce_pz` (None: every removed monomial enclosed on its own;
-#: ``"parallel"``: removed parallel monomials enclosed together; ``"parallel-keep"`` /
-#: ``"parallel-drop"``: also a group split by the kept/removed ranking is kept / removed whole).
-GROUPS = (None, "parallel", "parallel-keep", "parallel-drop")
+#: ``"parallel"``: removed parallel monomials enclosed together; ``"parallel-drop"``: also a
+#: group split by the kept/removed ranking is removed whole).
+GROUPS = (None, "parallel", "parallel-drop")
 #: removed generators whose unit directions agree to this (after sign normalisation, on a grid of
 #: this spacing) form one group; the residual off the group's direction is boxed on its own.
 PARALLEL_RTOL = 1e-6
@@ -129,13 +129,14 @@ def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> 
     return Zonotope.trusted(Z.c, np.concatenate([Z.G[:, keep], B], axis=1))  # Z valid, B finite
 
 
-def parallel_groups(G: np.ndarray, rtol: float = PARALLEL_RTOL) -> list[np.ndarray]:
+def parallel_groups(G: np.ndarray, rtol: float = PARALLEL_RTOL, limit: int | None = None) -> list[np.ndarray]:
     """Column indices of ``G`` (n, m) in groups of at least two (nearly) parallel columns.
 
     Each nonzero column is scaled to a unit vector whose largest-magnitude entry is positive and
     rounded to a grid of spacing ``rtol``; equal grid points form a group (parallel columns of
     either sign meet; columns near a grid boundary may miss their group, which costs tightness
-    only: a column outside every group is enclosed on its own)."""
+    only: a column outside every group is enclosed on its own).  ``limit``: only the ``limit``
+    groups of largest ``sum |G_i|`` (all if None)."""
     nrm = np.linalg.norm(G, axis=0)
     idx = np.flatnonzero(nrm > 0)
     if idx.size < 2:
@@ -145,9 +146,14 @@ def parallel_groups(G: np.ndarray, rtol: float = PARALLEL_RTOL) -> list[np.ndarr
     key = np.round(U * sgn / rtol).astype(np.int64)
     _, inv, cnt = np.unique(key.T, axis=0, return_inverse=True, return_counts=True)
     inv = inv.ravel()
-    order = np.argsort(inv, kind="stable")
-    bounds = np.cumsum(cnt)[:-1]
-    return [idx[g] for g in np.split(order, bounds) if g.size > 1]
+    multi = np.flatnonzero(cnt > 1)
+    if limit is not None and multi.size > limit:      # the widest groups (sum of the norms)
+        width = np.bincount(inv, weights=nrm[idx], minlength=cnt.size)[multi]
+        multi = multi[np.argsort(-width, kind="stable")[:limit]]
+    sel = np.flatnonzero(np.isin(inv, multi))
+    sel = sel[np.argsort(inv[sel], kind="stable")]
+    bounds = np.flatnonzero(np.diff(inv[sel])) + 1
+    return [idx[g] for g in np.split(sel, bounds)] if sel.size else []
 
 
 def scalar_range(alpha: np.ndarray, E: np.ndarray, tol: float = 0.02, max_boxes: int = 256,
@@ -214,10 +220,7 @@ def enclose_removed(G: np.ndarray, E: np.ndarray, group: str | None = None,
     if group is None:
         return enclose_monomials(G, E)
     check_group(group)                                      # every other value groups
-    groups = parallel_groups(G, rtol)
-    if len(groups) > max_groups:  # the range costs ~10 ms a group: only the widest groups
-        width = np.array([np.linalg.norm(G[:, g], axis=0).sum() for g in groups])
-        groups = [groups[i] for i in np.argsort(-width, kind="stable")[:max_groups]]
+    groups = parallel_groups(G, rtol, max_groups)  # the range costs up to ~0.1 s a group
     if not groups:
         return enclose_monomials(G, E)
     n = G.shape[0]
@@ -243,38 +246,22 @@ def enclose_removed(G: np.ndarray, E: np.ndarray, group: str | None = None,
     return shift + rs, np.hstack([rg, np.column_stack(gens), np.diag(up(err, 2))])
 
 
-def regroup_keep(G: np.ndarray, dep: np.ndarray, keep: np.ndarray, norms: np.ndarray,
-                 group: str | None, rtol: float = PARALLEL_RTOL) -> np.ndarray:
+def regroup_drop(G: np.ndarray, dep: np.ndarray, keep: np.ndarray, group: str | None,
+                 rtol: float = PARALLEL_RTOL) -> np.ndarray:
     """The kept/removed split ``keep`` (m,) of the candidate generators ``G`` (n, m) (``dep``:
-    dependent ones) with the groups of parallel dependent generators it splits made whole:
-    ``"parallel-keep"`` keeps the removed members of such a group and removes as many of the
-    smallest other kept generators (the count stays; groups with the most removed weight
-    first, a group that does not fit stays split); ``"parallel-drop"`` removes the kept
-    members (fewer generators; the group is then enclosed by its range,
-    :func:`enclose_removed`).  Other ``group`` values: ``keep`` unchanged."""
-    if group not in ("parallel-keep", "parallel-drop") or keep.all() or not keep.any():
+    dependent ones) with ``group="parallel-drop"``: a group of parallel dependent generators
+    that the ranking splits is removed whole (then enclosed by its range,
+    :func:`enclose_removed`; fewer generators remain).  Other ``group`` values: ``keep``.
+    (Keeping such groups whole instead, displacing the smallest other kept generators, was
+    measured far looser on nrho-flyby and is not offered: docs/validation.md.)"""
+    if group != "parallel-drop" or keep.all() or not keep.any():
         return keep
     idx = np.flatnonzero(dep)
     mixed = [idx[g] for g in parallel_groups(G[:, idx], rtol) if 0 < keep[idx[g]].sum() < g.size]
     if not mixed:
         return keep
     keep = keep.copy()
-    members = np.concatenate(mixed)
-    if group == "parallel-drop":
-        keep[members] = False
-        return keep
-    # keep: the groups with the most removed weight first, each only while the other kept
-    # generators (smallest first, not members of a group made whole) can make room for it
-    protected = np.zeros(keep.size, dtype=bool)
-    for g in sorted(mixed, key=lambda g: -norms[g][~keep[g]].sum()):
-        extra = int((~keep[g]).sum())
-        free = np.flatnonzero(keep & ~protected)
-        free = free[~np.isin(free, g)]
-        if extra > free.size:
-            continue
-        keep[free[np.argsort(norms[free], kind="stable")[:extra]]] = False
-        keep[g] = True
-        protected[g] = True
+    keep[np.concatenate(mixed)] = False
     return keep
 
 
@@ -287,8 +274,8 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca", group: str | No
     ``group="parallel"``: the removed dependent generators that are (nearly) parallel are
     enclosed together by the range of their scalar polynomial (:func:`enclose_removed`), which
     keeps the cancellations between their monomials; None (default): each on its own.
-    ``"parallel-keep"`` / ``"parallel-drop"``: as ``"parallel"``, and a group that the ranking
-    splits is kept / removed whole (:func:`regroup_keep`).
+    ``"parallel-drop"``: as ``"parallel"``, and a group that the ranking splits is removed
+    whole (:func:`regroup_drop`).
     """
     from ocreach.sets.polyzonotope import PolyZonotope
 
@@ -309,8 +296,7 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca", group: str | No
         keep_idx = np.zeros(0, dtype=np.int64)
     keep = np.zeros(h + q, dtype=bool)
     keep[keep_idx] = True
-    if group in ("parallel-keep", "parallel-drop"):
-        keep = regroup_keep(np.hstack([pz.G, pz.GI]), np.arange(h + q) < h, keep, norms, group)
+    keep = regroup_drop(np.hstack([pz.G, pz.GI]), np.arange(h + q) < h, keep, group)
     kd, ki = keep[:h], keep[h:]
     # enclose the removed dependent part
     shift, Gz = enclose_removed(pz.G[:, ~kd], pz.E[:, ~kd], group)
