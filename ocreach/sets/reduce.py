@@ -7,6 +7,10 @@
 * Polynomial zonotopes (Kochdumper & Althoff 2021; Foss et al. Sec. 2.4 "Reduce(PZ, h_des)"):
   the smallest dependent and independent generators are enclosed by a zonotope, which is reduced
   to a box (``girard``) or PCA box (``pca``) and appended as independent generators.
+  Opt-in ``group`` (issue 12, not in the papers): removed generators that are parallel are
+  enclosed together by the range of their scalar polynomial (:func:`enclose_removed`), which
+  keeps cancellations that the monomial-wise enclosure loses; measured in docs/validation.md
+  "Grouped reduction of parallel monomials" (no gain that justifies a default).
 """
 from __future__ import annotations
 
