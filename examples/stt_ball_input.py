@@ -3,7 +3,7 @@
 
     python examples/stt_ball_input.py --problem nrho-flyby --steps 6 10 --h-max 60 200 --order 2
         [--inputs zonotope-coarse zonotope pz pz-compact b3] [--mc 1000] [--seed 3] [--dirs 52]
-        [--horizon K] [--ffoe 100] [--direct]
+        [--horizon K] [--ffoe 100] [--direct] [--reduce-group parallel]
 
 Truth: ``--mc`` Monte Carlo endpoints (``MonteCarlo(samples, seed)`` on the grid cut at step k;
 with ``--horizon K`` one grid of K steps for the MC, the optional ``--ffoe`` extremals and one STT
@@ -16,6 +16,8 @@ of the STT set's support upper bound (branch and bound on the set's own factors,
 ``support_bounds``) over the truth, max over d, in % of the width; also the lower bound's excess,
 the smallest margin ``min_d (h_upper(d) - max_mc d.x)`` (negative: a true point lies outside)
 and the warm runtime (median of ``--reps`` after one warm-up run).
+``--reduce-group parallel``: stt's ``reduce_group`` option (grouped enclosure of parallel removed
+monomials, :func:`ocreach.sets.reduce.enclose_removed`).
 Input ``b3`` is the 12-generator 3-D leaf of :mod:`ocreach.sets.ball_pz` (3 factors).
 ``--problem dro4``: a test model with a 4-D ball input (not in the registry): ``dro``'s planar
 CR3BP with ``u`` in the unit ball of R^4, ``dv/dt += a_max u[0:2]`` (thrust) and
@@ -112,6 +114,7 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--horizon", type=int, default=0)
     ap.add_argument("--ffoe", type=int, default=0)
     ap.add_argument("--direct", action="store_true")
+    ap.add_argument("--reduce-group", default=None)
     a = ap.parse_args(argv)
     stt_mod.input_pz = _input
     stt_mod.BALL_INPUTS = tuple(dict.fromkeys(stt_mod.BALL_INPUTS + ("b3",)))
@@ -150,7 +153,8 @@ def main(argv=None) -> list[dict]:
                         if (K, inp) not in runs:
                             for _ in range(a.reps + 1):
                                 t0 = time.perf_counter()
-                                res = ocreach.reach(pk, "stt", order=order, h_max=h, input_set="ball", ball_input=inp)
+                                res = ocreach.reach(pk, "stt", order=order, h_max=h, input_set="ball", ball_input=inp,
+                                                     reduce_group=a.reduce_group)
                                 times.append(time.perf_counter() - t0)
                             runs[K, inp] = res, times
                         res, times = runs[K, inp]

@@ -3,7 +3,7 @@
     python examples/stt_tightness.py [--problem dro|vdp] [--input ball|box] [--order 2] [--h-max 400]
                                      [--reduction pca|girard] [--pruned-box exact|bound]
                                      [--ball-input auto|zonotope|zonotope-coarse|pz] [--dirs 64] [--mc 20000]
-                                     [--out docs/figures] [--tag _h800]
+                                     [--out docs/figures] [--tag _h800] [--reduce-group parallel]
 
 Truth: the support function of the true reachable set by direct multiple shooting
 (:func:`ocreach.reach.direct.transcription_support`, piecewise-constant controls on the grid, the
@@ -75,6 +75,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--mc", type=int, default=20000)
     ap.add_argument("--out", default="docs/figures")
     ap.add_argument("--tag", default="", help="appended to the output file name (e.g. _h800)")
+    ap.add_argument("--reduce-group", default=None, help="stt's reduce_group option (e.g. parallel)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     p = get_problem(a.problem)
@@ -84,7 +85,7 @@ def main(argv=None) -> dict:
     dirs = circle_directions(a.dirs)
     truth = truth_support(p, planes, dirs, out / f"stt_truth_{a.problem}_{a.input}.json")
     opts = dict(order=a.order, h_max=a.h_max, input_set=a.input, reduction=a.reduction,
-                ball_input=a.ball_input, pruned_box=a.pruned_box)
+                ball_input=a.ball_input, pruned_box=a.pruned_box, reduce_group=a.reduce_group)
     ocreach.reach(p, "stt", **opts)  # warm-up
     t0, c0 = time.perf_counter(), time.process_time()
     res = ocreach.reach(p, "stt", **opts)

@@ -49,6 +49,7 @@ from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 from ocreach.reach.stt_split import PartStep, check_split_options
 from ocreach.sets.pz_union import PZUnion
+from ocreach.sets.reduce import GROUPS as _REDUCE_GROUPS
 
 if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
@@ -82,6 +83,8 @@ BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse", 4: "zonotope-coarse"}
 #: long horizons in 5-D and up this default is unverified)
 BALL_INPUT_AUTO_ND = "pz-compact"
 REDUCTIONS = ("pca", "girard")
+#: ``reduce_group`` values (:data:`ocreach.sets.reduce.GROUPS`).
+REDUCE_GROUPS = _REDUCE_GROUPS
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
             "smaller set or horizon, a lower order, or splitting")
@@ -188,16 +191,19 @@ def nonlinearity_index(phi: Sequence[np.ndarray], dZ: PolyZonotope, samples: int
 
 def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str, engine: str,
              timer: Timer, counts: dict[str, int], chunk: int = 0,
-             pruned_box: str = "exact") -> PolyZonotope:
+             pruned_box: str = "exact", group: str | None = None) -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` (Foss Eq. 18-19, Alg. 1 lines 6-9).
 
     ``engine="library"``: the set library's ``tensor_map`` per order, exact sums and
     ``reduce_pz``; ``engine="fused"``: :func:`fused_step` (same set, faster; ``chunk`` bounds
-    its memory, ``pruned_box`` chooses how its pruned order-3 products are boxed).
+    its memory, ``pruned_box`` chooses how its pruned order-3 products are boxed).  ``group``: how
+    the reduction encloses the removed dependent monomials (``reduce_pz``'s option).
     """
     if engine == "fused":
-        return fused_step(phi, dZ, h_max, method, timer, counts, chunk=chunk, pruned_box=pruned_box)
+        return fused_step(phi, dZ, h_max, method, timer, counts, chunk=chunk, pruned_box=pruned_box,
+                          group=group)
     from ocreach.sets import tensor_map
+    from ocreach.sets.reduce import reduce_pz
 
     with timer("tensor_maps"):
         out = phi[0] @ dZ
@@ -207,7 +213,7 @@ def stt_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: st
     if out.n_generators > h_max:
         with timer("reductions"):
             try:
-                out = out.reduce(h_max, method)
+                out = reduce_pz(out, h_max, method, group)
             except np.linalg.LinAlgError as exc:
                 raise SolverError(f"{DIVERGED} ({exc})") from exc
         counts["reductions"] += 1
@@ -240,7 +246,8 @@ def _bitmask(B: np.ndarray) -> np.ndarray:
 
 def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: str = "pca",
                timer: Timer | None = None, counts: dict[str, int] | None = None,
-               prune: float = 1e-3, chunk: int = 0, pruned_box: str = "exact") -> PolyZonotope:
+               prune: float = 1e-3, chunk: int = 0, pruned_box: str = "exact",
+               group: str | None = None) -> PolyZonotope:
     """``Reduce((+)_j 1/j! Phi^(j) [x] dZ, h_max)`` in one vectorised pass (Foss Eq. 18, 21-22).
 
     Same result as the set library's ``tensor_map`` per order, exact sum and ``reduce_pz`` (checked
@@ -256,6 +263,7 @@ def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: 
     Independent generators are treated as in ``tensor_map`` (temporary factors, every product
     containing one becomes independent; all-even ones shift the centre by half).
     ``prune``, ``pruned_box``: see :func:`_fused_generate` (0 = merge every product).
+    ``group``: as in ``reduce_pz`` (None: every removed monomial enclosed on its own).
     ``timer`` gets the phases ``tensor_maps`` (generation and merging) and ``reductions``.
     """
     timer = timer or Timer()
@@ -270,7 +278,7 @@ def fused_step(phi: Sequence[np.ndarray], dZ: PolyZonotope, h_max: int, method: 
             raise SolverError(DIVERGED)
         with timer("reductions"):
             try:
-                res = _fused_reduce(dZ, h_max, method, *out)
+                res = _fused_reduce(dZ, h_max, method, *out, group=group)
             except np.linalg.LinAlgError as exc:
                 raise SolverError(f"{DIVERGED} ({exc})") from exc
     if counts is not None:
@@ -355,10 +363,10 @@ def _merge_products(cols, tris, ka):
     return Gm, np.take(tri, rep, axis=1)
 
 
-def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned):
+def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned, group=None):
     """Reduction (as ``reduce_pz``) before the exponent matrix is formed; see :func:`fused_step`."""
     from ocreach.sets import PolyZonotope
-    from ocreach.sets.reduce import box_generators
+    from ocreach.sets.reduce import box_generators, enclose_removed, regroup_drop
 
     p = dZ.n_factors
     n = Gm.shape[0]
@@ -377,15 +385,22 @@ def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned):
         keep_mask[:] = False
         if n_keep:
             keep_mask[np.argpartition(-norms, n_keep - 1)[:n_keep]] = True
+    keep_mask = regroup_drop(Gb[:, cand], dep[cand], keep_mask, group)
     kept, removed = cand[keep_mask], cand[~keep_mask]
     kd = kept[dep[kept]]
     ki = kept[ind[kept]]
     rd = removed[dep[removed]]
     ri = removed[ind[removed]]
     # removed dependent monomials: zonotope enclosure (all-even -> centre shift + half generator)
-    rde = rd[even[rd]]
-    c = c + 0.5 * Gm[:, rde].sum(axis=1)
-    Grem = np.hstack([0.5 * Gm[:, rde], Gm[:, rd[~even[rd]]], Gb[:, ri]])
+    if group is None:
+        rde = rd[even[rd]]
+        c = c + 0.5 * Gm[:, rde].sum(axis=1)
+        Grem = np.hstack([0.5 * Gm[:, rde], Gm[:, rd[~even[rd]]], Gb[:, ri]])
+    else:  # the exponents of the removed monomials too, for their grouped enclosure
+        t = tri[:, rd]
+        shift, Gz = enclose_removed(Gm[:, rd], Ea[:p, t[0]] + Ea[:p, t[1]] + Ea[:p, t[2]], group)
+        c = c + shift
+        Grem = np.hstack([Gz, Gb[:, ri]])
     GI = np.hstack([Gb[:, ki], box_generators(Grem, method, pruned)])
     # exponent matrix of the kept dependent monomials only
     t = tri[:, kd]
@@ -468,6 +483,14 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         nothing is pruned).  ``engine="library"`` prunes nothing (it forms and merges every
         product), so there the option has no meaning: an explicit ``"exact"`` is refused with a
         :class:`ProblemError`; the default ``"bound"`` is accepted and has no effect.
+        ``reduce_group`` [None]: how a reduction encloses the dependent monomials it removes:
+        None (Foss, Kochdumper & Althoff) each on its own; ``"parallel"`` the (nearly) parallel
+        ones together by the range of their scalar polynomial
+        (:func:`ocreach.sets.reduce.enclose_removed`; keeps e.g. ``a1 (c0 + c1 a2^2)`` of a
+        compact PZ ball input within its range instead of ``|c0| + |c1|``);
+        ``"parallel-drop"`` also removes whole a group the ranking splits
+        (:func:`ocreach.sets.reduce.regroup_drop`).  Opt-in, measured
+        in docs/validation.md "Grouped reduction of parallel monomials".
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """
 
@@ -485,6 +508,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         lift_independent: bool = False
         chunk: int = 0
         pruned_box: str = PRUNED_BOX_DEFAULT
+        reduce_group: str | None = None
         rtol: float = 1e-10
         atol: float = 1e-12
 
@@ -514,6 +538,8 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
                     f"pruned_box={self.pruned_box!r} applies to engine='fused' only; engine='library' "
                     "forms and merges every order-3 product, so it prunes none: use engine='fused' "
                     f"or leave pruned_box at its default {PRUNED_BOX_DEFAULT!r}")
+            if self.reduce_group not in REDUCE_GROUPS:
+                raise ProblemError(f"reduce_group must be one of {REDUCE_GROUPS}; got {self.reduce_group!r}")
             self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
             self.lift_independent = bool(self.lift_independent)
 
@@ -597,7 +623,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
                         continue
                     try:
                         dR1 = stt_step(phi, dZ, opt.h_max, opt.reduction, opt.engine, timer, counts, opt.chunk,
-                                       opt.pruned_box)
+                                       opt.pruned_box, opt.reduce_group)
                     except (SolverError, SetError) as exc:
                         raise SolverError(f"stt: step {k} (t = {grid[k]:g} -> {grid[k + 1]:g}) failed: {exc}") from exc
                     new_parts.append(_Part(x1, dR1, part.nominal, part.depth))
@@ -694,7 +720,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
                              min(opt.order, 2),
                              p=problem.params, rtol=opt.rtol, atol=opt.atol)
                 S = stt_step([ph[0] for ph in r.phi], dZ, opt.h_max, opt.reduction, opt.engine, Timer(),
-                             {"tensor_maps": 0, "reductions": 0})
+                             {"tensor_maps": 0, "reductions": 0}, group=opt.reduce_group)
                 pieces.append(S + r.states[-1])
         ends = [p.dR + p.x_ref for p in parts_with_dz] + [p.dR + p.x_ref for p in new]
         pieces = ends[: len(parts_with_dz)] + pieces + ends[len(parts_with_dz):]
