@@ -82,8 +82,8 @@ class Comparison:
             lines.append(f"| {name} | failed: {err} |" + " |" * (len(head) - 2))
         lines += ["", "runtime: wall time of each method's solve in this process, including any one-off "
                   "compilation of generated C code (cached on disk for later runs)."]
-        vols = {n: m.get("volume_pos") for n, m in self.metrics.items()
-                if np.isfinite(m.get("volume_pos", float("nan")))}
+        vols = {n: m["volume_pos"] for n, m in self.metrics.items()
+                if m.get("volume_pos") is not None}
         if vols:  # position-space volume at the final time (Patel & Subbarao Fig. 5)
             lines += ["position-space volume at the final time: " + ", ".join(
                 f"{n} {v:.4g}" + (" (guaranteed)" if self.results[n].meta.get("guaranteed") else "")
@@ -264,7 +264,9 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
                                     "support_err_max": float(np.max(np.abs(err))),
                                     "area": float(area), "mc_covered": float(np.mean(covered)),
                                     "dims": list(dims)}
-        entry["volume_pos"] = position_volume(res, problem)
+        volume = position_volume(res, problem)
+        # None (JSON null) where it cannot be computed: metrics.json stays strict JSON, no NaN
+        entry["volume_pos"] = volume if np.isfinite(volume) else None
         metrics[name] = entry
     return Comparison(problem=problem, results=results, metrics=metrics, truth=truth, errors=errors,
                       interrupted=interrupted)
@@ -273,7 +275,8 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
 def position_volume(result: ReachResult, problem: Problem, k: int = -1) -> float:
     """Volume of the position-space projection at time index ``k`` (Patel & Subbarao Fig. 5):
     exact for a zonotope, the sum over the parts (an upper bound) for a union of zonotopes, the
-    convex hull of the samples for sample-based results; NaN when it cannot be computed."""
+    convex hull of the samples for sample-based results; NaN when it cannot be computed (the
+    comparison writes that as null)."""
     dims = list(problem.position_dims)
     try:
         if result.sets is not None:

@@ -105,6 +105,25 @@ def test_cli_run_and_compare_write_files(tmp_path, capsys):
     assert metrics["mc"]["planes"]["pos"]["mc_covered"] == pytest.approx(1.0)
 
 
+def test_compare_metrics_json_is_strict_json(tmp_path):
+    """metrics.json holds no NaN (not JSON): a volume that cannot be computed (the stt set's,
+    a polynomial zonotope) is written as null, and the table leaves it out."""
+    out = tmp_path / "cmp"
+    rc = main(["compare", "dro", "--methods", "mc,stt", "--out", str(out), "--set", "mc.samples=100",
+               "--set", "stt.h_max=40", "--set", "problem.t_final=0.5"])
+    assert rc == 0
+
+    def refuse(name):
+        raise ValueError(f"metrics.json holds {name}")
+
+    metrics = json.loads((out / "metrics.json").read_text(), parse_constant=refuse)
+    assert metrics["stt"]["volume_pos"] is None
+    assert metrics["mc"]["volume_pos"] > 0
+    line = [t for t in (out / "comparison.md").read_text().splitlines()
+            if t.startswith("position-space volume")]
+    assert len(line) == 1 and "mc " in line[0] and "stt" not in line[0]
+
+
 @pytest.mark.parametrize("module", ["ocreach.cli", "ocreach"])
 def test_console_script_entry_point(module):
     proc = subprocess.run([sys.executable, "-m", module, "list"], capture_output=True,
