@@ -159,9 +159,11 @@ def by_time(sw: list[dict], runs: tuple[str, ...] = STT_RUNS) -> dict:
 
 
 def compact(obj, digits: int = 5):
-    """``obj`` with floats rounded to ``digits`` significant digits (a small JSON file)."""
+    """``obj`` with floats rounded to ``digits`` significant digits (a small JSON file); a
+    non-finite float (``inf`` from :func:`first_time`: never) becomes None (JSON null: NaN and
+    Infinity are not JSON)."""
     if isinstance(obj, float):
-        return float(f"{obj:.{digits}g}") if np.isfinite(obj) else obj
+        return float(f"{obj:.{digits}g}") if np.isfinite(obj) else None
     if isinstance(obj, dict):
         return {k: compact(v, digits) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
