@@ -130,7 +130,7 @@ def _interrupted(out, mark: _Stages) -> int:
 def _write_run(folder: Path, result, problem, method: str, mark: _Stages) -> list[str]:
     """``result.npz``, one figure per projection plane and ``summary.json`` into ``folder``."""
     from ocreach.plot import plot_projections_over_time
-    from ocreach.reach.result import atomic_write_text, jsonable
+    from ocreach.reach.result import atomic_write_text, json_text, jsonable
 
     result.save(folder / "result.npz")
     mark("saved")
@@ -146,7 +146,7 @@ def _write_run(folder: Path, result, problem, method: str, mark: _Stages) -> lis
     summary = {"problem": problem.id, "method": method, "final_time": float(result.times[-1]),
                "truncated": bool(result.meta.get("truncated", False)),
                "meta": _small(jsonable(result.meta))}
-    atomic_write_text(folder / "summary.json", json.dumps(summary, indent=2))
+    atomic_write_text(folder / "summary.json", json_text(summary))
     mark("summary")
     return names + ["summary.json"]
 

@@ -29,7 +29,6 @@ a different (larger) reachable set than the Monte Carlo truth, which uses the pr
 """
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -49,7 +48,7 @@ from ocreach.geometry import (
 )
 from ocreach.problem import Problem, get_problem
 from ocreach.reach.base import method_class, reach
-from ocreach.reach.result import ReachResult, atomic_write_text, jsonable
+from ocreach.reach.result import ReachResult, atomic_write_text, json_text
 
 
 @dataclass
@@ -334,6 +333,6 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
             "Monte Carlo endpoints inside the estimate.\n")
     paths["table"] = atomic_write_text(out / "comparison.md", text)
     paths["metrics"] = atomic_write_text(out / "metrics.json",
-                                         json.dumps(jsonable(cmp.metrics), indent=2))
+                                         json_text(cmp.metrics))
     return paths
 

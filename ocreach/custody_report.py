@@ -11,7 +11,6 @@ it.
 """
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -260,7 +259,7 @@ def mc_table(per_problem: dict) -> str:
 
 def write_outputs(cases, per_problem, out: str | Path, *, figures: bool = True, p_required: float = 0.95) -> dict:
     """``custody.json``, ``custody.md`` and the figures in ``out`` (atomic writes)."""
-    from ocreach.reach.result import atomic_write_text, jsonable
+    from ocreach.reach.result import atomic_write_text, json_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -268,7 +267,7 @@ def write_outputs(cases, per_problem, out: str | Path, *, figures: bool = True, 
                "cases": [c.__dict__ for c in cases],
                "mc_validation": {f"{k[0]}:{k[1]}": [{a: b for a, b in m.items() if a != "points"}
                                                     for m in v["mc"]] for k, v in per_problem.items()}}
-    atomic_write_text(out / "custody.json", json.dumps(jsonable(payload), indent=2))
+    atomic_write_text(out / "custody.json", json_text(payload))
     md = ["# Custody (Tucker et al.)", "", markdown_table(cases)]
     if any(v["mc"] for v in per_problem.values()):
         md += ["", "## Monte Carlo check of the balls", "", mc_table(per_problem)]

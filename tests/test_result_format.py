@@ -158,3 +158,18 @@ def test_print_result_is_short():
     traj = np.zeros((5000, 50, 6))
     r = ReachResult.from_trajectories(np.arange(50.0), traj, meta={"method": "mc", "problem": "p"})
     assert len(repr(r)) < 300 and "mc" in repr(r)
+
+
+def test_json_text_is_strict_json():
+    """Output files hold strict JSON: NaN and infinities (numpy or Python, nested) become null,
+    numpy values become Python values, and a strict parser reads the text back."""
+    from ocreach.reach.result import json_text
+
+    obj = {"a": float("nan"), "b": [np.float64(np.inf), -np.inf, 1.5], "c": {"d": np.array([1.0, np.nan])},
+           "e": np.int64(3), 4: "four"}
+
+    def refuse(name):
+        raise ValueError(name)
+
+    back = json.loads(json_text(obj), parse_constant=refuse)
+    assert back == {"a": None, "b": [None, None, 1.5], "c": {"d": [1.0, None]}, "e": 3, "4": "four"}

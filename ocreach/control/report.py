@@ -24,7 +24,7 @@ from ocreach.control.reference import reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, compare_controllers
 from ocreach.errors import ProblemError
 from ocreach.plot import save_figure
-from ocreach.reach.result import atomic_write_text
+from ocreach.reach.result import atomic_write_text, json_text
 
 #: Patel & Subbarao Table 3 weights and horizons; Table 2 results (for the comparison line).
 PAPER_Q = (1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0)
@@ -245,7 +245,7 @@ def _report(problem, out_dir: str | Path, *, dt: float | None = None,
     data["mpc_events"] = results["mpc"].events
     if problem.id == PAPER_PROBLEM:
         data["paper_table2"] = PAPER_TABLE2
-    atomic_write_text(out / "metrics.json", json.dumps(data, indent=2, default=float))
+    atomic_write_text(out / "metrics.json", json_text(data))
     figs = _figures(problem, results, out)
     md = _markdown(problem, data, figs)
     atomic_write_text(out / "report.md", md)

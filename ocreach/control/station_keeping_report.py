@@ -27,7 +27,7 @@ from ocreach.control.station_keeping_metrics import delta_v_si
 from ocreach.control.station_keeping_paper import PAPER_DELTA_V_MPS, PAPER_TF_HOURS
 from ocreach.errors import ProblemError
 from ocreach.plot import save_figure
-from ocreach.reach.result import atomic_write_text, jsonable
+from ocreach.reach.result import atomic_write_text, json_text, jsonable
 
 DESCRIPTIONS = {
     "event-mpc": "event-triggered MPC: thrust off inside the drift tube, soft tube-constrained MPC "
@@ -66,7 +66,7 @@ def station_keeping_report(problem, out_dir: str | Path, **options: Any) -> dict
     data = {name: run.metrics[name] for name in run.results}
     data["settings"] = run.settings
     data["events"] = {name: r.events for name, r in run.results.items() if r.events}
-    atomic_write_text(out / "metrics.json", json.dumps(jsonable(data), indent=2))
+    atomic_write_text(out / "metrics.json", json_text(data))
     figs = _figures(problem, run, out)
     lines = summary_lines(data)
     atomic_write_text(out / "report.md", _markdown(problem, data, lines, figs))

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
@@ -68,6 +69,23 @@ def jsonable(obj: Any) -> Any:
     if isinstance(obj, (str, int, float, bool)) or obj is None:
         return obj
     return repr(obj)
+
+
+def _finite_or_none(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_finite_or_none(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def json_text(obj: Any, indent: int | None = 2) -> str:
+    """``obj`` as strict JSON text for the output files users read (summary.json, metrics.json,
+    custody.json): :func:`jsonable`, then every NaN or infinity as ``null`` (they are not JSON,
+    and strict parsers refuse them), dumped with ``allow_nan=False``."""
+    return json.dumps(_finite_or_none(jsonable(obj)), indent=indent, allow_nan=False)
 
 
 @dataclass(repr=False)
