@@ -36,6 +36,7 @@ import ocreach
 from ocreach.errors import SolverError
 from ocreach.plot import save_figure
 from ocreach.problem import get_problem
+from ocreach.reach.directions import fibonacci_sphere
 from ocreach.reach.result import atomic_write_text
 from ocreach.flow import stt as stt_flow
 from ocreach.reach.stt import STTReach, stt_polynomial
@@ -64,14 +65,6 @@ RUNS = {
 EXACT_PARTS = 16
 #: the run drawn in the figure
 FIGURE_RUN = "o1_h200_box16"
-
-
-def sphere_directions(m: int, seed: int = 0) -> np.ndarray:
-    """Quasi-uniform unit vectors in 3-D (Fibonacci sphere)."""
-    i = np.arange(m) + 0.5
-    phi = np.arccos(1 - 2 * i / m)
-    th = np.pi * (1 + 5 ** 0.5) * i
-    return np.c_[np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)]
 
 
 def pointwise_errors(problem, mc, orders=(1, 2, 3)) -> dict:
@@ -188,7 +181,7 @@ def truth_data(p, extremals: int = 1000, mc_samples: int = 1000, directions: int
     time k, and the extents ``max_d (h(d) - d^T x_ref)`` of the ode and MC points per time."""
     mc = ocreach.reach(p, "mc", samples=mc_samples, seed=3)
     ode = ocreach.reach(p, "ode", samples=extremals)
-    D = sphere_directions(directions)
+    D = fibonacci_sphere(directions)
     ref = stt_flow(p.model, p.x0, np.zeros((p.n_segments, p.model.n_u)), p.grid, 1, p=p.params).states
 
     def extent(res):

@@ -38,17 +38,10 @@ import importlib
 import ocreach
 from ocreach.problem import get_problem
 from ocreach.reach.mc import MonteCarlo
+from ocreach.reach.directions import fibonacci_sphere
 from ocreach.sets.pz_exact import support_bounds
 
 stt_mod = importlib.import_module("ocreach.reach.stt")
-
-
-def fibonacci(n: int) -> np.ndarray:
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    th = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    return np.column_stack([r * np.cos(th), r * np.sin(th), z])
 
 
 def dro4():
@@ -133,7 +126,7 @@ def main(argv=None) -> list[dict]:
         t = 2 * np.pi * np.arange(a.dirs) / a.dirs
         D = np.c_[np.cos(t), np.sin(t)]
     else:
-        D = fibonacci(a.dirs)
+        D = fibonacci_sphere(a.dirs)
     rows = []
     for order in a.order:
         for h in a.h_max:

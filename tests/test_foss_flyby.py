@@ -8,6 +8,7 @@ from scipy.integrate import solve_ivp
 from ocreach.errors import ProblemError
 from ocreach.models.ephemeris import synodic_to_inertial
 from ocreach.problem import get_problem
+from ocreach.reach.directions import fibonacci_sphere
 from ocreach.problems.foss_ephemeris import X0, flyby_model, moon_position, perilune
 
 
@@ -126,7 +127,7 @@ def test_fig6_truth_data_against_the_points():
                     rtol=1e-12, atol=1e-13, t_eval=p.grid)
     np.testing.assert_allclose(tr["ref"], sol.y.T, atol=1e-9)
     D = tr["D"]
-    gap = np.max(np.min(np.arccos(np.clip(ex.sphere_directions(4000) @ D.T, -1, 1)), axis=1))
+    gap = np.max(np.min(np.arccos(np.clip(fibonacci_sphere(4000) @ D.T, -1, 1)), axis=1))
     for res, ext in ((tr["ode"], tr["ode_extent"]), (tr["mc"], tr["mc_extent"])):
         for k in range(1, p.grid.size):
             r = np.linalg.norm(np.asarray(res.points[k])[:, :3] - sol.y[:3, k], axis=1).max()

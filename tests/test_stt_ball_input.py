@@ -17,16 +17,8 @@ from ocreach.reach.direct import transcription_support
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.stt import input_pz
 from ocreach.sets import unit_ball_zonotope, zonotope_support_range
+from ocreach.reach.directions import fibonacci_sphere
 from ocreach.sets.pz_exact import support_bounds
-
-
-def _sphere(n: int) -> np.ndarray:
-    """Fibonacci directions on the unit sphere."""
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    th = np.pi * (1 + 5 ** 0.5) * i
-    r = np.sqrt(1 - z * z)
-    return np.column_stack([r * np.cos(th), r * np.sin(th), z])
 
 
 def _latlong(step: float) -> np.ndarray:
@@ -89,7 +81,7 @@ def test_zonotope_support_range_bad_input():
 def test_zonotope_ball_input_is_linear_in_fresh_factors_and_contains_the_ball(n, ball, k, bound):
     U = input_pz("ball", n, 1, ball=ball)
     assert U.n_factors == k[n] + 1 and U.n_independent == 0 and np.all(U.E.sum(axis=0) == 1)
-    D = _sphere(2000) if n == 3 else circle_directions(2000)
+    D = fibonacci_sphere(2000) if n == 3 else circle_directions(2000)
     h = np.asarray(U.project(list(range(n))).support(D))
     assert h.min() >= 1 - 1e-12 and h.max() <= bound[n]
     with pytest.raises(ProblemError, match="ball_input"):
