@@ -178,6 +178,32 @@ def first_time(times: np.ndarray, values, limit: float) -> float:
     return float(times[1:][idx[0]]) if idx.size else float("inf")
 
 
+def stt_rows(sw: list[dict], runs: tuple[str, ...], d: np.ndarray, tt: np.ndarray,
+             times: np.ndarray) -> list[dict]:
+    """One summary per swept x1: its perilune (``d`` km at ``tt`` TU), per run the largest extent
+    ratios, the first times above :data:`TARGET`, the smallest margin and whether it passes (None
+    for a run that failed), and the order-2 pointwise error (first time above 0.1, value at 1 TU)."""
+    rows = []
+    for i, rec in enumerate(sw):
+        row = {"perilune_km": float(d[i]), "perilune_time": float(tt[i])}
+        for name in runs:
+            r = rec[name]
+            if "error" in r:
+                row[name] = None
+                continue
+            lo, hi = np.asarray(r["extent_ratio_lower"]), np.asarray(r["extent_ratio_upper"])
+            mg = np.asarray(r["margin_over_extent"])
+            row[name] = {"max_ratio_upper": float(np.nanmax(hi)), "max_ratio_lower": float(np.nanmax(lo)),
+                         "first_t_lower_over_target": first_time(times, lo, TARGET),
+                         "first_t_upper_over_target": first_time(times, hi, TARGET),
+                         "min_margin": float(np.nanmin(mg)), "first_t_margin_negative": first_time(times, -mg, 0.0),
+                         "passes": bool(np.all(hi <= TARGET) and np.all(mg >= 0))}
+        row["first_t_pointwise_err_over_0.1"] = first_time(times, rec["pointwise_err_order2"], 0.1)
+        row["pointwise_err_at_1"] = float(rec["pointwise_err_order2"][-1])
+        rows.append(row)
+    return rows
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sobol", type=int, default=256)
@@ -246,24 +272,7 @@ def main(argv=None) -> dict:
             report["stt_sweep"] = sw
         report["stt_sweep_seconds"] = time.perf_counter() - t0
         times = np.asarray(get_problem("nrho-flyby").grid)
-        rows = []
-        for i, rec in enumerate(sw):
-            row = {"perilune_km": float(d[i]), "perilune_time": float(tt[i])}
-            for name in runs:
-                r = rec[name]
-                if "error" in r:
-                    row[name] = None
-                    continue
-                lo, hi = np.asarray(r["extent_ratio_lower"]), np.asarray(r["extent_ratio_upper"])
-                mg = np.asarray(r["margin_over_extent"])
-                row[name] = {"max_ratio_upper": float(np.nanmax(hi)), "max_ratio_lower": float(np.nanmax(lo)),
-                             "first_t_lower_over_target": first_time(times, lo, TARGET),
-                             "first_t_upper_over_target": first_time(times, hi, TARGET),
-                             "min_margin": float(np.nanmin(mg)), "first_t_margin_negative": first_time(times, -mg, 0.0),
-                             "passes": bool(np.all(hi <= TARGET) and np.all(mg >= 0))}
-            row["first_t_pointwise_err_over_0.1"] = first_time(times, rec["pointwise_err_order2"], 0.1)
-            row["pointwise_err_at_1"] = float(rec["pointwise_err_order2"][-1])
-            rows.append(row)
+        rows = stt_rows(sw, runs, d, tt, times)
         report["stt_summary"] = rows
         for name in runs:
             ok = [r for r in rows if r[name] is not None]
