@@ -28,17 +28,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import statistics
 import time
 
 import numpy as np
 
-import importlib
-
 import ocreach
 from ocreach.problem import get_problem
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.directions import fibonacci_sphere
+from ocreach.reach.directions import fibonacci_sphere, plane_directions
 from ocreach.sets.pz_exact import support_bounds
 
 stt_mod = importlib.import_module("ocreach.reach.stt")
@@ -122,11 +121,7 @@ def main(argv=None) -> list[dict]:
             pts = [np.vstack([x, y]) for x, y in zip(pts, ff)]
         truth[K] = pts
     pos = list(p.position_dims)
-    if len(pos) == 2:
-        t = 2 * np.pi * np.arange(a.dirs) / a.dirs
-        D = np.c_[np.cos(t), np.sin(t)]
-    else:
-        D = fibonacci_sphere(a.dirs)
+    D = plane_directions(a.dirs)[0] if len(pos) == 2 else fibonacci_sphere(a.dirs)
     rows = []
     for order in a.order:
         for h in a.h_max:
