@@ -445,8 +445,7 @@ class EphemerisFit:
         """
         if window is not None:
             w_lo, w_hi = _check_window(window)
-            self._branch_on(w_lo, w_hi)
-            C = self._window_matrix(body, origin, w_lo, w_hi)
+            C = self._window_matrix(body, origin, w_lo, w_hi)  # raises across a blend boundary
             out = ca.mtimes(ca.DM(C), _basis((2.0 * t - (w_lo + w_hi)) / (w_hi - w_lo),
                                               C.shape[1] - 1))
             R = self._rotation(frame)

@@ -120,14 +120,14 @@ def perilune(model: Model, X0, t_final: float = 1.0, substeps: int = 400) -> dic
     d = np.linalg.norm(S[:, :, :3] - moon_position(model, times)[None], axis=-1) * du
     i = np.argmin(d, axis=1)
     interior = (i > 0) & (i < times.size - 1)
-    dist, tmin = d[np.arange(len(i)), i], times[i]
+    rows, mid = np.arange(len(i)), np.clip(i, 1, times.size - 2)
+    a, b, c = d[rows, mid - 1], d[rows, mid], d[rows, mid + 1]
+    curv = a - 2 * b + c
+    fit = interior & (curv > 0)  # vertex of the parabola through the three samples
+    s = 0.5 * (a - c) / np.where(fit, curv, 1.0)
     h = times[1] - times[0]
-    for j in np.flatnonzero(interior):
-        a, b, c = d[j, i[j] - 1: i[j] + 2]
-        curv = a - 2 * b + c
-        if curv > 0:  # vertex of the parabola through the three samples
-            s = 0.5 * (a - c) / curv
-            dist[j], tmin[j] = b - 0.25 * (a - c) * s, tmin[j] + s * h
+    dist = np.where(fit, b - 0.25 * (a - c) * s, d[rows, i])
+    tmin = np.where(fit, times[i] + s * h, times[i])
     return {"distance_km": dist, "time": tmin, "interior": interior}
 
 
