@@ -156,6 +156,22 @@ def _poly_add(p: dict, q: dict, s: float = 1.0) -> dict:
     return out
 
 
+def components_pz(comps: list[dict], ids: Any = None) -> PolyZonotope:
+    """The polynomial zonotope ``x_i = sum_e comps[i][e] a^e`` (centre 0): one generator along axis
+    ``i`` per term ``{exponent tuple: coefficient}`` of component ``i``, in the dicts' order."""
+    from ocreach.sets.polyzonotope import PolyZonotope
+
+    n = len(comps)
+    cols, exps = [], []
+    for i, poly in enumerate(comps):
+        for e, v in poly.items():
+            g = np.zeros(n)
+            g[i] = v
+            cols.append(g)
+            exps.append(e)
+    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T, ids)
+
+
 def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
     """Polynomial zonotope approximating the unit Euclidean ball ``{||u||_2 <= 1}``.
 
@@ -207,7 +223,7 @@ def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
     if n <= 5:
         deg = 3 if n <= 4 else 2
         coef = _upper_sqrt_poly(1.0 - 1.0 / n, deg)
-        cols, exps = [], []
+        comps: list[dict] = []
         for i in range(n):
             others = [x for x in range(n) if x != i]
             t: dict = {}
@@ -224,13 +240,9 @@ def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
                 s_poly = _poly_add(s_poly, tp, coef[k])
             e_i = [0] * n
             e_i[i] = 1
-            for e, cval in _poly_mul({tuple(e_i): 1.0}, s_poly).items():
-                if cval != 0.0:
-                    g = np.zeros(n)
-                    g[i] = cval
-                    cols.append(g)
-                    exps.append(e)
-        return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=int).T, ids).compact()
+            comps.append({e: cval for e, cval in _poly_mul({tuple(e_i): 1.0}, s_poly).items()
+                          if cval != 0.0})
+        return components_pz(comps, ids).compact()
     from ocreach.sets.ball_pz import compact_ball_pz
 
     return compact_ball_pz(n, ids)
