@@ -378,14 +378,15 @@ def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned, gr
     dep = ~(const | has_b)
     ind = has_b
     cand = np.flatnonzero(dep | ind)
-    norms = np.linalg.norm(Gb[:, cand], axis=0)
+    Gc = Gb[:, cand]
+    norms = np.linalg.norm(Gc, axis=0)
     keep_mask = np.ones(cand.size, dtype=bool)
     if cand.size > h_max or pruned is not None:
         n_keep = max(h_max - n, 0)
         keep_mask[:] = False
         if n_keep:
             keep_mask[np.argpartition(-norms, n_keep - 1)[:n_keep]] = True
-    keep_mask = regroup_drop(Gb[:, cand], dep[cand], keep_mask, group)
+    keep_mask = regroup_drop(Gc, dep[cand], keep_mask, group)
     kept, removed = cand[keep_mask], cand[~keep_mask]
     kd = kept[dep[kept]]
     ki = kept[ind[kept]]
