@@ -49,7 +49,7 @@ from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 from ocreach.reach.stt_split import PartStep, check_split_options
 from ocreach.sets.pz_union import PZUnion
-from ocreach.sets.reduce import GROUPS as _REDUCE_GROUPS
+from ocreach.sets.reduce import GROUPS as REDUCE_GROUPS  # the reduce_group values
 
 if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
@@ -83,8 +83,6 @@ BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse", 4: "zonotope-coarse"}
 #: long horizons in 5-D and up this default is unverified)
 BALL_INPUT_AUTO_ND = "pz-compact"
 REDUCTIONS = ("pca", "girard")
-#: ``reduce_group`` values (:data:`ocreach.sets.reduce.GROUPS`).
-REDUCE_GROUPS = _REDUCE_GROUPS
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
             "smaller set or horizon, a lower order, or splitting")
