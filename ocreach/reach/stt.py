@@ -49,7 +49,7 @@ from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 from ocreach.reach.stt_split import PartStep, check_split_options
 from ocreach.sets.pz_union import PZUnion
-from ocreach.sets.reduce import GROUPS as _REDUCE_GROUPS
+from ocreach.sets.reduce import GROUPS as REDUCE_GROUPS  # the reduce_group values
 
 if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
@@ -83,8 +83,6 @@ BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse", 4: "zonotope-coarse"}
 #: long horizons in 5-D and up this default is unverified)
 BALL_INPUT_AUTO_ND = "pz-compact"
 REDUCTIONS = ("pca", "girard")
-#: ``reduce_group`` values (:data:`ocreach.sets.reduce.GROUPS`).
-REDUCE_GROUPS = _REDUCE_GROUPS
 DIVERGED = ("STT set propagation diverged: the image of the set under the STT polynomial overflowed "
             "(the set is far outside the region where the truncated expansion is valid); use a "
             "smaller set or horizon, a lower order, or splitting")
@@ -378,14 +376,15 @@ def _fused_reduce(dZ, h_max, method, Gm, tri, const, has_b, even, Ea, pruned, gr
     dep = ~(const | has_b)
     ind = has_b
     cand = np.flatnonzero(dep | ind)
-    norms = np.linalg.norm(Gb[:, cand], axis=0)
+    Gc = Gb[:, cand]
+    norms = np.linalg.norm(Gc, axis=0)
     keep_mask = np.ones(cand.size, dtype=bool)
     if cand.size > h_max or pruned is not None:
         n_keep = max(h_max - n, 0)
         keep_mask[:] = False
         if n_keep:
             keep_mask[np.argpartition(-norms, n_keep - 1)[:n_keep]] = True
-    keep_mask = regroup_drop(Gb[:, cand], dep[cand], keep_mask, group)
+    keep_mask = regroup_drop(Gc, dep[cand], keep_mask, group)
     kept, removed = cand[keep_mask], cand[~keep_mask]
     kd = kept[dep[kept]]
     ki = kept[ind[kept]]

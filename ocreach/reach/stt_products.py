@@ -246,10 +246,12 @@ class BoundedOrder3Products(Order3Products):
             yield from self._pair_cache
             return
         cache: list[tuple[np.ndarray, ...]] | None = []
+        size = 0                                                 # floats of the cached A_ij
         for chunk in self._pair_terms():
             if cache is not None:
                 cache.append(chunk)
-                if sum(c[0].size for c in cache) > self.PAIR_CACHE_FLOATS:
+                size += chunk[0].size
+                if size > self.PAIR_CACHE_FLOATS:
                     cache = None
             yield chunk
         self._pair_cache = cache

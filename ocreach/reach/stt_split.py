@@ -34,6 +34,7 @@ from ocreach.errors import ProblemError, check_count
 if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
 
+
 @dataclass
 class PartStep:
     """One part's step in the split loop of :meth:`ocreach.reach.stt.STTReach.solve`: the part,

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import SetError
-from ocreach.sets.convert import _poly_mul  # product of polynomials as {exponent tuple: coefficient}
+from ocreach.sets.convert import _poly_mul, components_pz  # polynomials as {exponent tuple: coefficient}
 
 #: issue 12's target: the input set's support within 3 % of the ball's
 RADIUS_TARGET = 1.03
@@ -161,8 +161,6 @@ def compact_ball_pz(n: int, ids: Any = None, plan: Any = None):
     the unit sphere in ``[1, R]``, ``R <= 1.03``, and few generators (plan from
     :func:`compact_ball_plan`, or an explicit ``plan`` tree).  Containment: Lemma 1 for the
     leaves, Lemma 2 for the products (module docstring)."""
-    from ocreach.sets.polyzonotope import PolyZonotope
-
     n = int(n)
     if n < 1:
         raise SetError(f"compact_ball_pz: n must be >= 1; got {n}")
@@ -173,14 +171,7 @@ def compact_ball_pz(n: int, ids: Any = None, plan: Any = None):
     if ids is not None and np.atleast_1d(np.asarray(ids)).shape != (m,):
         raise SetError(f"compact_ball_pz: ids must hold one identifier per factor, {m} for n={n} "
                        f"(plan {tree!r}); got shape {np.atleast_1d(np.asarray(ids)).shape}")
-    cols, exps = [], []
-    for i, poly in enumerate(comps):
-        for e, v in poly.items():
-            g = np.zeros(n)
-            g[i] = v
-            cols.append(g)
-            exps.append(e)
-    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T, ids)
+    return components_pz(comps, ids)
 
 
 def plan_radius(tree: Any) -> float:

@@ -7,6 +7,7 @@
 """
 from __future__ import annotations
 
+import functools
 import itertools
 from typing import TYPE_CHECKING, Any
 
@@ -156,6 +157,22 @@ def _poly_add(p: dict, q: dict, s: float = 1.0) -> dict:
     return out
 
 
+def components_pz(comps: list[dict], ids: Any = None) -> PolyZonotope:
+    """The polynomial zonotope ``x_i = sum_e comps[i][e] a^e`` (centre 0): one generator along axis
+    ``i`` per term ``{exponent tuple: coefficient}`` of component ``i``, in the dicts' order."""
+    from ocreach.sets.polyzonotope import PolyZonotope
+
+    n = len(comps)
+    cols, exps = [], []
+    for i, poly in enumerate(comps):
+        for e, v in poly.items():
+            g = np.zeros(n)
+            g[i] = v
+            cols.append(g)
+            exps.append(e)
+    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T, ids)
+
+
 def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
     """Polynomial zonotope approximating the unit Euclidean ball ``{||u||_2 <= 1}``.
 
@@ -205,35 +222,39 @@ def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
         E = np.kron(np.eye(2), np.ones((1, 4))) + np.kron(np.array([[0, 1], [1, 0]]), [0, 2, 4, 6])
         return PolyZonotope(np.zeros(2), G, None, E.astype(int), ids)
     if n <= 5:
-        deg = 3 if n <= 4 else 2
-        coef = _upper_sqrt_poly(1.0 - 1.0 / n, deg)
-        cols, exps = [], []
-        for i in range(n):
-            others = [x for x in range(n) if x != i]
-            t: dict = {}
-            for r in range(1, n):
-                for S in itertools.combinations(others, r):
-                    e = [0] * n
-                    for j in S:
-                        e[j] = 2
-                    t[tuple(e)] = -((-1.0) ** r) / (r + 1)      # t = 1 - (1 - t)
-            s_poly: dict = {(0,) * n: coef[0]}
-            tp = {(0,) * n: 1.0}
-            for k in range(1, deg + 1):
-                tp = _poly_mul(tp, t)
-                s_poly = _poly_add(s_poly, tp, coef[k])
-            e_i = [0] * n
-            e_i[i] = 1
-            for e, cval in _poly_mul({tuple(e_i): 1.0}, s_poly).items():
-                if cval != 0.0:
-                    g = np.zeros(n)
-                    g[i] = cval
-                    cols.append(g)
-                    exps.append(e)
-        return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=int).T, ids).compact()
+        return components_pz(_cube_ball_components(n), ids).compact()
     from ocreach.sets.ball_pz import compact_ball_pz
 
     return compact_ball_pz(n, ids)
+
+
+@functools.lru_cache(maxsize=8)
+def _cube_ball_components(n: int) -> tuple[dict, ...]:
+    """Component polynomials ``{exponent tuple: coefficient}`` of the cube-to-ball map of
+    :func:`unit_ball_pz` for n = 3..5 (cached: the square-root fit is a linear programme of
+    ~30 ms and ``stt`` asks for the ball at every step; callers must not modify the dicts)."""
+    deg = 3 if n <= 4 else 2
+    coef = _upper_sqrt_poly(1.0 - 1.0 / n, deg)
+    comps: list[dict] = []
+    for i in range(n):
+        others = [x for x in range(n) if x != i]
+        t: dict = {}
+        for r in range(1, n):
+            for S in itertools.combinations(others, r):
+                e = [0] * n
+                for j in S:
+                    e[j] = 2
+                t[tuple(e)] = -((-1.0) ** r) / (r + 1)      # t = 1 - (1 - t)
+        s_poly: dict = {(0,) * n: coef[0]}
+        tp = {(0,) * n: 1.0}
+        for k in range(1, deg + 1):
+            tp = _poly_mul(tp, t)
+            s_poly = _poly_add(s_poly, tp, coef[k])
+        e_i = [0] * n
+        e_i[i] = 1
+        comps.append({e: cval for e, cval in _poly_mul({tuple(e_i): 1.0}, s_poly).items()
+                      if cval != 0.0})
+    return tuple(comps)
 
 
 def _upper_sqrt_poly(t_max: float, deg: int) -> np.ndarray:

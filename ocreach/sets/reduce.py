@@ -122,11 +122,9 @@ def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> 
     metric = _girard_metric(absG) if method == "girard" else np.linalg.norm(Z.G, axis=0)
     order_idx = np.argsort(-metric, kind="stable")
     keep, drop = order_idx[:n_keep], order_idx[n_keep:]
-    if method == "girard":  # the box reads only |G|: no copy of the dropped generators
-        absD = absG[:, drop]
-        B = box_generators(absD, method, abs_G=absD)
-    else:
-        B = box_generators(Z.G[:, drop], method, abs_G=absG[:, drop])
+    absD = absG[:, drop]
+    # the girard box reads only |G|: no copy of the dropped generators themselves
+    B = box_generators(absD if method == "girard" else Z.G[:, drop], method, abs_G=absD)
     if not np.isfinite(B).all():
         raise SetError("reduce: the box of the removed generators overflowed (generators near the "
                        "largest float)")
