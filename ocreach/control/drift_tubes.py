@@ -11,6 +11,7 @@ reference; :func:`tube_log` says which tube was used per refresh.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Callable
 from typing import Any
@@ -59,8 +60,7 @@ def as_box(tube: Tube) -> Tube:
     """The tube's interval hulls as a tube (diagonal generators): the paper's Fig. 7 boxes."""
     hw = tube.half_widths()
     G = np.einsum("kn,nm->knm", hw, np.eye(tube.dim))
-    return Tube(tube.centers, G, k0=tube.k0, guaranteed=tube.guaranteed,
-                source=f"interval hull of {tube.source}", meta=tube.meta)
+    return dataclasses.replace(tube, generators=G, source=f"interval hull of {tube.source}")
 
 
 def _membership_wrap(membership: str) -> Callable[[Tube], Tube]:
