@@ -436,9 +436,6 @@ class TubeSchedule:
         r = self.refresh_step(k)
         if r not in self._tubes:
             M = self.reference.n_steps
-            if self.starts is not None:
-                self._tubes[r] = self._built(r)
-                return self._tubes[r]
             base = next((b for b in self._tubes.values() if (b.k0 - r) % M == 0), None) \
                 if self.reuse else None
             t = base.shifted(r) if base is not None else self._built(r)
