@@ -406,10 +406,14 @@ class TubeSchedule:
             return int(self.starts[np.searchsorted(self.starts, int(k), side="right") - 1])
         if self.offsets is None:
             return self.phase + ((int(k) - self.phase) // self.interval) * self.interval
-        M = self.reference.n_steps
-        base = self.phase + ((int(k) - self.phase) // M) * M
+        base = self._period_start(k)
         j = int(np.searchsorted(self.offsets, int(k) - base, side="right")) - 1
         return base + int(self.offsets[j])
+
+    def _period_start(self, k: int) -> int:
+        """The step of ``phase`` in the period containing step ``k`` (``phases`` mode)."""
+        M = self.reference.n_steps
+        return self.phase + ((int(k) - self.phase) // M) * M
 
     def next_refresh(self, r: int) -> int:
         """The refresh step after the refresh step ``r`` (non-periodic: ``end`` after the last)."""
@@ -418,10 +422,9 @@ class TubeSchedule:
             return int(self.starts[j]) if j < self.starts.size else self.end
         if self.offsets is None:
             return int(r) + self.interval
-        M = self.reference.n_steps
-        base = self.phase + ((int(r) - self.phase) // M) * M
+        base = self._period_start(r)
         j = int(np.searchsorted(self.offsets, int(r) - base, side="right"))
-        return base + (int(self.offsets[j]) if j < self.offsets.size else M)
+        return base + (int(self.offsets[j]) if j < self.offsets.size else self.reference.n_steps)
 
     def refresh_steps(self, n_steps: int) -> list[int]:
         """Refresh steps whose intervals touch steps ``0..n_steps-1`` (the first may be < 0)."""
