@@ -11,6 +11,7 @@ reference; :func:`tube_log` says which tube was used per refresh.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Callable
 from typing import Any
@@ -59,8 +60,7 @@ def as_box(tube: Tube) -> Tube:
     """The tube's interval hulls as a tube (diagonal generators): the paper's Fig. 7 boxes."""
     hw = tube.half_widths()
     G = np.einsum("kn,nm->knm", hw, np.eye(tube.dim))
-    return Tube(tube.centers, G, k0=tube.k0, guaranteed=tube.guaranteed,
-                source=f"interval hull of {tube.source}", meta=tube.meta)
+    return dataclasses.replace(tube, generators=G, source=f"interval hull of {tube.source}")
 
 
 def _membership_wrap(membership: str) -> Callable[[Tube], Tube]:
@@ -227,17 +227,17 @@ def tube_log(schedule: TubeSchedule, n_steps: int) -> list[dict[str, Any]]:
 
 
 def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, disturbance: Any,
-                        membership: str, phase: Any, source: str, interval: Any,
-                        options: dict | None, source_given: bool, n_p: int,
-                        plant: EphemerisPlant) -> TubeSchedule:
+                             membership: str, phase: Any, source: str, interval: Any,
+                             options: dict | None, source_given: bool, n_p: int,
+                             plant: EphemerisPlant) -> TubeSchedule:
     """Drift tubes along the ephemeris-corrected reference
     (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`: refreshed at every
     apolune and where the sound method stops, nothing re-used).  A sound source taken from the
     problem's defaults (not given) becomes ``"<method>-or-linear"``: guaranteed where the method
     encloses, the linearised tube (labelled) where it cannot.  The sound method runs on the
     plant's frame model restricted to each interval (:meth:`EphemerisPlant.frame_model_on`: the
-    same function there up to a rigorously bounded difference added to W, re-expanded on the window without the ``if_else``
-    between DE421 fit pieces: docs/intervals.md)."""
+    same function there up to a rigorously bounded difference added to W, re-expanded on the
+    window without the ``if_else`` between DE421 fit pieces: docs/intervals.md)."""
     from ocreach.control.ephemeris_tubes import along_reference_schedule
 
     wrap = _membership_wrap(membership)

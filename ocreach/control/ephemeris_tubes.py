@@ -30,6 +30,7 @@ blend of two pieces falls back
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -88,8 +89,6 @@ def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
     without the ``if_else`` between ephemeris fit pieces, e.g.
     :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
     :class:`ProblemError` saying why the method cannot run on it."""
-    import dataclasses
-
     from ocreach.reach.taylor import check_smooth
 
     model = reference.model
@@ -147,8 +146,7 @@ def checked_model_error(tube: Tube, model_error: dict | None) -> Tube:
     info = {"acceleration": float(model_error["acceleration"]),
             "radius": float(model_error["radius"]), "max_distance": far,
             "position_km": dict(model_error["position_km"])}
-    return Tube(tube.centers, tube.generators, k0=tube.k0, guaranteed=tube.guaranteed,
-                source=tube.source, meta={**tube.meta, "model_error": info})
+    return dataclasses.replace(tube, meta={**tube.meta, "model_error": info})
 
 
 def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: Any,

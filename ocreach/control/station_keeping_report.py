@@ -141,10 +141,14 @@ def summary_lines(data: dict) -> list[str]:
                 continue
             lines.append(f"Event-triggered / {n} Delta-V: "
                          f"{e['delta_v_mps'] / data[n]['delta_v_mps']:.3g}.")
-    lines.append(f"Initial offset (same for all): |dr| = {s['offset_position_km']:.4g} km, "
-                 f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
-                 f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")
-    return lines
+    return lines + [offset_line(s)]
+
+
+def offset_line(s: dict) -> str:
+    """The sentence on the initial offset, disturbance and navigation error (settings ``s``)."""
+    return (f"Initial offset (same for all): |dr| = {s['offset_position_km']:.4g} km, "
+            f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
+            f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")
 
 
 def terminal_set_lines(data: dict) -> list[str]:
@@ -204,10 +208,7 @@ def ephemeris_reference_lines(data: dict, names: list[str]) -> list[str]:
             + f", {m['time_per_step_ms']:.3g} ms per step, {m['solver_failures']} solver "
               "failure(s).")
     lines += terminal_set_lines(data)
-    lines.append(f"Initial offset (same for all): |dr| = {s['offset_position_km']:.4g} km, "
-                 f"|dv| = {s['offset_velocity_mps']:.4g} m/s (seed {s['seed']}); disturbance "
-                 f"W = {s['disturbance_W']}; navigation error {s['navigation']}.")
-    return lines
+    return lines + [offset_line(s)]
 
 
 def _table(data: dict) -> tuple[list[str], list[list[str]]]:

@@ -25,7 +25,7 @@ guaranteed enclosure** (no remainder term); :func:`reach_drift_tube` uses the so
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -253,8 +253,7 @@ class Tube:
     def shifted(self, k0: int) -> Tube:
         """The same sets from reference step ``k0`` (a tube about a periodic reference, whole
         periods later)."""
-        return Tube(self.centers, self.generators, k0=k0, guaranteed=self.guaranteed,
-                    source=self.source, meta=self.meta)
+        return replace(self, k0=k0)
 
     def scaled(self, beta: float) -> Tube:
         """The tube shrunk (``beta < 1``) or grown about its centres: generators times ``beta``."""
@@ -407,10 +406,14 @@ class TubeSchedule:
             return int(self.starts[np.searchsorted(self.starts, int(k), side="right") - 1])
         if self.offsets is None:
             return self.phase + ((int(k) - self.phase) // self.interval) * self.interval
-        M = self.reference.n_steps
-        base = self.phase + ((int(k) - self.phase) // M) * M
+        base = self._period_start(k)
         j = int(np.searchsorted(self.offsets, int(k) - base, side="right")) - 1
         return base + int(self.offsets[j])
+
+    def _period_start(self, k: int) -> int:
+        """The step of ``phase`` in the period containing step ``k`` (``phases`` mode)."""
+        M = self.reference.n_steps
+        return self.phase + ((int(k) - self.phase) // M) * M
 
     def next_refresh(self, r: int) -> int:
         """The refresh step after the refresh step ``r`` (non-periodic: ``end`` after the last)."""
@@ -419,10 +422,9 @@ class TubeSchedule:
             return int(self.starts[j]) if j < self.starts.size else self.end
         if self.offsets is None:
             return int(r) + self.interval
-        M = self.reference.n_steps
-        base = self.phase + ((int(r) - self.phase) // M) * M
+        base = self._period_start(r)
         j = int(np.searchsorted(self.offsets, int(r) - base, side="right"))
-        return base + (int(self.offsets[j]) if j < self.offsets.size else M)
+        return base + (int(self.offsets[j]) if j < self.offsets.size else self.reference.n_steps)
 
     def refresh_steps(self, n_steps: int) -> list[int]:
         """Refresh steps whose intervals touch steps ``0..n_steps-1`` (the first may be < 0)."""
@@ -437,9 +439,6 @@ class TubeSchedule:
         r = self.refresh_step(k)
         if r not in self._tubes:
             M = self.reference.n_steps
-            if self.starts is not None:
-                self._tubes[r] = self._built(r)
-                return self._tubes[r]
             base = next((b for b in self._tubes.values() if (b.k0 - r) % M == 0), None) \
                 if self.reuse else None
             t = base.shifted(r) if base is not None else self._built(r)
@@ -544,17 +543,14 @@ def linear_fallback(lin: Tube, method: str, err: Exception) -> Tube:
     guaranteed, its source labelled, ``meta["fallback_reason"]`` the error on one line (at most
     300 characters)."""
     reason = " ".join(str(err).split())[:300]
-    return Tube(lin.centers, lin.generators, k0=lin.k0, guaranteed=False,
-                source=f"{lin.source}; {method} failed",
-                meta={**lin.meta, "fallback_from": method, "fallback_reason": reason})
+    return replace(lin, guaranteed=False, source=f"{lin.source}; {method} failed",
+                   meta={**lin.meta, "fallback_from": method, "fallback_reason": reason})
 
 
 def _drift_problem(problem, reference: TrackingReference, k0: int, length: int, initial: Any):
     """The zero-thrust problem from ``x_ref(k0) + G0 [-1, 1]^q`` on the reference grid
     ``t_{k0} .. t_{k0+length-1}`` (``a_max`` = 1e-300), in the reference's model (the problem's
     for its periodic orbit; the plant's frame model for an ephemeris-corrected reference)."""
-    import dataclasses
-
     model = reference.model  # the reference's own model (e.g. the ephemeris frame model)
     if "a_max" not in model.param_names:
         raise ProblemError(f"a sound drift tube needs a model with an 'a_max' thrust parameter; "
@@ -563,7 +559,7 @@ def _drift_problem(problem, reference: TrackingReference, k0: int, length: int, 
     p[list(model.param_names).index("a_max")] = 1e-300
     x0 = reference.state(k0)
     G0 = _generator("initial deviation set", initial, model.n_x)
-    return dataclasses.replace(
+    return replace(
         problem, id=f"{problem.id}-drift", model=model, x0=x0.copy(), params=p, reference=None,
         grid=reference.time(np.arange(k0, k0 + length)), initial_set=Zonotope(x0, G0),
         method_options={})
@@ -668,8 +664,7 @@ def sound_drift_partition(problem, reference: TrackingReference, start: int, sto
 
 def _head(tube: Tube, n: int) -> Tube:
     """The first ``n`` sets of ``tube`` (steps ``k0 .. k0 + n - 1``)."""
-    return Tube(tube.centers[:n], tube.generators[:n], k0=tube.k0, guaranteed=tube.guaranteed,
-                source=tube.source, meta=tube.meta)
+    return replace(tube, centers=tube.centers[:n], generators=tube.generators[:n])
 
 
 __all__ = ["CasadiGauge", "Tube", "TubeSchedule", "apolune_phase", "casadi_gauge_constraints",
