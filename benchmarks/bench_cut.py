@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 import ocreach
-from ocreach.problem import get_problem
+from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
+from ocreach.markdown import replace_markdown_section
 from ocreach.reach.cut import standard_rule
-from ocreach.report import replace_markdown_section
-from ocreach.stochastic_mc import stochastic_monte_carlo
+from ocreach.registry import get_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,7 +44,7 @@ def cold_setup(pid: str) -> dict:
     import os
     import tempfile
 
-    from ocreach import quadrature as q
+    from ocreach.dynamics import quadrature as q
 
     old = os.environ.get("OCREACH_CACHE_DIR")
     with tempfile.TemporaryDirectory() as tmp:
@@ -56,9 +56,9 @@ def cold_setup(pid: str) -> dict:
             t0 = time.perf_counter()
             standard_rule("cut", 5, 8), standard_rule("cut", 6, 8), standard_rule("cut", 2, 8)
             rules = time.perf_counter() - t0
+            from ocreach.dynamics.stochastic_mc import step_map_for
             from ocreach.native.cut_kernel import cut_kernel
             from ocreach.native.mc_kernel import mc_kernel
-            from ocreach.stochastic_mc import step_map_for
 
             sm = step_map_for(p)
             t0 = time.perf_counter()

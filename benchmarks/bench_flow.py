@@ -1,4 +1,4 @@
-"""Benchmark of ocreach.flow against SciPy (batch propagation) and heyoka (STT of order 2).
+"""Benchmark of ocreach.dynamics.flow against SciPy (batch propagation) and heyoka (STT of order 2).
 
 1. 1,000 planar CR3BP DRO trajectories under random piecewise-constant controls in the unit disk
    on the grid 0:0.1:3, one ``propagate`` call, against SciPy ``solve_ivp(DOP853)`` one trajectory
@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ocreach.flow import propagate, stm, stt
+from ocreach.dynamics.flow import propagate, stm, stt
+from ocreach.markdown import replace_markdown_section
 from ocreach.models import cr3bp
-from ocreach.report import replace_markdown_section
 
 RTOL, ATOL = 1e-10, 1e-12
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
@@ -202,7 +202,7 @@ def bench_nrho_bounded(timeout: float) -> dict:
 def markdown(d: dict, h: dict, stamp: str) -> str:
     head = f"""## Flows
 
-`python benchmarks/bench_flow.py` (ocreach.flow: vectorised DOP853 with a compiled CasADi step and
+`python benchmarks/bench_flow.py` (ocreach.dynamics.flow: vectorised DOP853 with a compiled CasADi step and
 a C driver loop; rtol = {RTOL:g}, atol = {ATOL:g} for everybody).  {stamp}
 
 | case | ocreach | peer | ratio |

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ocreach.problem import get_problem
+from ocreach.markdown import replace_markdown_section
 from ocreach.reach.base import reach
 from ocreach.reach.indirect import FFOE
-from ocreach.report import replace_markdown_section
+from ocreach.registry import get_problem
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 RTOL, ATOL = 1e-10, 1e-12

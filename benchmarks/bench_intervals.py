@@ -25,10 +25,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from _interval_truth import Reference, as_arrays
 
-from ocreach import intervals as iv
+from ocreach.intervals import evaluator as iv
+from ocreach.markdown import replace_markdown_section
 from ocreach.models import cr3bp, twobody
 from ocreach.models.reentry import reentry
-from ocreach.report import replace_markdown_section
 
 DOCS = ROOT / "docs" / "benchmarks.md"
 MU = 0.01215058560962404

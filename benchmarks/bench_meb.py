@@ -1,4 +1,4 @@
-"""Minimum enclosing ball: ocreach.meb (exact Welzl + core-set sweeps) against a cvxpy + Clarabel SOCP.
+"""Minimum enclosing ball: ocreach.geometry.meb (exact Welzl + core-set sweeps) against a cvxpy + Clarabel SOCP.
 
 Points: standard normal in 3-D and 6-D, 1e4 to 1e6 points.  The SOCP ``min r s.t. |p_i - c| <= r``
 is solved up to 1e5 points (1e6 would need several GB in cvxpy's canonicalisation); its time
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach.meb import minimum_enclosing_ball
-from ocreach.report import replace_markdown_section
+from ocreach.geometry.meb import minimum_enclosing_ball
+from ocreach.markdown import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 

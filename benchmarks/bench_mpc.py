@@ -28,7 +28,7 @@ import numpy as np
 import ocreach
 from ocreach.control import LQR, MPC, Plant, reference_from_problem
 from ocreach.control.report import PAPER_OFFSET_BOX, PAPER_Q, PAPER_R
-from ocreach.report import replace_markdown_section
+from ocreach.markdown import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 IPOPT_COMMON = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
@@ -209,12 +209,12 @@ def run_tube(n_steps: int = 60, seed: int = 0, scale: float = 1.0) -> dict:
 
     l2-halo, Table 3 weights, N_p = 10, N_c = 5, the box (interval hull) of the linearised drift
     tube from the paper's initial set with W = 1e-7, refreshed at apolune
-    (:func:`ocreach.control.drift_tubes.drift_schedule`), hard constraints on x_1..x_N.
+    (:func:`ocreach.control.stationkeeping.drift_tubes.drift_schedule`), hard constraints on x_1..x_N.
     ocreach: ``MPC(tube=6)`` (x_i = c_i + G_i xi_i, |xi| <= 1); do-mpc: the same box as
     ``-h_i <= x_i - c_i <= h_i`` on its state variables.  Same feasible set and cost.  ``scale``
     shrinks the tube (the boxes times ``scale``) so that the constraints become active.
     """
-    from ocreach.control.drift_tubes import drift_schedule
+    from ocreach.control.stationkeeping.drift_tubes import drift_schedule
 
     prob = ocreach.get_problem("l2-halo")
     ref = reference_from_problem(prob, n_sub=2)

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach.report import replace_markdown_section
+from ocreach.markdown import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 PY = sys.executable
@@ -57,12 +57,11 @@ def environment() -> dict:
 # ----------------------------------------------------------------------------- 1. DRO batch
 def dro_batch(n: int = 1000, repeat: int = 7, n_scipy: int = 20) -> dict:
     import heyoka as hy
+    from bench_flow import dro_case
     from scipy.integrate import solve_ivp
 
-    from bench_flow import dro_case
-
     from ocreach import parallel
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     mu, a_max, model, x0, grid, U, X0 = dro_case(n)
     k = grid.size - 1
@@ -167,7 +166,7 @@ def dro_batch(n: int = 1000, repeat: int = 7, n_scipy: int = 20) -> dict:
 _STT_WORKER = r"""
 import json, sys, time
 import ocreach
-from ocreach.problem import get_problem
+from ocreach.registry import get_problem
 p = get_problem("dro")
 ocreach.reach(p, "stt", order=2, h_max=400)
 wall, cpu = [], []
@@ -250,7 +249,7 @@ def peak_kb():
     except (OSError, StopIteration):
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 import ocreach
-from ocreach.problem import get_problem
+from ocreach.registry import get_problem
 p = get_problem(sys.argv[1])
 base = peak_kb()
 t0 = time.perf_counter()
@@ -276,7 +275,7 @@ import json, sys, time
 import ocreach
 import importlib
 sp = importlib.import_module("ocreach.reach.stt_products")
-from ocreach.problem import get_problem
+from ocreach.registry import get_problem
 def peak_kb():
     with open("/proc/self/status") as f:
         return next(int(l.split()[1]) for l in f if l.startswith("VmHWM:"))

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach.report import replace_markdown_section
+from ocreach.markdown import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
@@ -50,7 +50,7 @@ def _median_runs(fn, repeat: int):
 
 def bench_problem(pid: str, repeat: int, **opts) -> dict:
     import ocreach
-    from ocreach.problem import get_problem
+    from ocreach.registry import get_problem
 
     p = get_problem(pid)
     first, t, meta, _ = _median_runs(lambda: ocreach.reach(p, "stt", **opts), repeat)
@@ -61,7 +61,7 @@ def bench_problem(pid: str, repeat: int, **opts) -> dict:
 def bench_ratio(repeat: int) -> dict:
     """stt and ode (100 trajectories) on dro, interleaved in one process."""
     import ocreach
-    from ocreach.problem import get_problem
+    from ocreach.registry import get_problem
 
     p = get_problem("dro")
     ocreach.reach(p, "stt")
@@ -80,7 +80,7 @@ def bench_ratio(repeat: int) -> dict:
 
 def bench_engines(repeat: int) -> dict:
     import ocreach
-    from ocreach.problem import get_problem
+    from ocreach.registry import get_problem
 
     p = get_problem("dro")
     out = {}

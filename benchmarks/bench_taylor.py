@@ -6,7 +6,7 @@
    zonotope reachability"), so the time to that point and the time per daily step are reported;
    the ratio is paper time per step / our time per step (target >= 10x).
 2. nrho-9-2: runtime per 1 h step of ``taylor`` and ``sdc`` over the first 24 h.
-3. The compiled remainder bounds (:mod:`ocreach.native.interval_kernel`) against the numpy
+3. The compiled remainder bounds (:mod:`ocreach.intervals.kernel`) against the numpy
    interval evaluator on earth-mars 200 d, runs interleaved in this process (same sets).
 
 Medians of ``--reps`` runs with the min..max spread of the CPU time per step.  Run it with
@@ -24,8 +24,8 @@ import numpy as np
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.problem import get_problem
-from ocreach.report import replace_markdown_section
+from ocreach.markdown import replace_markdown_section
+from ocreach.registry import get_problem
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 PAPER = {200: 3.443, 300: 5.103}

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import ocreach
+from ocreach.fileio import atomic_write_text
 from ocreach.geometry import (
     circle_directions,
     convex_hull_polygon,
@@ -38,11 +39,11 @@ from ocreach.geometry import (
     outline_area,
     points_in_polygons,
 )
-from ocreach.plot import save_figure
-from ocreach.problem import ControlSet, get_problem
+from ocreach.problem import ControlSet
 from ocreach.reach.base import available_methods
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.result import atomic_write_text
+from ocreach.reach.plot import save_figure
+from ocreach.registry import get_problem
 
 TRAJ_METHODS = {"ode": {"samples": 100}, "ffoe": {"samples": 100, "dims": "position"},
                 "bvp": {"samples": 100, "dims": "position"}}

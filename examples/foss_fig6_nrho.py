@@ -33,13 +33,13 @@ from pathlib import Path
 import numpy as np
 
 import ocreach
+from ocreach.dynamics.flow import stt as stt_flow
 from ocreach.errors import SolverError
-from ocreach.plot import save_figure
-from ocreach.problem import get_problem
-from ocreach.reach.directions import fibonacci_sphere
-from ocreach.reach.result import atomic_write_text
-from ocreach.flow import stt as stt_flow
+from ocreach.fileio import atomic_write_text
+from ocreach.geometry.directions import fibonacci_sphere
+from ocreach.reach.plot import save_figure
 from ocreach.reach.stt import STTReach, stt_polynomial
+from ocreach.registry import get_problem
 from ocreach.sets import PZUnion
 from ocreach.sets.pz_exact import support_bounds
 

@@ -36,12 +36,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from ocreach.problems.foss_ephemeris import EPOCH, MOON_RADIUS_KM, X0, flyby_model, perilune
 from scipy.optimize import minimize
 from scipy.stats import qmc
 
-from ocreach.problem import get_problem
-from ocreach.problems.foss_ephemeris import EPOCH, MOON_RADIUS_KM, X0, flyby_model, perilune
-from ocreach.reach.result import atomic_write_text
+from ocreach.fileio import atomic_write_text
+from ocreach.registry import get_problem
 from ocreach.units import EARTH_MOON_FOSS
 
 #: half width of the rounding box of the paper's two-digit x1 (``--half`` widens it to look beyond)

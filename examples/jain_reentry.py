@@ -29,10 +29,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import ocreach
-from ocreach.plot import save_figure
-from ocreach.problem import get_problem
-from ocreach.report import replace_markdown_section
-from ocreach.stochastic_mc import stochastic_monte_carlo
+from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
+from ocreach.markdown import replace_markdown_section
+from ocreach.reach.plot import save_figure
+from ocreach.registry import get_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG = ROOT / "docs" / "figures"

@@ -14,8 +14,8 @@ import subprocess
 import sys
 import tempfile
 
-from ocreach.problem import get_problem, list_problems
 from ocreach.reach.base import available_methods, method_class
+from ocreach.registry import get_problem, list_problems
 
 SMALL = {"mc": ["samples=100"], "ode": ["samples=20"], "ffoe": ["samples=20"], "ole": ["samples=20"],
          "bvp": ["samples=20"]}

@@ -20,9 +20,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ocreach.plot import save_figure
-from ocreach.problem import get_problem
 from ocreach.reach.base import reach
+from ocreach.reach.plot import save_figure
+from ocreach.registry import get_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 R_EARTH_KM, R_MOON_KM = 6378.137, 1737.4
@@ -69,7 +69,7 @@ def _save(fig, out: Path, name: str) -> None:
 
 
 def _nominal(prob):
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     return propagate(prob.model, prob.x0, np.zeros((prob.n_segments, prob.model.n_u)), prob.grid,
                      p=prob.params)

@@ -6,7 +6,7 @@ remainder loop cannot close within the part budget) it keeps the sets computed s
 (``SolverError.partial``) and reports the time it reached.  Truth: ``--samples`` trajectories
 (default 10,000) from the initial set's vertices (half) and uniform inside (half), with the
 Monte Carlo control laws of ``ocreach.reach.mc`` (random, constant and bang-bang thrust),
-integrated by the project's DOP853 batch integrator (``ocreach.flow.propagate``, rtol 1e-11) on a
+integrated by the project's DOP853 batch integrator (``ocreach.dynamics.flow.propagate``, rtol 1e-11) on a
 grid refined by the segment midpoints; every endpoint must lie in the set at its grid time, the
 midpoints of the first ``TUBE_SAMPLES`` (2,000) trajectories in their step's time-interval set
 (scaled gauge <= 1 + 1e-9); so must the boundary points of ``ode`` (PMP extremals from the
@@ -31,12 +31,12 @@ import numpy as np
 
 import ocreach
 from ocreach.compare import position_volume
+from ocreach.dynamics.flow import propagate
 from ocreach.errors import SolverError
-from ocreach.flow import propagate
-from ocreach.plot import save_figure
-from ocreach.problem import get_problem
+from ocreach.fileio import atomic_write_text, jsonable
 from ocreach.reach.mc import sample_controls
-from ocreach.reach.result import atomic_write_text, jsonable
+from ocreach.reach.plot import save_figure
+from ocreach.registry import get_problem
 from ocreach.sets.union import union_gauge
 from ocreach.sets.zonotope import Zonotope
 

@@ -35,9 +35,9 @@ import time
 import numpy as np
 
 import ocreach
-from ocreach.problem import get_problem
+from ocreach.geometry.directions import fibonacci_sphere, plane_directions
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.directions import fibonacci_sphere, plane_directions
+from ocreach.registry import get_problem
 from ocreach.sets.pz_exact import support_bounds
 
 stt_mod = importlib.import_module("ocreach.reach.stt")

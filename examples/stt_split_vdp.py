@@ -16,9 +16,9 @@ import time
 
 from ocreach.errors import SolverError
 from ocreach.geometry import hull_area, outline_area, points_in_polygons
-from ocreach.problem import get_problem
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.stt import STTReach
+from ocreach.registry import get_problem
 from ocreach.sets import Interval
 
 CASES = {

@@ -25,10 +25,11 @@ from pathlib import Path
 import numpy as np
 
 import ocreach
+from ocreach.fileio import atomic_write_text
 from ocreach.geometry import circle_directions, polygon_area
-from ocreach.problem import ControlSet, get_problem
+from ocreach.problem import ControlSet
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.result import atomic_write_text
+from ocreach.registry import get_problem
 from ocreach.sets.pz_exact import hull_polygons, membership, support_bounds
 
 
@@ -51,9 +52,9 @@ def truth_support(problem, planes, dirs, path: Path) -> dict:
 
 
 def halfplane_area(D, h):
-    from ocreach.sets.pz_exact import _halfplane_polygon
-
     from scipy.optimize import linprog
+
+    from ocreach.sets.pz_exact import _halfplane_polygon
 
     # Chebyshev centre of {x : D x <= h} as the interior point
     res = linprog(np.r_[0, 0, -1], A_ub=np.c_[D, np.linalg.norm(D, axis=1)], b_ub=h,

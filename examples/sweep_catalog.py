@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from ocreach import propagate
+from ocreach.fileio import atomic_write_text
 from ocreach.models import cr3bp
 from ocreach.orbits import continue_family, correct_symmetric, lagrange_points, nrho_9_2
-from ocreach.reach.result import atomic_write_text
 from ocreach.units import EARTH_MOON_PATEL
 
 MU = 0.01215

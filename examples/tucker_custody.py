@@ -13,8 +13,14 @@ import argparse
 import time
 from pathlib import Path
 
-from ocreach.custody_report import CUSTODY_PROBLEMS, analyse, markdown_table, mc_table, write_outputs
-from ocreach.report import replace_markdown_section
+from ocreach.custody.report import (
+    CUSTODY_PROBLEMS,
+    analyse,
+    markdown_table,
+    mc_table,
+    write_outputs,
+)
+from ocreach.markdown import replace_markdown_section
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "custody.md"

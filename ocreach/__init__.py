@@ -9,25 +9,19 @@ Public API::
     ocreach.compare(p, ["mc", "ode"])
 """
 from ocreach import _blas_start  # noqa: F401  (first, before numpy loads OpenBLAS)
+from ocreach._version import __version__
 from ocreach.compare import compare
+from ocreach.dynamics.flow import integrate_batch, propagate, stm, stt
 from ocreach.errors import OcreachError, ProblemError, SetError, SolverError, UnknownNameError
-from ocreach.flow import integrate_batch, propagate, stm, stt
 from ocreach.model import Model
-from ocreach.problem import (
-    ControlSet,
-    Problem,
-    Reference,
-    get_problem,
-    list_problems,
-    load_problem_file,
-)
+from ocreach.problem import ControlSet, Problem, Reference
 from ocreach.reach import Method, ReachResult, available_methods, load, method_class, reach
+from ocreach.registry import get_problem, list_problems, load_problem_file
 from ocreach.units import Units
-
-__version__ = "0.1.0"
 
 
 __all__ = [
+    "__version__",
     "ControlSet",
     "Method",
     "Model",

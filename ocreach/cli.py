@@ -21,7 +21,7 @@ from ocreach.interrupt import restore as restore_interrupt_handler
 
 #: Modules that add commands: each has ``register(subparsers) -> None``.  One line per module.
 COMMAND_MODULES: list[str] = [
-    "ocreach.custody_cli",
+    "ocreach.custody.cli",
     "ocreach.sweep.cli",
 ]
 
@@ -34,7 +34,7 @@ BENCH_PEERS: dict[str, list[tuple[str, str]]] = {
 #: ``ocreach report KIND``: kind -> ``"module:function"`` with ``function(problem, out_dir, **opts) -> dict``.
 REPORT_KINDS: dict[str, str] = {
     "lqr-vs-mpc": "ocreach.control.report:lqr_vs_mpc_report",
-    "station-keeping": "ocreach.control.station_keeping_report:station_keeping_report",
+    "station-keeping": "ocreach.control.stationkeeping.report:station_keeping_report",
 }
 
 
@@ -70,7 +70,7 @@ def _problem(spec: str, raw: dict[str, str]):
     """The problem ``spec`` (id, FILE.py or FILE.py:ID) with ``--set problem.KEY=VALUE`` overrides
     converted by the factory's declared parameter types."""
     from ocreach.options import coerce
-    from ocreach.problem import get_problem, problem_factory
+    from ocreach.registry import get_problem, problem_factory
 
     _, factory = problem_factory(spec)
     return get_problem(spec, **coerce(raw, factory, "problem."))
@@ -129,8 +129,8 @@ def _interrupted(out, mark: _Stages) -> int:
 
 def _write_run(folder: Path, result, problem, method: str, mark: _Stages) -> list[str]:
     """``result.npz``, one figure per projection plane and ``summary.json`` into ``folder``."""
-    from ocreach.plot import plot_projections_over_time
-    from ocreach.reach.result import atomic_write_text, json_text, jsonable
+    from ocreach.fileio import atomic_write_text, json_text, jsonable
+    from ocreach.reach.plot import plot_projections_over_time
 
     result.save(folder / "result.npz")
     mark("saved")
@@ -152,8 +152,8 @@ def _write_run(folder: Path, result, problem, method: str, mark: _Stages) -> lis
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from ocreach.problem import get_problem, list_problems
     from ocreach.reach.base import available_methods, method_class
+    from ocreach.registry import get_problem, list_problems
 
     methods = available_methods()
     print("Methods:")
@@ -196,7 +196,7 @@ def cmd_problem(args: argparse.Namespace) -> int:
     import inspect
 
     from ocreach.options import describe_fields, format_fields
-    from ocreach.problem import problem_factory
+    from ocreach.registry import problem_factory
 
     pid, factory = problem_factory(args.problem)
     doc = inspect.getdoc(factory) or ""

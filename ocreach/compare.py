@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import ProblemError
+from ocreach.fileio import atomic_write_text, json_text
 from ocreach.geometry import (
     circle_directions,
     convex_hull_polygon,
@@ -46,9 +47,10 @@ from ocreach.geometry import (
     points_in_polygons,
     polygon_area,
 )
-from ocreach.problem import Problem, get_problem
+from ocreach.problem import Problem
 from ocreach.reach.base import method_class, reach
-from ocreach.reach.result import ReachResult, atomic_write_text, json_text
+from ocreach.reach.result import ReachResult
+from ocreach.registry import get_problem
 
 
 @dataclass
@@ -181,8 +183,9 @@ def compare(problem: Problem | str, methods: Sequence[str], *, options: dict[str
     error, :func:`ocreach.interrupt.interrupt_requested`).  ``stage(name)`` is called before each
     method (``"method:NAME"``, the CLI's interruption points).
     """
-    from ocreach.interrupt import acknowledge, interrupt_requested
     from tqdm import tqdm
+
+    from ocreach.interrupt import acknowledge, interrupt_requested
 
     problem = problem if isinstance(problem, Problem) else get_problem(problem)
     options = options or {}
@@ -301,7 +304,7 @@ def write_comparison(cmp: Comparison, out_dir: str | Path) -> dict[str, Path]:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from ocreach.plot import axis_label, plot_result, save_figure, time_label
+    from ocreach.reach.plot import axis_label, plot_result, save_figure, time_label
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

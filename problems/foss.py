@@ -6,9 +6,9 @@ from functools import cache
 
 import numpy as np
 
+from ocreach.errors import ProblemError
 from ocreach.models import cr3bp, vanderpol
 from ocreach.orbits import PeriodicOrbit, correct_symmetric
-from ocreach.errors import ProblemError
 from ocreach.problem import Problem, time_grid
 from ocreach.units import EARTH_MOON_FOSS
 

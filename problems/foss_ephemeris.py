@@ -101,13 +101,13 @@ def perilune(model: Model, X0, t_final: float = 1.0, substeps: int = 400) -> dic
     """Closest approach to the Moon of ballistic trajectories from ``X0`` (``(6,)`` or ``(N, 6)``)
     over ``[0, t_final]`` TU.
 
-    The states are sampled every ``t_final / substeps`` TU (:func:`ocreach.flow.propagate`); the
+    The states are sampled every ``t_final / substeps`` TU (:func:`ocreach.dynamics.flow.propagate`); the
     minimum of the Moon distance is refined by the parabola through it and its two neighbours.
     Returns arrays (length N): ``distance_km`` and ``time`` (TU) of the minimum, and ``interior``:
     True if it is a perilune inside ``(0, t_final)`` (False: the distance still falls at
     ``t_final``, or rises from t = 0), in which case distance and time are those of the endpoint.
     """
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     X = np.atleast_2d(np.asarray(X0, dtype=float))
     substeps = int(substeps)

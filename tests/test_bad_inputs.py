@@ -224,7 +224,7 @@ def _cell(s: str) -> str:
 
 
 def _write_table(rows) -> None:
-    from ocreach.reach.result import atomic_write_text
+    from ocreach.fileio import atomic_write_text
 
     n_cli = sum(1 for r in rows if r[0] == "cli")
     lines = [SECTION, "",

@@ -13,6 +13,15 @@ from fractions import Fraction
 
 import numpy as np
 import pytest
+from _ball_certify import (
+    _values,
+    boundary_at_least_one,
+    boundary_at_least_one_exact,
+    face_at_least,
+    max_over_unit_box,
+    max_over_unit_box_exact,
+    squared_norm_in_squares,
+)
 
 from ocreach.errors import ProblemError, SetError
 from ocreach.reach.stt import BALL_INPUT_AUTO, BALL_INPUT_AUTO_ND, input_pz
@@ -25,16 +34,6 @@ from ocreach.sets.ball_pz import (
     plan_radius,
 )
 from ocreach.sets.pz_exact import find_witnesses, support_bounds
-
-from _ball_certify import (
-    _values,
-    boundary_at_least_one,
-    boundary_at_least_one_exact,
-    face_at_least,
-    max_over_unit_box,
-    max_over_unit_box_exact,
-    squared_norm_in_squares,
-)
 
 LEAVES = [("d4", 2), ("d6", 2), ("b3", 3)]
 

@@ -14,8 +14,9 @@ from test_indirect import cr3bp_np, dt_optimum
 
 from ocreach.errors import ProblemError
 from ocreach.models import cr3bp
-from ocreach.problem import Problem, get_problem
+from ocreach.problem import Problem
 from ocreach.reach.base import reach
+from ocreach.registry import get_problem
 from ocreach.units import EARTH_MOON_FOSS
 
 N_DIRS = 6

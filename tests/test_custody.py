@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from ocreach import custody as cu
-from ocreach.custody_reach import ReachableBalls, validate_with_mc
-from ocreach.errors import ProblemError, SolverError, SetError
+from ocreach.custody.reach_balls import ReachableBalls, validate_with_mc
+from ocreach.errors import ProblemError, SetError, SolverError
 from ocreach.geometry import minimum_enclosing_ball
-from ocreach.problem import get_problem
 from ocreach.reach.base import reach
+from ocreach.registry import get_problem
 
 KM = 384400.0
 
@@ -264,8 +264,8 @@ def test_horizon_search_evaluates_t_min():
 
 
 def test_custody_report_start_ball_and_search_at_start():
-    from ocreach.custody_reach import ReachableBalls
-    from ocreach.custody_report import _search
+    from ocreach.custody.reach_balls import ReachableBalls
+    from ocreach.custody.report import _search
 
     point = ReachableBalls("custody-l1")
     c, r = point.start_ball()
@@ -344,7 +344,7 @@ def test_orbit_observer_follows_the_problem_orbit():
     obs = cu.orbit_observer(prob.model, prob.x0, prob.params)
     P = obs.position([0.0, 0.1, 0.2])
     assert np.allclose(P[0], prob.x0[:3])
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     p0 = prob.params.copy()
     p0[1] = 0.0

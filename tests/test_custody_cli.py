@@ -46,7 +46,7 @@ def test_palette_png_is_smaller_and_keeps_the_picture(tmp_path):
     import numpy as np
     from PIL import Image
 
-    from ocreach.plot import save_figure
+    from ocreach.reach.plot import save_figure
 
     def fig():
         f, ax = plt.subplots(figsize=(4, 3))

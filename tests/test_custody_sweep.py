@@ -12,8 +12,8 @@ import pytest
 
 from ocreach.custody import sweep_task
 from ocreach.errors import ProblemError
-from ocreach.problem import get_problem
 from ocreach.reach.result import ReachResult
+from ocreach.registry import get_problem
 
 
 @pytest.fixture(scope="module")

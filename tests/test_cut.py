@@ -14,9 +14,9 @@ import pytest
 from test_reentry import _linear_problem, phys_rhs
 
 import ocreach
+from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
 from ocreach.errors import ProblemError
-from ocreach.problem import get_problem
-from ocreach.stochastic_mc import stochastic_monte_carlo
+from ocreach.registry import get_problem
 
 D = np.pi / 180
 
@@ -174,20 +174,21 @@ def test_bad_input():
 
 def test_kernels_use_public_native_names():
     """The C-kernel modules use ocreach.native's public compile helpers, not private names, and
-    ocreach.flow keeps re-exporting them for older callers."""
+    ocreach.dynamics.flow keeps re-exporting them for older callers."""
     import ast
     from pathlib import Path
 
-    from ocreach import flow, native
+    from ocreach import native
+    from ocreach.dynamics import flow
 
     for name in ("jit_enabled", "cache_dir", "compile_source", "generate_c", "c_identifier"):
         assert getattr(flow, name) is getattr(native, name)
     root = Path(ocreach.__file__).parent
     for rel in ("native/cut_kernel.py", "native/mc_kernel.py", "native/batch_eval.py",
-                "native/integrator.py", "stochastic_mc.py", "quadrature.py"):
+                "native/integrator.py", "dynamics/stochastic_mc.py", "dynamics/quadrature.py"):
         tree = ast.parse((root / rel).read_text())
         private = [a.name for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
-                   and (node.module or "").startswith(("ocreach.flow", "ocreach.native"))
+                   and (node.module or "").startswith(("ocreach.dynamics.flow", "ocreach.native"))
                    for a in node.names if a.name.startswith("_")]
         assert private == [], (rel, private)
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import ocreach
-from ocreach.control.ephemeris_plant import EphemerisPlant
 from ocreach.control.reference import natural_reference, reference_from_problem
 from ocreach.control.simulate import Plant
-from ocreach.control.station_keeping import run_station_keeping
+from ocreach.control.stationkeeping.ephemeris_plant import EphemerisPlant
+from ocreach.control.stationkeeping.runs import run_station_keeping
 from ocreach.ephemeris import gm
 from ocreach.errors import ProblemError
 from ocreach.models import cr3bp
@@ -204,7 +204,7 @@ def test_cr3bp_tubes_are_not_called_guaranteed_on_the_ephemeris_plant(nrho):
     assert run.settings["tube_guaranteed"] is False
     assert run.metrics["lqr"]["tube_guaranteed"] is False
     assert run.settings["tube_model"] == "cr3bp"
-    from ocreach.control.station_keeping import tubes_enclose_plant
+    from ocreach.control.stationkeeping.runs import tubes_enclose_plant
 
     tubes = [{"guaranteed": True}]
     assert tubes_enclose_plant(tubes, "cr3bp", "cr3bp") is True

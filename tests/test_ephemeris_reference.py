@@ -1,4 +1,4 @@
-"""Ephemeris-corrected NRHO reference (ocreach.control.ephemeris_reference)."""
+"""Ephemeris-corrected NRHO reference (ocreach.control.stationkeeping.ephemeris_reference)."""
 from __future__ import annotations
 
 import json
@@ -7,15 +7,19 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from ocreach.control.ephemeris_reference import DEFECT_TOL, correct_orbit, ephemeris_reference
 from ocreach.control.lqr import LQR
 from ocreach.control.reference import reference_from_problem
 from ocreach.control.report import PAPER_Q, paper_pattern
 from ocreach.control.simulate import SimOptions, simulate
-from ocreach.control.station_keeping_metrics import delta_v_si
+from ocreach.control.stationkeeping.ephemeris_reference import (
+    DEFECT_TOL,
+    correct_orbit,
+    ephemeris_reference,
+)
+from ocreach.control.stationkeeping.metrics import delta_v_si
+from ocreach.dynamics.shooting import min_norm_update, multiple_shooting
 from ocreach.errors import ProblemError, SolverError
-from ocreach.problem import get_problem
-from ocreach.shooting import min_norm_update, multiple_shooting
+from ocreach.registry import get_problem
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +77,7 @@ def test_min_norm_update_solves_the_linear_system():
 
 
 def test_disk_cache_round_trip(nrho, tmp_path, monkeypatch):
-    import ocreach.control.ephemeris_reference as mod
+    import ocreach.control.stationkeeping.ephemeris_reference as mod
 
     monkeypatch.setattr(mod, "cache_folder", lambda: tmp_path)
     a = correct_orbit(nrho, 1)
@@ -172,7 +176,7 @@ def test_cache_entry_that_is_not_an_orbit_of_the_current_dynamics_is_recomputed(
     """The cache key holds the settings, not the dynamics' code: a stored orbit whose patch points
     no longer satisfy the dynamics (here one moved by 1e-6 DU, its stored defects left small, as
     after a change of the model) is re-checked on load and recomputed, not returned."""
-    import ocreach.control.ephemeris_reference as mod
+    import ocreach.control.stationkeeping.ephemeris_reference as mod
 
     monkeypatch.setattr(mod, "cache_folder", lambda: tmp_path)
     a = correct_orbit(nrho, 1)

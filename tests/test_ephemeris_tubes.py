@@ -1,18 +1,18 @@
 """Drift tubes along the ephemeris-corrected (non-periodic) reference, and event-triggered / tube
-MPC on the DE421 plant with that reference (ocreach.control.ephemeris_tubes, issue 14)."""
+MPC on the DE421 plant with that reference (ocreach.control.stationkeeping.ephemeris_tubes, issue 14)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from ocreach.control.ephemeris_reference import ephemeris_reference
-from ocreach.control.ephemeris_tubes import along_reference_schedule, interval_tubes
-from ocreach.control.station_keeping import run_station_keeping
-from ocreach.control.station_keeping_paper import PAPER_W, paper_initial_set
-from ocreach.control.tube import Tube, TubeSchedule
+from ocreach.control.stationkeeping.ephemeris_reference import ephemeris_reference
+from ocreach.control.stationkeeping.ephemeris_tubes import along_reference_schedule, interval_tubes
+from ocreach.control.stationkeeping.paper import PAPER_W, paper_initial_set
+from ocreach.control.stationkeeping.runs import run_station_keeping
+from ocreach.control.stationkeeping.tubes import Tube, TubeSchedule
 from ocreach.errors import ProblemError
-from ocreach.problem import get_problem
+from ocreach.registry import get_problem
 
 
 @pytest.fixture(scope="module")
@@ -245,10 +245,11 @@ def _clenshaw_exact(c, x):
 def _fit_exact(fit, body, origin, t):
     """The fit of ``position_expr`` (no window) at ``t`` seconds in exact arithmetic on its float
     constants, read off its definition (piece polynomials, smoothstep blend) independently of
-    :mod:`ocreach.exact_chebyshev`."""
+    :mod:`ocreach.ephemeris.exact_chebyshev`."""
     from fractions import Fraction
 
-    from ocreach.ephemeris import _SMOOTHSTEP, SECONDS_PER_DAY
+    from ocreach.ephemeris.de421 import SECONDS_PER_DAY
+    from ocreach.ephemeris.fit import _SMOOTHSTEP
 
     def piece(k):
         lo, hi = (v * SECONDS_PER_DAY for v in fit.piece_bounds_days[k])
@@ -389,7 +390,7 @@ def test_finite_horizon_terminal_set_is_the_one_at_the_horizon_end(nrho, eph):
     neighbouring steps' matrices differ by far more than the tolerance, so an index off by one
     is detected.  The LQR's cost-to-go refuses steps past the reference's end."""
     from ocreach.control.report import PAPER_Q, paper_pattern
-    from ocreach.control.tube_mpc import TubeMPC
+    from ocreach.control.stationkeeping.tube_mpc import TubeMPC
 
     ref, _ = eph
     N = 15
@@ -425,7 +426,7 @@ def test_window_model_error_with_the_ephemeris_frame_acceleration(nrho, eph):
     Moon's re-expanded position, which the window changes far more than the positions (measured
     7e-9 DU/TU^2, 7 % of the paper's W): the bound (the k = 2 bound of the fit) covers the
     difference of the two frame models at sampled states and times, and is tight (within 2x)."""
-    from ocreach.control.ephemeris_plant import EphemerisPlant
+    from ocreach.control.stationkeeping.ephemeris_plant import EphemerisPlant
 
     ref, _ = eph
     plant = EphemerisPlant(ref, "ball", nrho.velocity_dims, span_days=14.0,
@@ -507,7 +508,7 @@ def test_model_error_widens_w_and_is_checked_against_the_flowpipe(nrho):
     has (number, radii, zonotope, None), and leaves W alone without an error;
     ``checked_model_error`` raises when the flowpipe's box reaches the radius (a corner, not a
     face, being the farthest point) or is missing, and records the distance otherwise."""
-    from ocreach.control.ephemeris_tubes import checked_model_error, with_model_error
+    from ocreach.control.stationkeeping.ephemeris_tubes import checked_model_error, with_model_error
     from ocreach.errors import SolverError
     from ocreach.reach.taylor import disturbance_zonotope
     from ocreach.sets import Zonotope

@@ -1,4 +1,4 @@
-"""Tests of ocreach.flow against independent references: SciPy's solve_ivp, central finite
+"""Tests of ocreach.dynamics.flow against independent references: SciPy's solve_ivp, central finite
 differences of the propagated flow, and heyoka's variational equations (Foss et al. Eq. 11-13)."""
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from ocreach import flow
+from ocreach.dynamics import flow
+from ocreach.dynamics.flow import integrate_batch, propagate, stm, stt
 from ocreach.errors import ProblemError, SolverError
-from ocreach.flow import integrate_batch, propagate, stm, stt
 from ocreach.models import cr3bp, vanderpol
 from ocreach.native.integrator import stepper
 

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from ocreach.problems.foss_ephemeris import X0, flyby_model, moon_position, perilune
 from scipy.integrate import solve_ivp
 
 from ocreach.errors import ProblemError
+from ocreach.geometry.directions import fibonacci_sphere
 from ocreach.models.ephemeris import synodic_to_inertial
-from ocreach.problem import get_problem
-from ocreach.reach.directions import fibonacci_sphere
-from ocreach.problems.foss_ephemeris import X0, flyby_model, moon_position, perilune
+from ocreach.registry import get_problem
 
 
 def test_default_x0_is_the_papers_and_override_is_used():
@@ -20,7 +20,7 @@ def test_default_x0_is_the_papers_and_override_is_used():
     np.testing.assert_array_equal(q.x0, x1)
     assert q.extra["x0"] == x1 and "x0 = " in q.description
     # the override changes the trajectory (a different reference), the default stays the paper's
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     U = np.zeros((q.n_segments, 3))
     assert np.linalg.norm(propagate(q.model, q.x0, U, q.grid)[-1] - propagate(p.model, p.x0, U, p.grid)[-1]) > 1e-3
@@ -97,7 +97,7 @@ def test_perilune_against_an_event_located_perilune():
     # before the perilune: no interior minimum, the distance at t_final
     early = perilune(m, X0, t_final=0.5)
     assert not early["interior"][0] and early["time"][0] == pytest.approx(0.5)
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     x_end = propagate(m, X0, np.zeros((1, 3)), [0.0, 0.5])[-1]
     d_end = np.linalg.norm(x_end[:3] - moon_position(m, 0.5)) * m.cache["frame"]["du_km"]

@@ -13,9 +13,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from ocreach.errors import ProblemError
-from ocreach.problem import Problem, get_problem
+from ocreach.problem import Problem
 from ocreach.reach.base import reach
 from ocreach.reach.indirect import FFOE
+from ocreach.registry import get_problem
 
 N_DIRS = 8
 

@@ -1,4 +1,4 @@
-"""The compiled interval kernel (ocreach.native.interval_kernel) against the numpy evaluator.
+"""The compiled interval kernel (ocreach.intervals.kernel) against the numpy evaluator.
 
 The numpy evaluator of ocreach.intervals is checked against mpmath in tests/test_intervals.py;
 the C kernel must give the same bounds as its ``nextafter`` mode, value for value (zeros may
@@ -14,12 +14,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from ocreach import intervals as iv
+from ocreach.intervals import evaluator as iv
 from ocreach.intervals import IntervalDomainError, IntervalFunction
-from ocreach.native.interval_kernel import _entries
-from ocreach.problem import get_problem
+from ocreach.intervals.kernel import _entries
 from ocreach.reach.sdc import third_interval
 from ocreach.reach.taylor import hessian_interval
+from ocreach.registry import get_problem
 
 TINY = 5e-324
 BIG = 1.7976931348623157e308

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from mpmath import mp
 
-from ocreach import intervals as iv
+from ocreach.intervals import evaluator as iv
 from ocreach.errors import ProblemError
 from ocreach.intervals import IntervalDomainError, IntervalFunction
 from ocreach.models import cr3bp, ephemeris_synodic, twobody, vanderpol
@@ -738,7 +738,7 @@ def test_rounding_mode_is_per_thread():
 
     import casadi as ca
 
-    from ocreach import intervals as iv
+    from ocreach.intervals import evaluator as iv
 
     x = ca.SX.sym("x", 2)
     f = ca.Function("f", [x], [ca.vertcat(x[0] * x[1] + ca.sin(x[0]) / (3 + x[1] ** 2),

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 import ocreach
-from ocreach import stochastic_mc
+from ocreach.dynamics import stochastic_mc
+from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
 from ocreach.errors import ProblemError
-from ocreach.problem import get_problem
-from ocreach.stochastic_mc import stochastic_monte_carlo
+from ocreach.registry import get_problem
 
 
 @pytest.fixture(scope="module")

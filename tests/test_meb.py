@@ -1,4 +1,4 @@
-"""Minimum enclosing ball (ocreach.meb) against brute force, an SOCP, and its own certificate.
+"""Minimum enclosing ball (ocreach.geometry.meb) against brute force, an SOCP, and its own certificate.
 
 Brute force: every subset of at most d + 1 points, the sphere through it with centre in its
 affine hull (solved independently here by least squares), kept if it encloses all points; the

@@ -58,7 +58,7 @@ def test_concurrent_builds_into_an_empty_cache_agree(tmp_path):
 def test_one_cache_root_and_unique_temporary_names(tmp_path, monkeypatch):
     monkeypatch.setenv("OCREACH_CACHE_DIR", str(tmp_path))
     assert nc.cache_dir() == tmp_path / "jit"
-    from ocreach import quadrature
+    from ocreach.dynamics import quadrature
 
     assert quadrature._disk_cache_path(5, 8, "cut").parent == tmp_path / "cut_rules"
     target = tmp_path / "x" / "data.bin"
@@ -179,7 +179,7 @@ def test_propagate_is_thread_count_independent_and_matches_scipy(monkeypatch):
     from ocreach.native import integrator
 
     monkeypatch.setattr(integrator, "THREAD_WORK", 16)
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     model, grid, U, X0 = _dro_segments(100, 30, 3.0, seed=7)
     with parallel.settings(threads=1):
@@ -216,7 +216,7 @@ def test_bad_thread_settings_are_problem_errors(monkeypatch):
 def _old_paths(model):
     """propagate through the per-segment Batch loop with the same lane code (the path before
     the segment driver) and through the scalar one-sample driver (fresh stepper, no lanes)."""
-    from ocreach.flow import flow_rhs
+    from ocreach.dynamics.flow import flow_rhs
     from ocreach.native import integrator
 
     st = integrator.stepper(flow_rhs(model))
@@ -233,9 +233,9 @@ def test_segment_driver_matches_per_segment_loops_and_scipy(name, monkeypatch):
     per-sample parameters."""
     from scipy.integrate import solve_ivp
 
-    from ocreach.flow import flow_rhs, propagate
+    from ocreach.dynamics.flow import flow_rhs, propagate
     from ocreach.native import integrator
-    from ocreach.problem import get_problem
+    from ocreach.registry import get_problem
 
     prob = get_problem(name)
     model = prob.model
@@ -276,8 +276,8 @@ def test_segment_driver_matches_per_segment_loops_and_scipy(name, monkeypatch):
 def test_segment_driver_reports_failed_samples(monkeypatch):
     """A sample that hits a primary (non-finite rhs) or exceeds max_steps inside a later segment
     is named in the SolverError; the others still integrate."""
+    from ocreach.dynamics.flow import propagate
     from ocreach.errors import SolverError
-    from ocreach.flow import propagate
     from ocreach.models import cr3bp
 
     model = cr3bp(0.0122, planar=True, a_max=0.02)
@@ -294,7 +294,7 @@ def test_threads_take_samples_from_a_shared_queue_with_identical_results(monkeyp
     """1, 2 and 3 threads on one batch (samples handed out by the shared counter, so the split
     differs from run to run) give bit-identical states, for propagate and integrate_batch."""
     from ocreach import parallel
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
     from ocreach.native import integrator
 
     monkeypatch.setattr(integrator, "THREAD_WORK", 16)
@@ -320,7 +320,7 @@ def integrate_batch_threads(rhs, y0, a, threads):
 
 def test_segment_driver_on_an_empty_batch():
     from ocreach import parallel
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     model, grid, _, _ = _dro_segments(1, 3, 0.3, seed=0)
     for th in (1, 2):

@@ -208,7 +208,7 @@ def test_compare_ctrl_c_keeps_finished_work(tmp_path, monkeypatch, capsys):
 
 
 def test_axis_and_time_labels_carry_units():
-    from ocreach.plot import axis_label, time_label
+    from ocreach.reach.plot import axis_label, time_label
     em = ocreach.get_problem("earth-mars")
     assert axis_label(em, 0) == "x [AU]" and axis_label(em, 4) == "vy [AU/TU]"
     dro = ocreach.get_problem("dro")
@@ -225,7 +225,7 @@ def test_package_compare_is_the_function_after_submodule_import():
 
 
 def test_body_tracks_for_figures():
-    from ocreach.plot import body_tracks
+    from ocreach.reach.plot import body_tracks
 
     dro = ocreach.get_problem("dro")
     tr = body_tracks(dro)

@@ -7,7 +7,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from ocreach.errors import ProblemError
-from ocreach.problem import Reference, get_problem, list_problems
+from ocreach.problem import Reference
+from ocreach.registry import get_problem, list_problems
 
 T_STAR = 375200.0            # s (Patel & Subbarao)
 L_STAR = 3.844e8             # m

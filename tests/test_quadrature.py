@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from ocreach.errors import ProblemError
-from ocreach.quadrature import (
+from ocreach.dynamics.quadrature import (
     CUT_SUPPORTED,
     cut_rule,
     cut_structure,
@@ -19,6 +18,7 @@ from ocreach.quadrature import (
     to_gaussian,
     unscented_rule,
 )
+from ocreach.errors import ProblemError
 
 
 def exact_1d(k: int, density: str) -> float:
@@ -209,7 +209,7 @@ def test_moments_errors():
 def test_cut_rule_disk_cache_is_verified(tmp_path, monkeypatch):
     """The solved rule is stored next to the JIT cache; a corrupt cached file is re-solved (the
     result is then checked by the closed-form moments, as in test_cut_exact_positive)."""
-    from ocreach import quadrature as q
+    from ocreach.dynamics import quadrature as q
 
     monkeypatch.setenv("OCREACH_CACHE_DIR", str(tmp_path / "jit"))
     solve = q._solve_cut.__wrapped__  # bypass the in-process cache

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from ocreach.dynamics.stochastic_mc import psd_factor, step_map_for, stochastic_monte_carlo
 from ocreach.errors import ProblemError
 from ocreach.models.reentry import GLIDER, SHUTTLE, reentry
-from ocreach.problem import Problem, StochasticSpec, get_problem
-from ocreach.stochastic_mc import psd_factor, step_map_for, stochastic_monte_carlo
+from ocreach.problem import Problem, StochasticSpec
+from ocreach.registry import get_problem
 
 D = np.pi / 180
 

@@ -13,10 +13,11 @@ import ocreach
 from ocreach.cli import main
 from ocreach.errors import ProblemError, SolverError
 from ocreach.options import coerce, parse_bool
-from ocreach.problem import get_problem, time_grid
+from ocreach.problem import time_grid
 from ocreach.reach.base import method_class
 from ocreach.reach.guard import check_result, problem_scale
 from ocreach.reach.result import ReachResult
+from ocreach.registry import get_problem
 
 
 def _cli(*argv):
@@ -242,7 +243,7 @@ def test_model_builders_declare_thrust_and_twobody_default_is_usable():
 
 
 def test_reentry_plots_in_seconds():
-    from ocreach.plot import time_label
+    from ocreach.reach.plot import time_label
 
     assert time_label(get_problem("shuttle-reentry", t_final=10.0), 5.0) == "t = 5 s"
 

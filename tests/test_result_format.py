@@ -163,7 +163,7 @@ def test_print_result_is_short():
 def test_json_text_is_strict_json():
     """Output files hold strict JSON: NaN and infinities (numpy or Python, nested) become null,
     numpy values become Python values, and a strict parser reads the text back."""
-    from ocreach.reach.result import json_text
+    from ocreach.fileio import json_text
 
     obj = {"a": float("nan"), "b": [np.float64(np.inf), -np.inf, 1.5], "c": {"d": np.array([1.0, np.nan])},
            "e": np.int64(3), 4: "four"}

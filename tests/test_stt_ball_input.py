@@ -12,12 +12,13 @@ import pytest
 import ocreach
 from ocreach.errors import ProblemError, SetError
 from ocreach.geometry import circle_directions
-from ocreach.problem import ControlSet, get_problem
+from ocreach.geometry.directions import fibonacci_sphere
+from ocreach.problem import ControlSet
 from ocreach.reach.direct import transcription_support
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.stt import input_pz
+from ocreach.registry import get_problem
 from ocreach.sets import unit_ball_zonotope, zonotope_support_range
-from ocreach.reach.directions import fibonacci_sphere
 from ocreach.sets.pz_exact import support_bounds
 
 

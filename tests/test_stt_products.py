@@ -7,10 +7,10 @@ import pytest
 
 import ocreach
 from ocreach.errors import ProblemError
-from ocreach.problem import get_problem
 from ocreach.reach.mc import MonteCarlo
 from ocreach.reach.stt import STTReach, fused_step, stt_polynomial
 from ocreach.reach.stt_products import BoundedOrder3Products, Order3Products, order3_products
+from ocreach.registry import get_problem
 from ocreach.sets import PolyZonotope, new_ids
 from ocreach.sets.polyzonotope import sym_tensor
 

@@ -151,7 +151,7 @@ def test_a_raising_task_is_recorded_and_the_rest_finish(tmp_path):
     # a failure only the computation can find: Van der Pol with negative damping started outside
     # its unstable limit cycle escapes to infinity in finite time (the integrator stops, SolverError)
     (tmp_path / "unstable.py").write_text(
-        "import dataclasses\n\nimport numpy as np\n\nfrom ocreach.problem import get_problem\n\n\n"
+        "import dataclasses\n\nimport numpy as np\n\nfrom ocreach.registry import get_problem\n\n\n"
         "def problem(mu: float = 1.0):\n    base = get_problem('vdp')\n"
         "    return dataclasses.replace(base, params=np.array([mu, base.params[1]]))\n")
     data = {"base": {"problem": "unstable.py", "options": {"samples": 4}},
@@ -283,7 +283,7 @@ def test_catalog_units_need_a_problem_with_units(tmp_path):
                                "ProblemError: t_final = 3.05 TU must be a whole multiple of dt"),
 ])
 def test_bad_problem_overrides_are_rejected_by_the_driver(tmp_path, problem, overrides, expected):
-    (tmp_path / "prob.py").write_text("from ocreach.problem import get_problem\n\n"
+    (tmp_path / "prob.py").write_text("from ocreach.registry import get_problem\n\n"
                                       "def problem(thrust: float = 1.1e-3):\n"
                                       "    return get_problem('dro', thrust=thrust)\n")
     data = {"base": {"problem": problem, "method": "mc", "options": {"samples": 4}},
@@ -337,11 +337,11 @@ def test_unreachable_scheduler_and_foreign_folder_fail_before_work(tmp_path, mon
 
 
 def test_catalog_units_and_problem_file(tmp_path):
-    from ocreach.problem import get_problem
+    from ocreach.registry import get_problem
     from ocreach.sweep.worker import build_problem
 
     (tmp_path / "prob.py").write_text(
-        "from ocreach.problem import get_problem\n\n"
+        "from ocreach.registry import get_problem\n\n"
         "def problem(thrust=1.1e-3):\n    return get_problem('dro', thrust=thrust)\n")
     (tmp_path / "cat.csv").write_text(
         "# two objects\nname,family,x[km],y[km],vx[km/s],vy[km/s]\n"
@@ -436,7 +436,7 @@ def test_example_specs_validate():
 
 def test_a_dying_worker_is_recorded_and_the_run_stops_clearly(tmp_path):
     (tmp_path / "die.py").write_text(
-        "import os\nfrom ocreach.problem import get_problem\n\n"
+        "import os\nfrom ocreach.registry import get_problem\n\n"
         "import multiprocessing\n\n"
         "def problem(die=False):\n    if die and multiprocessing.parent_process() is not None:\n"
         "        os._exit(3)  # only in a worker process: the driver builds every problem once to check it\n"
@@ -457,7 +457,7 @@ def test_extents_match_the_free_space_reach_of_the_thrust():
     """Independent truth for the override pipeline (state in m and m/s, thrust in N, horizon in
     hours): far from both primaries and over 6 h the CR3BP is nearly free space, where the reach
     along an axis is +-a t^2 / 2 (width a t^2) with a = T_max / m."""
-    from ocreach.problem import get_problem
+    from ocreach.registry import get_problem
     from ocreach.sweep.worker import run_task
 
     T, m, t = 2e-3, 14.0, 6 * 3600.0

@@ -18,8 +18,9 @@ from scipy.linalg import expm
 import ocreach
 from ocreach.errors import ProblemError, SolverError
 from ocreach.model import Model
-from ocreach.problem import Problem, get_problem
+from ocreach.problem import Problem
 from ocreach.reach.linsys import expm_terms, linear_step
+from ocreach.registry import get_problem
 from ocreach.sets.union import union_gauge
 from ocreach.sets.zonotope import Zonotope
 
@@ -143,7 +144,7 @@ def test_taylor_dt_contains_the_rk4_model():
     res = ocreach.reach(p, "taylor", alg="dt", rk4_substeps=2)
     assert "discrete" in res.meta["guaranteed_for"] and res.tubes is None
     rng = np.random.default_rng(5)
-    from ocreach.control.discretize import Discretization
+    from ocreach.dynamics.discretize import Discretization
 
     d = Discretization(p.model, float(p.grid[1] - p.grid[0]), 2)
     N = 300

@@ -14,11 +14,11 @@ from scipy.integrate import solve_ivp
 
 import ocreach
 from ocreach.control import MPC, reference_from_problem
-from ocreach.control.drift_tubes import drift_schedule
-from ocreach.control.event_mpc import EventTrigger, EventTriggeredMPC, trigger_signal
-from ocreach.control.station_keeping import run_station_keeping
-from ocreach.control.station_keeping_metrics import delta_v_si, station_keeping_metrics
-from ocreach.control.tube import (
+from ocreach.control.stationkeeping.drift_tubes import drift_schedule
+from ocreach.control.stationkeeping.event_mpc import EventTrigger, EventTriggeredMPC, trigger_signal
+from ocreach.control.stationkeeping.metrics import delta_v_si, station_keeping_metrics
+from ocreach.control.stationkeeping.runs import run_station_keeping
+from ocreach.control.stationkeeping.tubes import (
     Tube,
     TubeSchedule,
     casadi_gauge_constraints,
@@ -339,9 +339,9 @@ def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_
     sampled zero-thrust drift trajectory -- all 64 vertices and 16 interior points of each
     tube's initial box, per-step disturbances at the corners of +-W, independent SciPy DOP853
     integration of the CR3BP -- has zonotope gauge <= 1 at every grid time of its tube."""
-    from ocreach.control.drift_tubes import ADAPTIVE_TUBE_OPTIONS
-    from ocreach.control.station_keeping_paper import paper_initial_set
-    from ocreach.control.tube import sound_drift_partition
+    from ocreach.control.stationkeeping.drift_tubes import ADAPTIVE_TUBE_OPTIONS
+    from ocreach.control.stationkeeping.paper import paper_initial_set
+    from ocreach.control.stationkeeping.tubes import sound_drift_partition
 
     G0 = paper_initial_set(nrho)
     tubes = sound_drift_partition(nrho, nrho_ref, 72, 85, G0, 1e-7, "taylor",
@@ -375,9 +375,9 @@ def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_
 def test_sound_drift_partition_bad_input_and_budget(nrho, nrho_ref):
     """A range that is empty, a tube budget too small for perilune (taylor from step 72 stops at
     79, so one tube cannot cover 72..84), and the partial tube: its steps, its failure message."""
-    from ocreach.control.drift_tubes import ADAPTIVE_TUBE_OPTIONS
-    from ocreach.control.station_keeping_paper import paper_initial_set
-    from ocreach.control.tube import sound_drift_partition
+    from ocreach.control.stationkeeping.drift_tubes import ADAPTIVE_TUBE_OPTIONS
+    from ocreach.control.stationkeeping.paper import paper_initial_set
+    from ocreach.control.stationkeeping.tubes import sound_drift_partition
     from ocreach.errors import SolverError
 
     G0 = paper_initial_set(nrho)
@@ -576,7 +576,7 @@ def test_defect_correction_makes_the_prediction_exact_on_the_reference(halo_ref)
 
 
 def test_navigation_error_is_seeded_bounded_and_only_seen_by_the_controller(halo_ref):
-    from ocreach.control.station_keeping import NavigationError
+    from ocreach.control.stationkeeping.runs import NavigationError
 
     class Recorder:
         name = "rec"
@@ -612,9 +612,9 @@ def test_tube_log_says_per_refresh_which_tube_was_used(halo, halo_ref, monkeypat
     """``taylor-or-linear``: the real sound tube where taylor succeeds (first 30-step interval of
     the L2 halo), the linear tube where it fails (forced for the second interval, as taylor fails
     at the NRHO's perilune); the log and the report sentences name each, with the reason."""
-    import ocreach.control.drift_tubes as sk
-    from ocreach.control.station_keeping_paper import PAPER_W, paper_initial_set
-    from ocreach.control.station_keeping_report import tube_lines
+    import ocreach.control.stationkeeping.drift_tubes as sk
+    from ocreach.control.stationkeeping.paper import PAPER_W, paper_initial_set
+    from ocreach.control.stationkeeping.report import tube_lines
     from ocreach.errors import SolverError
 
     real = sk.reach_drift_tube
@@ -649,8 +649,8 @@ def test_partition_key_tells_apart_large_arrays_that_differ_only_in_the_middle(h
     """The adaptive-partition cache key hashes arrays by dtype, shape and bytes: numpy's ``repr``
     elides the middle of a large array, so a key built from ``repr`` gave two different
     disturbances (or array options) the same key and the cache the wrong tubes."""
-    from ocreach.control.drift_tubes import partition_key
-    from ocreach.control.station_keeping_paper import paper_initial_set
+    from ocreach.control.stationkeeping.drift_tubes import partition_key
+    from ocreach.control.stationkeeping.paper import paper_initial_set
 
     a = np.full(2000, 1e-7)
     b = a.copy()
@@ -680,8 +680,8 @@ def test_tube_mpc_terminal_set_gives_recursive_feasibility_in_closed_loop(halo, 
     tightened box, thrust and terminal constraints of the new problem."""
     from ocreach.control.lqr import LQR
     from ocreach.control.simulate import SimOptions, simulate
-    from ocreach.control.station_keeping_paper import PAPER_W, paper_initial_set
-    from ocreach.control.tube_mpc import TubeMPC
+    from ocreach.control.stationkeeping.paper import PAPER_W, paper_initial_set
+    from ocreach.control.stationkeeping.tube_mpc import TubeMPC
 
     N = 6  # short enough that the terminal set binds from this offset (asserted below)
     sched = drift_schedule(halo, halo_ref, lookahead=N)
@@ -764,7 +764,7 @@ def test_tube_guarantee_counts_tubes_reached_only_by_the_last_predictions():
     last step and a linearised tube there went unreported)."""
     from types import SimpleNamespace
 
-    from ocreach.control.station_keeping import run_tube_logs, tubes_enclose_plant
+    from ocreach.control.stationkeeping.runs import run_tube_logs, tubes_enclose_plant
 
     class Stub:  # refreshes every 10 steps; the tube refreshed at step 30 is linearised
         reference = SimpleNamespace(revolution_steps=100)
@@ -791,8 +791,8 @@ def test_tube_guarantee_counts_tubes_reached_only_by_the_last_predictions():
 def test_tube_mpc_floor_is_a_fraction_of_the_tube_itself(halo, halo_ref):
     """An exhausted tightened half width is ``MIN_FRACTION`` of the tube's own half width,
     bit for bit (it was re-derived as ``(hw - margin) + margin``, which a large margin rounds)."""
-    from ocreach.control.station_keeping_paper import PAPER_W
-    from ocreach.control.tube_mpc import MIN_FRACTION, TubeMPC
+    from ocreach.control.stationkeeping.paper import PAPER_W
+    from ocreach.control.stationkeeping.tube_mpc import MIN_FRACTION, TubeMPC
 
     N = 4
     sched = drift_schedule(halo, halo_ref, lookahead=N)

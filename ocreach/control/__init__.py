@@ -1,4 +1,4 @@
-"""Station keeping on a reference: time-varying LQR and nonlinear MPC (Patel & Subbarao Eq. 26-28).
+"""Control on a reference: time-varying LQR and nonlinear MPC (Patel & Subbarao Eq. 26-28).
 
 ::
 
@@ -7,16 +7,19 @@
                               SimOptions(dt=..., offset_box=..., disturbance=1e-7))
     res["mpc"].metrics
 
-The report ``lqr_vs_mpc_report(problem, out_dir, **options)`` lives in
-:mod:`ocreach.control.report` (imported lazily; it needs matplotlib).  Reachable-set tubes and
-gauges: :mod:`ocreach.control.tube`; event-triggered station keeping:
-:mod:`ocreach.control.station_keeping` (closed-loop runs; the controller
-:mod:`ocreach.control.event_mpc`, the drift-tube schedules :mod:`ocreach.control.drift_tubes`, the
-metrics :mod:`ocreach.control.station_keeping_metrics`, the paper's settings
-:mod:`ocreach.control.station_keeping_paper`; report: :mod:`ocreach.control.station_keeping_report`);
-robust tube MPC: :mod:`ocreach.control.tube_mpc`.
+* :mod:`~ocreach.control.common` -- weights and thrust saturation;
+* :mod:`~ocreach.control.reference` -- reference trajectories (natural, periodic, from a problem);
+* :mod:`~ocreach.control.lqr`, :mod:`~ocreach.control.mpc` -- the controllers;
+* :mod:`~ocreach.control.simulate` -- closed-loop simulation on the nonlinear dynamics;
+* :mod:`~ocreach.control.report` -- ``ocreach report lqr-vs-mpc`` (imported lazily; it needs
+  matplotlib);
+* :mod:`ocreach.control.stationkeeping` -- station keeping with reachable-set tubes (tubes, drift
+  tubes, event-triggered and robust tube MPC, the ephemeris plant and reference, the runs and
+  their report); its main names are re-exported here.
+
+The discrete prediction model lives in :mod:`ocreach.dynamics.discretize` (re-exported here).
+May import: the methods, problems, sets, dynamics and the helpers; never the command line.
 """
-from ocreach.control.discretize import Discretization, rk4_expression
 from ocreach.control.lqr import LQR, dare, periodic_riccati, riccati_backward
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import (
@@ -33,10 +36,17 @@ from ocreach.control.simulate import (
     compare_controllers,
     simulate,
 )
-from ocreach.control.event_mpc import EventTrigger, EventTriggeredMPC
-from ocreach.control.station_keeping import run_station_keeping
-from ocreach.control.tube import Tube, TubeSchedule, gauge, linear_drift_tube
-from ocreach.control.tube_mpc import TubeMPC
+from ocreach.control.stationkeeping import (
+    EventTrigger,
+    EventTriggeredMPC,
+    Tube,
+    TubeMPC,
+    TubeSchedule,
+    gauge,
+    linear_drift_tube,
+    run_station_keeping,
+)
+from ocreach.dynamics.discretize import Discretization, rk4_expression
 
 
 def lqr_vs_mpc_report(problem, out_dir, **options) -> dict:

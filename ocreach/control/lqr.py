@@ -1,7 +1,7 @@
 """Discrete time-varying LQR along a reference (the baseline of Patel & Subbarao, "Remark").
 
 About the reference the prediction model is linearised per step (``A_k = Phi(t_{k+1}, t_k)``,
-``B_k = int Phi f_u``; see :mod:`ocreach.control.discretize`) and the Riccati recursion
+``B_k = int Phi f_u``; see :mod:`ocreach.dynamics.discretize`) and the Riccati recursion
 
     K_k = (R + B_k^T P_{k+1} B_k)^{-1} B_k^T P_{k+1} A_k,
     P_k = Q + A_k^T P_{k+1} (A_k - B_k K_k)

@@ -23,7 +23,7 @@ Tube constraints (Eq. 27, last line): with ``tube=q`` the NLP gets ``x_{k+i|k} =
 (:meth:`MPC.set_tube`), e.g. a zonotope tube from an SDC reachability run.  With
 ``tube_slack=rho`` the tube is soft: ``-(1 + s_i) <= xi_i <= 1 + s_i`` with a slack ``s_i >= 0`` per
 step and the exact penalty ``rho (s_i + s_i^2 / 2)`` added to the (scaled) objective, so the NLP stays
-feasible from a state outside the tube (:mod:`ocreach.control.tube`, gauge form with ``t = 1 + s``);
+feasible from a state outside the tube (:mod:`ocreach.control.stationkeeping.tubes`, gauge form with ``t = 1 + s``);
 ``last_tube_slack`` is the largest slack of the last successful solve.  :meth:`MPC.set_thrust_bound`
 tightens the thrust set per solve and per control-horizon step (robust tube MPC).
 
@@ -88,7 +88,7 @@ class MPC:
     extra_constraints : callable ``(X, U, params) -> [(g, lbg, ubg), ...]`` or ``None``.
     terminal_set : constrain the last predicted deviation to ``d_N^T Pf d_N <= 1`` with ``Pf``
         passed per solve (:meth:`set_terminal_set`; soft with the last tube slack if the tube is
-        soft), the terminal ingredient of robust tube MPC (:mod:`ocreach.control.tube_mpc`).
+        soft), the terminal ingredient of robust tube MPC (:mod:`ocreach.control.stationkeeping.tube_mpc`).
     fallback : an :class:`LQR` (default: one with the same weights).
     """
 

@@ -5,7 +5,7 @@ reference (one orbit period split into ``M`` steps) is indexed modulo ``M``, so 
 look any number of steps ahead (MPC windows, multi-revolution simulations) without integrating an
 unstable orbit for long.  The states are propagated with SciPy's DOP853 at tight tolerance, not
 with the prediction model, so the reference is the *true* nonlinear trajectory.  Its linearisation
-``(A_k, B_k)`` is taken from the discrete prediction model of :mod:`ocreach.control.discretize`
+``(A_k, B_k)`` is taken from the discrete prediction model of :mod:`ocreach.dynamics.discretize`
 (Patel & Subbarao Eq. 26).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ocreach.control.discretize import Discretization
+from ocreach.dynamics.discretize import Discretization
 from ocreach.errors import ProblemError, SolverError, check_positive
 from ocreach.model import Model
 

@@ -23,8 +23,8 @@ from ocreach.control.mpc import MPC
 from ocreach.control.reference import reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, compare_controllers
 from ocreach.errors import ProblemError
-from ocreach.plot import save_figure
-from ocreach.reach.result import atomic_write_text, json_text
+from ocreach.fileio import atomic_write_text, json_text
+from ocreach.reach.plot import save_figure
 
 #: Patel & Subbarao Table 3 weights and horizons; Table 2 results (for the comparison line).
 PAPER_Q = (1000.0, 1000.0, 1000.0, 100.0, 100.0, 100.0)

@@ -121,7 +121,7 @@ def simulate(reference: TrackingReference, controller, *, control_set_kind: str,
     """Run ``controller`` (``setup`` already called) in closed loop on the true dynamics.
 
     ``plant``: an object with ``step(x, u, w, t0, dt)`` (e.g.
-    :class:`ocreach.control.ephemeris_plant.EphemerisPlant`); default the reference's own model
+    :class:`ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant`); default the reference's own model
     (:class:`Plant`).
     """
     opt = options or SimOptions()

@@ -132,7 +132,7 @@ def ephemeris_inertial(
     :meth:`~ocreach.ephemeris.EphemerisFit.window_error_bound` of it (positions; ``cache[
     "window_seconds"]`` is the window it takes), so a sound method run on it encloses the full
     model only with that difference added to its disturbance, as
-    :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on` does.
+    :meth:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant.frame_model_on` does.
     """
     bodies = _bodies(bodies)
     central = check_body(central, ORIGINS, "central")

@@ -170,8 +170,8 @@ def split_functions() -> tuple[ca.Function, ca.Function, ca.Function]:
 
 
 def step_map(vehicle: str | Vehicle = "shuttle"):
-    """The :class:`ocreach.stochastic_mc.SplitStepMap` of ``vehicle`` (Euler step of Eq. 21-23)."""
-    from ocreach.stochastic_mc import SplitStepMap
+    """The :class:`ocreach.dynamics.stochastic_mc.SplitStepMap` of ``vehicle`` (Euler step of Eq. 21-23)."""
+    from ocreach.dynamics.stochastic_mc import SplitStepMap
 
     vehicle = _vehicle(vehicle)
     f0, G, hu = split_functions()

@@ -11,7 +11,7 @@
 * :mod:`ocreach.native.batch_eval` - row-wise evaluation of a CasADi Function over a batch in C;
 * :mod:`ocreach.native.mc_kernel` - the fused stochastic Monte Carlo kernel (Jain et al. Eq. 1);
 * :mod:`ocreach.native.cut_kernel` - the fused CUT moment recursion (Jain et al. Eq. 6, 9-15);
-* :mod:`ocreach.native.interval_kernel` - a C interpreter of the interval evaluator's schedule
+* :mod:`ocreach.intervals.kernel` - a C interpreter of the interval evaluator's schedule
   (:mod:`ocreach.intervals`, ``native=True``) for the few boxes of a ``taylor``/``sdc`` step.
 
 A new kernel gets its own module here, builds its sources with :func:`generate_c` and loads
@@ -19,8 +19,14 @@ them with :func:`compile_source`; without a C compiler (or with ``OCREACH_JIT=0`
 falls back to CasADi's VM or NumPy with the same numbers.
 """
 from ocreach.native.codegen import C_WORK, c_identifier, generate_c
-from ocreach.native.compile import (COMPILE_ERRORS, cache_dir, compile_function, compile_source,
-                                    jit_enabled, opt_flags)
+from ocreach.native.compile import (
+                                    COMPILE_ERRORS,
+                                    cache_dir,
+                                    compile_function,
+                                    compile_source,
+                                    jit_enabled,
+                                    opt_flags,
+)
 
 __all__ = ["COMPILE_ERRORS", "C_WORK", "c_identifier", "cache_dir", "compile_function",
            "compile_source", "generate_c", "jit_enabled", "opt_flags"]

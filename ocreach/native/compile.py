@@ -2,7 +2,7 @@
 
 Everything ocreach caches on disk lives under one root, ``$OCREACH_CACHE_DIR`` (default
 ``~/.cache/ocreach``): shared libraries in ``<root>/jit``, solved CUT rules in
-``<root>/cut_rules`` (:mod:`ocreach.quadrature`).  A library's file name carries a hash of its
+``<root>/cut_rules`` (:mod:`ocreach.dynamics.quadrature`).  A library's file name carries a hash of its
 sources, the compiler and the flags, so a cached file is never stale.
 
 Concurrency: several processes (or hosts sharing the cache over a network file system) may build

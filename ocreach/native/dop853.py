@@ -227,7 +227,7 @@ DRIVER_LANES_SRC = _DRIVER_COMMON + r'''/* The same adaptive DOP853 driver with 
  * size and accept/reject history; a lane whose sample is done takes the next one from the queue,
  * so the lanes stay busy until the batch runs dry (idle lanes step with h = 0).  A segment ends
  * exactly at its end time; the next one (new arguments, e.g. the next piecewise-constant control
- * of ocreach.flow.propagate) starts from the step size the controller proposed before that last
+ * of ocreach.dynamics.flow.propagate) starts from the step size the controller proposed before that last
  * step was clipped (H[s]), with rejected = 0 and a fresh derivative, exactly as a new call per
  * segment would.  The derivatives of all lanes that start a segment in one round are one LRHS
  * call, and the controller's err^(-1/8) is computed for all lanes at once; both are the same

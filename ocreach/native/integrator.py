@@ -7,7 +7,7 @@ through ctypes.  Without a compiler (or with ``OCREACH_JIT=0``) the same algorit
 NumPy loop over steps, vectorised over samples with ``Function.map``; results agree to round-off,
 only slower.  Neither path has a Python loop over samples.
 
-:func:`propagate_segments` (behind :func:`ocreach.flow.propagate`) integrates every sample over
+:func:`propagate_segments` (behind :func:`ocreach.dynamics.flow.propagate`) integrates every sample over
 a grid of segments with piecewise-constant arguments; with the SIMD-lane driver all segments of
 a batch are one C call per thread.  Threads of one batch take samples from a shared counter; a
 sample's arithmetic does not depend on its thread or lane, so results are bit-identical for any
@@ -27,9 +27,22 @@ import numpy as np
 from ocreach import parallel
 from ocreach.errors import ProblemError, SolverError, check_count
 from ocreach.native.codegen import generate_c
-from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library, opt_flags
-from ocreach.native.dop853 import (DRIVER_LANES_SRC, DRIVER_SRC, MAX_FACTOR, MIN_FACTOR,
-                                   SAFETY, build_step, dense_rhs)
+from ocreach.native.compile import (
+    COMPILE_ERRORS,
+    compile_source,
+    jit_enabled,
+    load_library,
+    opt_flags,
+)
+from ocreach.native.dop853 import (
+    DRIVER_LANES_SRC,
+    DRIVER_SRC,
+    MAX_FACTOR,
+    MIN_FACTOR,
+    SAFETY,
+    build_step,
+    dense_rhs,
+)
 from ocreach.native.lanes import LANE_FLAGS, LaneCodegenError, lane_sources
 
 #: samples per SIMD step of the native driver (``OCREACH_LANES`` overrides; 1 = scalar driver)
@@ -197,7 +210,7 @@ def integrate_batch(rhs: ca.Function, y0: np.ndarray, t0, t1, args: np.ndarray |
     h_init : optional ``(N,)`` float array, read and written: entries > 0 are the first step size
         to try (instead of Hairer's starting-step rule); on return every integrated sample's entry
         is the step size the controller proposed for its last step.  Passing the same array to
-        consecutive segments (as :func:`ocreach.flow.propagate` does) continues each sample's
+        consecutive segments (as :func:`ocreach.dynamics.flow.propagate` does) continues each sample's
         step-size sequence across segment boundaries.
     threads : split the batch over this many threads (default :func:`ocreach.parallel.threads`);
         results are identical for every thread count.
@@ -273,7 +286,7 @@ class Batch:
 
     ``Y`` (N, n_y) C-contiguous is advanced in place by :meth:`run` from ``t0`` to ``t1`` (N,)
     with constant arguments ``A`` (N, n_a); the caller fills ``t0``, ``t1``, ``A`` (validated
-    values: :func:`integrate_batch` checks them, :func:`ocreach.flow.propagate` checks its inputs
+    values: :func:`integrate_batch` checks them, :func:`ocreach.dynamics.flow.propagate` checks its inputs
     once).  ``H`` carries each sample's step size from one run to the next.  The native call
     gets plain addresses computed here once, so a segment costs one ctypes call per thread.
     """

@@ -1,7 +1,7 @@
 """Fused C kernel of the stochastic Monte Carlo (Jain et al. Eq. 1): the Euler step of every
 sample and the per-step sample mean and std over a block of steps, one C call per block.
 
-The step is the CasADi-generated ``SplitStepMap.step`` of :mod:`ocreach.stochastic_mc`, which
+The step is the CasADi-generated ``SplitStepMap.step`` of :mod:`ocreach.dynamics.stochastic_mc`, which
 is also the per-step fallback without a C compiler (same numbers).
 """
 from __future__ import annotations

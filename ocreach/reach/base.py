@@ -15,8 +15,15 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ocreach.errors import (OcreachError, ProblemError, UnknownNameError, _to_float, check_count,
-                            check_tolerances)
+from ocreach._version import __version__
+from ocreach.errors import (
+    OcreachError,
+    ProblemError,
+    UnknownNameError,
+    _to_float,
+    check_count,
+    check_tolerances,
+)
 
 if TYPE_CHECKING:
     from ocreach.problem import Problem
@@ -170,7 +177,7 @@ class Method:
             "problem": problem.id,
             "runtime": runtime,
             "guard": {"divergence_factor": self.divergence_factor, "max_memory_gb": self.max_memory_gb},
-            "versions": {"ocreach": _version(), "casadi": casadi.__version__,
+            "versions": {"ocreach": __version__, "casadi": casadi.__version__,
                          "numpy": np.__version__, "python": platform.python_version()},
         }
 
@@ -221,12 +228,6 @@ class SamplingOptions:
         if self.seed is not None:
             self.seed = check_count("seed", self.seed, 0)
         self.rtol, self.atol = check_tolerances(self.rtol, self.atol)
-
-
-def _version() -> str:
-    from ocreach import __version__
-
-    return __version__
 
 
 class Timer:
@@ -291,7 +292,8 @@ def reach(problem: Problem | str, method: str, *, threads: int | None = None,
     :func:`ocreach.parallel.blas_limit` (neither changes results).
     """
     from ocreach import parallel
-    from ocreach.problem import Problem, get_problem
+    from ocreach.problem import Problem
+    from ocreach.registry import get_problem
 
     if not isinstance(problem, Problem):
         problem = get_problem(str(problem))

@@ -46,10 +46,10 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError, check_count, check_real
+from ocreach.geometry.directions import continuation_order
 from ocreach.model import Model
 from ocreach.problem import Problem
 from ocreach.reach.base import Timer
-from ocreach.reach.directions import continuation_order
 from ocreach.reach.indirect import FFOE, InitialManifold, backward_sensitivities
 from ocreach.reach.result import ReachResult
 
@@ -118,7 +118,7 @@ def costate_stm_rhs(model: Model) -> ca.Function:
     """
 
     def build():
-        from ocreach.flow import c_identifier
+        from ocreach.dynamics.flow import c_identifier
 
         n = model.n_x
         lam = ca.SX.sym("lam", n)
@@ -143,7 +143,7 @@ def costate_rhs(model: Model) -> ca.Function:
     """``(y = [x; lam], t, a = [p; smooth]) -> dy/dt`` (Foss Eq. 4), cached on the model."""
 
     def build():
-        from ocreach.flow import c_identifier
+        from ocreach.dynamics.flow import c_identifier
 
         lam = ca.SX.sym("lam", model.n_x)
         sm = ca.SX.sym("smooth")
@@ -186,7 +186,7 @@ class BVPContinuation(FFOE):
         ``max |G^T lam_0|`` of the first guess, and no continuation for the ball),
         ``smooth_factor`` (ratio of consecutive smoothing values, in (0, 1)), ``costate_guess``
         (initial costates ``(samples, n_x)`` to start every direction from, e.g. a result at a
-        nearby horizon or thrust level, as :class:`ocreach.custody_reach.ReachableBalls` does), ``tol``
+        nearby horizon or thrust level, as :class:`ocreach.custody.reach_balls.ReachableBalls` does), ``tol``
         (Newton residual, max-norm of ``lam(t_f) - lam_f``), ``max_newton`` (iterations per
         corrector) and ``max_halvings`` (continuation step halvings before giving up)."""
 
@@ -228,7 +228,7 @@ class BVPContinuation(FFOE):
     def _shoot(self, problem: Problem, p, manifold: InitialManifold, lam0: np.ndarray):
         """``x0, x(t_f), lam(t_f)`` and the STM blocks ``(Phi_xx, Phi_xl, Phi_lx, Phi_ll)`` at the
         current smoothing value (``self._args = [p; smooth]``)."""
-        from ocreach.flow import integrate_batch
+        from ocreach.dynamics.flow import integrate_batch
 
         n = problem.model.n_x
         x0 = manifold.apply(problem.x0, lam0[None])[0] if manifold.active else problem.x0
@@ -364,7 +364,7 @@ class BVPContinuation(FFOE):
         return lam, J, Dz, lin_levels
 
     def solve(self, problem: Problem) -> ReachResult:
-        from ocreach.flow import integrate_batch
+        from ocreach.dynamics.flow import integrate_batch
 
         opt = self.options
         model = problem.model.with_control_set(problem.control_set.kind)  # laws follow the problem's set
@@ -376,7 +376,7 @@ class BVPContinuation(FFOE):
         self._n_shots = 0
         with timer("setup"):
             p, dirs, manifold = self._setup(problem)
-            from ocreach.reach.directions import resolve_dims
+            from ocreach.geometry.directions import resolve_dims
 
             dims = resolve_dims(opt.dims, problem)
             self._rhs = costate_stm_rhs(model)

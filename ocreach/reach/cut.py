@@ -50,7 +50,7 @@ def standard_rule(rule: str, n: int, order: int) -> tuple[np.ndarray, np.ndarray
     (Julier's ``3 - n`` where it is >= 0; for n > 3 it would make the centre weight negative and the
     propagated covariance can lose definiteness, so ``kappa = 0``); ``"gh"``: tensor Gauss-Hermite
     with ``order // 2 + 1`` points per axis (exact to degree ``2 (order // 2) + 1`` >= ``order``).
-    The rules come from :mod:`ocreach.quadrature`.
+    The rules come from :mod:`ocreach.dynamics.quadrature`.
     """
     if rule not in RULES:
         raise ProblemError(f"rule must be one of {RULES}; got {rule!r}")
@@ -58,7 +58,7 @@ def standard_rule(rule: str, n: int, order: int) -> tuple[np.ndarray, np.ndarray
         raise ProblemError(f"order must be one of {CUT_ORDERS} for rule {rule!r}; got {order!r}")
     if n < 1:
         raise ProblemError(f"rule dimension n must be >= 1; got {n!r}")
-    from ocreach import quadrature as q
+    from ocreach.dynamics import quadrature as q
 
     if rule == "cut":
         out = q.cut_rule(n, order, "gaussian")
@@ -134,7 +134,7 @@ def propagate_moments(step_map, grid: np.ndarray, mean0: np.ndarray, cov0: np.nd
     """Propagate mean, covariance (and third central moment) of Jain et al. Eq. 1 on ``grid``.
 
     NumPy reference of the compiled kernel (:mod:`ocreach.native.cut_kernel`) and the path for
-    ``third_moments``.  ``step_map`` is a :class:`ocreach.stochastic_mc.SplitStepMap` (Euler step
+    ``third_moments``.  ``step_map`` is a :class:`ocreach.dynamics.stochastic_mc.SplitStepMap` (Euler step
     ``dt f0``, ``dt G``); ``ctrl = (Eh, Ch[, M3h])`` from :func:`control_moments`; ``xi_x, w_x`` the
     standard-normal rule of dimension ``n_y``; ``perm`` the states with the ``n_y`` dependency
     states first.  Points are ``m + L[:, :n_y] xi`` with ``L`` the Cholesky factor of the permuted
@@ -237,8 +237,8 @@ class CUTMoments(Method):
         return requirements(problem, stochastic=True)
 
     def solve(self, problem) -> ReachResult:
+        from ocreach.dynamics.stochastic_mc import step_map_for, stochastic_spec
         from ocreach.native.cut_kernel import cut_kernel
-        from ocreach.stochastic_mc import step_map_for, stochastic_spec
 
         opt = self.options
         timer = Timer()

@@ -22,7 +22,7 @@ from ocreach.problem import Problem
 def _rk4_step(model, n_sub: int) -> ca.Function:
     """``(x, u, t, h, p) -> x(t + h)`` by ``n_sub`` RK4 substeps with ``u`` held (the same
     expression as the MPC prediction model); built once per ``n_sub`` and cached on the model."""
-    from ocreach.control.discretize import rk4_expression
+    from ocreach.dynamics.discretize import rk4_expression
 
     def build() -> ca.Function:
         h = ca.SX.sym("h")
@@ -34,7 +34,7 @@ def _rk4_step(model, n_sub: int) -> ca.Function:
 
 def _ffoe_guess(problem: Problem, zhat: np.ndarray, g: np.ndarray, p: np.ndarray) -> np.ndarray:
     """FFOE controls (Patel & Scheeres Eq. 14, 18 along the unpowered trajectory) on grid ``g``."""
-    from ocreach.flow import stt
+    from ocreach.dynamics.flow import stt
     from ocreach.reach.indirect import backward_sensitivities, control_law
 
     model = problem.model
@@ -50,7 +50,7 @@ def transcription_support(problem: Problem, zhat, *, refine: int = 1, n_sub: int
 
     Raises :class:`SolverError` when IPOPT does not reach its tolerance.
     """
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     model = problem.model
     zhat = np.asarray(zhat, float)

@@ -108,7 +108,7 @@ class ExtremalODE(Method):
                             initial_sets=("Ellipsoid", "Zonotope", "Interval"))
 
     def solve(self, problem: Problem) -> ReachResult:
-        from ocreach.flow import integrate_batch
+        from ocreach.dynamics.flow import integrate_batch
 
         model = problem.model
         kind = problem.control_set.kind

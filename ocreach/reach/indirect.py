@@ -8,7 +8,7 @@ law (Eq. 16-18) need only the per-segment partials
 * ``F_u^i = d x^{i+1} / d u^i``  (the impulse-response matrix Omega, Eq. 17),
 
 which are the two column blocks of the first-order STT of the augmented state ``z = [x; u]``
-(:func:`ocreach.flow.stt`, Foss et al. Eq. 11-13).  Everything here is vectorised over
+(:func:`ocreach.dynamics.flow.stt`, Foss et al. Eq. 11-13).  Everything here is vectorised over
 directions (and, for OLE, over the per-direction trajectories): the backward recursion is a loop
 over segments of batched matrix products; the control law of all directions is one ``einsum``.
 
@@ -29,11 +29,12 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import ProblemError, check_count, check_real
+from ocreach.geometry.directions import resolve_dims, sample_directions
 from ocreach.model import Model
 from ocreach.problem import Problem
 from ocreach.reach.base import Method, SamplingOptions, Timer, requirements
-from ocreach.reach.directions import resolve_dims, sample_directions
 from ocreach.reach.result import ReachResult
+
 
 def thrust_param(model: Model) -> str:
     """Name of the model parameter that scales the thrust: the model's declared
@@ -66,10 +67,10 @@ def segment_partials(model: Model, states: np.ndarray, controls: np.ndarray, gri
 
     ``states`` ``(N, K+1, n_x)`` and ``controls`` ``(N, K, n_u)`` are trajectories on ``grid``;
     ``p`` is ``(n_p,)`` or ``(N, n_p)``.  The ``N*K`` segments are integrated as one batch of the
-    first-order STT equations (:func:`ocreach.flow.stt_rhs`, each restarted from the identity).
+    first-order STT equations (:func:`ocreach.dynamics.flow.stt_rhs`, each restarted from the identity).
     Returns ``F_x`` ``(N, K, n_x, n_x)`` and ``F_u`` ``(N, K, n_x, n_u)``.
     """
-    from ocreach.flow import integrate_batch, stt_rhs
+    from ocreach.dynamics.flow import integrate_batch, stt_rhs
 
     N, K1, nx = states.shape
     K = K1 - 1
@@ -181,7 +182,7 @@ class InitialManifold:
 
 
 def _index_list(value, problem, what: str) -> tuple[int, ...]:
-    from ocreach.reach.directions import resolve_dims
+    from ocreach.geometry.directions import resolve_dims
 
     try:
         return resolve_dims(value, problem)
@@ -305,7 +306,7 @@ class FFOE(Method):
 
     def reference(self, problem: Problem, p: np.ndarray):
         """Unpowered trajectory and its partials ``F_x``, ``F_u`` (Alg. 1, first loop)."""
-        from ocreach.flow import stt
+        from ocreach.dynamics.flow import stt
 
         zeros = np.zeros((problem.n_segments, problem.model.n_u))
         ref = stt(problem.model, problem.x0, zeros, problem.grid, 1, p=p,
@@ -328,7 +329,7 @@ class FFOE(Method):
 
         Returns ``(p, dirs, manifold, ref, U, lam0, traj)``; OLE starts from it.
         """
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
 
         opt = self.options
         with timer("setup"):
@@ -361,7 +362,7 @@ class FFOE(Method):
         levels and directions) depend on the level.  ``thrust_levels`` are in model units (the
         unit of the problem's ``a_max`` / ``T_max``); each must be > 0.
         """
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
 
         levels = np.atleast_1d(np.asarray(thrust_levels, dtype=float))
         if levels.ndim != 1 or levels.size == 0:
@@ -417,7 +418,7 @@ class OLE(FFOE):
             self.backtrack = check_count("backtrack", self.backtrack, 0)
 
     def solve(self, problem: Problem) -> ReachResult:
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
 
         opt = self.options
         model = problem.model
@@ -479,7 +480,7 @@ class OLE(FFOE):
         with ``a = 1/2, 1/4, ...`` (a line search on the control sphere; not in the paper).  The
         initial state of a blended step comes from the blended initial costate through the
         manifold (Eq. 23 / 26), so it stays on the ellipsoid / Delta-V sphere."""
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
 
         opt = self.options
         worse = np.flatnonzero(J_new < J - opt.tol)

@@ -93,7 +93,7 @@ class MonteCarlo(Method):
     def solve(self, problem: Problem) -> ReachResult:
         if problem.stochastic is not None:
             return self._solve_stochastic(problem)
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
 
         opt = self.options
         rng = np.random.default_rng(opt.seed)
@@ -145,7 +145,7 @@ class MonteCarlo(Method):
         """
         import dataclasses
 
-        from ocreach.stochastic_mc import stochastic_monte_carlo
+        from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
 
         defaults = {f.name: f.default for f in dataclasses.fields(self.Options)}
         ignored = [k for k in ("mix", "rtol", "atol") if getattr(self.options, k) != defaults[k]]

@@ -10,9 +10,6 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import math
-import os
-import tempfile
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -22,70 +19,10 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import OcreachError, ProblemError, SolverError
+from ocreach.fileio import atomic_write_bytes, jsonable
 
 #: Version 2: sets and tubes as arrays + JSON (version 1 pickled them and is refused).
 FORMAT_VERSION = 2
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file normal permissions
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` atomically, as :func:`atomic_write_bytes`."""
-    return atomic_write_bytes(path, text.encode("utf-8"))
-
-
-def jsonable(obj: Any) -> Any:
-    """``obj`` made JSON-serialisable: dict keys as strings, tuples as lists, numpy arrays and scalars
-    as Python values, anything else as its ``repr`` (used for ``meta`` and summaries)."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    if isinstance(obj, (str, int, float, bool)) or obj is None:
-        return obj
-    return repr(obj)
-
-
-def _finite_or_none(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_finite_or_none(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def json_text(obj: Any, indent: int | None = 2) -> str:
-    """``obj`` as strict JSON text for the output files users read (summary.json, metrics.json,
-    custody.json): :func:`jsonable`, then every NaN or infinity as ``null`` (they are not JSON,
-    and strict parsers refuse them), dumped with ``allow_nan=False``."""
-    return json.dumps(_finite_or_none(jsonable(obj)), indent=indent, allow_nan=False)
 
 
 @dataclass(repr=False)
@@ -215,7 +152,7 @@ class ReachResult:
     # ------------------------------------------------------------------ plotting
     def plot(self, ax=None, dims: Sequence[int] = (0, 1), k: int | Sequence[int] = -1, **kw):
         """Plot the 2-D projection at time index/indices ``k`` (convex hull of samples or set outline)."""
-        from ocreach.plot import plot_result
+        from ocreach.reach.plot import plot_result
 
         return plot_result(self, ax=ax, dims=dims, k=k, **kw)
 

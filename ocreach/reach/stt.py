@@ -2,7 +2,7 @@
 
 The dynamics with inputs are written for the augmented state ``z = [x; u]`` (Foss Eq. 12) and
 discretised on the problem's grid by state-transition tensors integrated once along the reference
-(control 0, the centre of the input set; Eq. 11-13, :func:`ocreach.flow.stt`).  One step maps the
+(control 0, the centre of the input set; Eq. 11-13, :func:`ocreach.dynamics.flow.stt`).  One step maps the
 deviation set through the STT polynomial (Eq. 18-19)::
 
     dZ_k     = dR_k x U_k                                  (Eq. 17, U_k with fresh identifiers)
@@ -300,7 +300,12 @@ def _fused_generate(phi, dZ, h_max: int = 0, prune: float = 0.0, chunk: int = 0,
     ``"bound"`` never forms them and bounds them (looser box, time ~ the kept products):
     :func:`ocreach.reach.stt_products.order3_products`.
     """
-    from ocreach.reach.stt_products import PRUNE_MIN_PRODUCTS, default_chunk, n_products, order3_products
+    from ocreach.reach.stt_products import (
+        PRUNE_MIN_PRODUCTS,
+        default_chunk,
+        n_products,
+        order3_products,
+    )
     from ocreach.sets.polyzonotope import monomial_keys, sym_tensor
 
     n_ord = len(phi)
@@ -552,7 +557,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
 
     # ------------------------------------------------------------------ solve
     def solve(self, problem: Problem) -> ReachResult:
-        from ocreach.flow import stt as stt_flow
+        from ocreach.dynamics.flow import stt as stt_flow
         from ocreach.reach.guard import check_step
 
         opt = self.options
@@ -655,7 +660,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         STT integration of the segment from the part's own reference state."""
         if part.nominal:
             return [ph[k] for ph in self._ref.phi], self._ref.states[k + 1]
-        from ocreach.flow import stt as stt_flow
+        from ocreach.dynamics.flow import stt as stt_flow
 
         opt = self.options
         with timer("stt_generation"):
@@ -667,7 +672,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
     def _truncation_errors(self, prepared: list[PartStep], k: int, problem: Problem) -> list[float]:
         """Sampled truncation error of each part's step (:func:`ocreach.reach.stt_split.truncation_error`):
         the samples of all parts are propagated over ``[t_k, t_{k+1}]`` (held controls) in one batch."""
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
         from ocreach.reach.stt_split import error_samples, truncation_error
 
         opt, n_x = self.options, problem.model.n_x
@@ -703,7 +708,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
     def _tube_segment(self, problem: Problem, k: int, parts_with_dz, new) -> Any:
         """Union of the sets at the interior times of segment k, bloated to cover the motion
         between sampled times (see the module docstring)."""
-        from ocreach.flow import stt as stt_flow
+        from ocreach.dynamics.flow import stt as stt_flow
         from ocreach.sets import Zonotope
 
         opt = self.options

@@ -30,7 +30,7 @@ If nothing is left to try, :class:`SolverError` names the step and remainder and
 computed so far in ``err.partial`` (a :class:`ReachResult` with ``meta["truncated"] = True``).
 
 Discrete time (``alg="dt"``): the paper's literal Eq. 8-15 on the RK4 map
-``x_{k+1} = g(x_k, u_k)`` of :mod:`ocreach.control.discretize` (control held on each grid step):
+``x_{k+1} = g(x_k, u_k)`` of :mod:`ocreach.dynamics.discretize` (control held on each grid step):
 ``g(z) in g(z*) + J (z - z*) + L`` with ``L`` bounded by the interval Hessian of the RK4 map over
 the box of ``R_k x U``.  Sound for the discrete model only (``meta["guaranteed_for"]``).
 """
@@ -760,7 +760,7 @@ class ZonotopeReach:
 def rk4_funs(model, h: float, n_sub: int):
     """``(x, u, t, p) -> (g, dg/dz)`` and the interval extension of ``(g, dg/dx, dg/du, H)`` of the
     RK4 map ``g`` over one step (``H`` the Hessian in ``z = (x, u)``)."""
-    from ocreach.control.discretize import rk4_expression
+    from ocreach.dynamics.discretize import rk4_expression
     from ocreach.intervals import interval_function
 
     key = ("taylor", "rk4", float(h), int(n_sub))

@@ -47,7 +47,10 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import SetError
-from ocreach.sets.convert import _poly_mul, components_pz  # polynomials as {exponent tuple: coefficient}
+from ocreach.sets.convert import (  # polynomials as {exponent tuple: coefficient}
+    _poly_mul,
+    components_pz,
+)
 
 #: issue 12's target: the input set's support within 3 % of the ball's
 RADIUS_TARGET = 1.03

@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ocreach.reach.result import atomic_write_bytes, atomic_write_text
+from ocreach.fileio import atomic_write_bytes, atomic_write_text
 from ocreach.sweep.errors import SweepError
 from ocreach.sweep.store import LOG, read_log, read_meta
 

@@ -14,15 +14,15 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError
-from ocreach.meb import minimum_enclosing_ball
-from ocreach.reach.directions import resolve_dims
+from ocreach.geometry.directions import resolve_dims
+from ocreach.geometry.meb import minimum_enclosing_ball
 from ocreach.sweep.errors import SweepError
 
 
 def meb_radius(points: np.ndarray) -> dict[str, Any]:
     """Radius of the exact minimum enclosing ball of ``points`` (m, d).
 
-    :func:`ocreach.meb.minimum_enclosing_ball` (Welzl's algorithm in a core-set loop, Tucker et
+    :func:`ocreach.geometry.meb.minimum_enclosing_ball` (Welzl's algorithm in a core-set loop, Tucker et
     al. Sec. 2.3; exact to machine precision, with a certificate).  For sample-based results
     this is the ball of the samples, an inner estimate of the ball of the true set.
     """

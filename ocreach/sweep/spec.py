@@ -241,8 +241,8 @@ def _finite(value: Any, what: str) -> float:
 
 def split_problem_ref(ref: str) -> tuple[str, str | None]:
     """``"FILE.py:ID"`` -> ``("FILE.py", "ID")``; ``"FILE.py"`` -> ``("FILE.py", None)`` (the
-    problem registry's own rule, :func:`ocreach.problem.split_file_id`)."""
-    from ocreach.problem import split_file_id
+    problem registry's own rule, :func:`ocreach.registry.split_file_id`)."""
+    from ocreach.registry import split_file_id
 
     file_spec = split_file_id(ref)
     if file_spec is None:
@@ -252,7 +252,7 @@ def split_problem_ref(ref: str) -> tuple[str, str | None]:
 
 def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
     """``(factory, sha256 of the file or None)``; unknown ids, missing or broken files raise."""
-    from ocreach.problem import problem_factories, problem_factory
+    from ocreach.registry import problem_factories, problem_factory
 
     if not isinstance(ref, str) or not ref:
         raise SweepError(f"{where}: 'problem' must be a problem id or a .py file; got {ref!r}")
@@ -282,7 +282,7 @@ def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
 def _check_overrides(factory, overrides: dict[str, Any], ref: str, where: str) -> None:
     """Override names against the factory's keywords and values against their declared types
     (``bool`` strictly, ``float``/``int`` finite numbers, ``str`` text), as the worker's
-    :func:`ocreach.problem.get_problem` will convert them."""
+    :func:`ocreach.registry.get_problem` will convert them."""
     from ocreach.options import _type_text, strict_bools, typed_number
 
     sig = inspect.signature(factory)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ocreach.reach.result import atomic_write_bytes, atomic_write_text
+from ocreach.fileio import atomic_write_bytes, atomic_write_text
 from ocreach.sweep.errors import SweepError
 from ocreach.sweep.keys import versions as current_versions
 

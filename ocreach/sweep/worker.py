@@ -59,7 +59,7 @@ def limit_threads() -> None:
 
 def base_problem(task: dict[str, Any], base_dir: str) -> Problem:
     """The task's problem before state/horizon overrides, cached per process."""
-    from ocreach.problem import get_problem, load_problem_file
+    from ocreach.registry import get_problem, load_problem_file
     from ocreach.sweep.spec import split_problem_ref
 
     ref = task["problem"]

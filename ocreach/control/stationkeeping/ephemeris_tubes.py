@@ -1,28 +1,28 @@
 """Drift tubes along a non-periodic reference (the ephemeris-corrected NRHO), for event-triggered
 and tube MPC on the DE421 plant (issue 14).
 
-The periodic schedule of :func:`~ocreach.control.drift_tubes.drift_schedule` computes the
+The periodic schedule of :func:`~ocreach.control.stationkeeping.drift_tubes.drift_schedule` computes the
 tubes of one period and re-uses them shifted; an ephemeris-corrected orbit
-(:mod:`ocreach.control.ephemeris_reference`) repeats no period, so here every tube is computed for
+(:mod:`ocreach.control.stationkeeping.ephemeris_reference`) repeats no period, so here every tube is computed for
 its own stretch of the reference, in the reference's own model (the plant's dynamics in the CR3BP
-frame, :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model`):
+frame, :meth:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant.frame_model`):
 
 * the run is cut at every apolune of the reference (:func:`apolune_steps`; Patel & Subbarao: "At
   each apolune ... a tube of forward reachable sets"), the first interval starting at step 0;
 * on each interval the sound method is restarted from the initial deviation set where it stops
-  (:func:`~ocreach.control.tube.sound_drift_partition`, the rule of the periodic
+  (:func:`~ocreach.control.stationkeeping.tubes.sound_drift_partition`, the rule of the periodic
   ``tube_interval="adaptive"`` schedule), and the tubes are guaranteed;
 * where the sound method cannot enclose the interval (it fails, or refuses the model), the
   ``*-or-linear`` sources use the linearised tube of that interval
-  (:func:`~ocreach.control.tube.linear_drift_tube`, NOT guaranteed), its
+  (:func:`~ocreach.control.stationkeeping.tubes.linear_drift_tube`, NOT guaranteed), its
   ``meta["fallback_reason"]`` the method's message, so metrics.json says per refresh interval
-  which tube was used (:func:`~ocreach.control.drift_tubes.tube_log`).
+  which tube was used (:func:`~ocreach.control.stationkeeping.drift_tubes.tube_log`).
 
 The frame model of a long run joins two DE421 fit pieces in time with ``if_else``
 (:mod:`ocreach.ephemeris`): ``taylor`` accepts a switch on time alone but fails on a step across
 it, and the interval bounds of the pieces' degree-48 basis over a step are loose, so the sound
 method runs per interval on ``model_on(t_a - dt, t_b + dt)``
-(:meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
+(:meth:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
 that window without the ``if_else``, up to a difference bounded rigorously and added to the
 disturbance: :func:`with_model_error`, :func:`checked_model_error`); an interval across the
 blend of two pieces falls back
@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.control.reference import TrackingReference
-from ocreach.control.tube import (
+from ocreach.control.stationkeeping.tubes import (
     Tube,
     TubeSchedule,
     linear_drift_tube,
@@ -87,7 +87,7 @@ def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
     ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval up to its bounded
     difference,
     without the ``if_else`` between ephemeris fit pieces, e.g.
-    :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
+    :meth:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
     :class:`ProblemError` saying why the method cannot run on it."""
     from ocreach.reach.taylor import check_smooth
 
@@ -107,7 +107,7 @@ def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
 def with_model_error(problem, disturbance: Any, model_error: dict | None) -> Any:
     """The disturbance ``W`` plus the bound on the window model's acceleration error
     (``model_error["acceleration"]``, a 2-norm, so a box of that radius on the velocity rates,
-    :meth:`~ocreach.control.ephemeris_plant.EphemerisPlant.frame_model_on`): a number ``w``
+    :meth:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant.frame_model_on`): a number ``w``
     becomes ``w + e``, any other disturbance the zonotope sum.  Unchanged without an error."""
     if model_error is None or model_error["acceleration"] == 0.0:
         return disturbance
@@ -189,7 +189,7 @@ def along_reference_schedule(problem, reference: TrackingReference, G0: Any, dis
                              end: int | None = None,
                              model_on: Callable[[float, float], Any] | None = None
                              ) -> TubeSchedule:
-    """A :class:`~ocreach.control.tube.TubeSchedule` of drift tubes along the non-periodic
+    """A :class:`~ocreach.control.stationkeeping.tubes.TubeSchedule` of drift tubes along the non-periodic
     ``reference`` up to step ``end`` - 1 (default: its last step), refreshed at step 0, at every
     apolune and where the sound method stops (module docstring).  ``wrap`` maps each tube (e.g.
     to its interval hull); ``model_on``: the sound method's model per interval
@@ -205,7 +205,7 @@ def along_reference_schedule(problem, reference: TrackingReference, G0: Any, dis
     if not 2 <= end <= reference.n_steps:
         raise ProblemError(f"end (step after the last tube step) must be in 2..{reference.n_steps}; "
                            f"got {end}")
-    from ocreach.control.drift_tubes import ADAPTIVE_TUBE_OPTIONS
+    from ocreach.control.stationkeeping.drift_tubes import ADAPTIVE_TUBE_OPTIONS
 
     opts = {**ADAPTIVE_TUBE_OPTIONS, **(options or {})}
     starts = refresh_starts(reference, end)

@@ -141,4 +141,4 @@ def in_convex_hull(points: np.ndarray, hull_points: np.ndarray, tol: float = 1e-
 
 
 # minimum enclosing balls live in their own module (exact Welzl solver, support-function outer ball)
-from ocreach.meb import EnclosingBall, minimum_enclosing_ball, support_outer_ball  # noqa: E402,F401
+from ocreach.geometry.meb import EnclosingBall, minimum_enclosing_ball, support_outer_ball  # noqa: E402,F401

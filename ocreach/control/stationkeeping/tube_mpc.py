@@ -1,6 +1,6 @@
 """Robust tube MPC by constraint tightening (Chisci, Rossiter & Zappa 2001; Mayne, Seron & Rakovic 2005).
 
-The classical comparison for the reachable-set-triggered MPC of :mod:`ocreach.control.event_mpc`.
+The classical comparison for the reachable-set-triggered MPC of :mod:`ocreach.control.stationkeeping.event_mpc`.
 About the reference the error ``e = x - x_ref`` under the ancillary feedback ``u = v - K_k e``
 (``K_k`` the periodic LQR gain) and the disturbance ``w in W`` evolves as
 ``e_{k+1} = (A_k - B_k K_k) e_k + Bw_k w_k``.  The error tube of a prediction started at step ``k``
@@ -56,7 +56,7 @@ from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference
 from ocreach.control.simulate import _generator
-from ocreach.control.tube import TubeSchedule, disturbance_input
+from ocreach.control.stationkeeping.tubes import TubeSchedule, disturbance_input
 from ocreach.errors import ProblemError
 
 #: smallest fraction of a constraint kept after tightening (a fully consumed set is reported)

@@ -45,9 +45,17 @@ from numpy.typing import ArrayLike
 
 from ocreach.errors import ProblemError
 from ocreach.model import Model
+
 # the compiled-code machinery lives in ocreach.native; these names stay importable from here
-from ocreach.native import (COMPILE_ERRORS, c_identifier, cache_dir, compile_function,  # noqa: F401
-                            compile_source, generate_c, jit_enabled)
+from ocreach.native import (  # noqa: F401
+    COMPILE_ERRORS,
+    c_identifier,
+    cache_dir,
+    compile_function,
+    compile_source,
+    generate_c,
+    jit_enabled,
+)
 from ocreach.native.integrator import integrate_batch
 
 __all__ = ["STTResult", "flow_rhs", "integrate_batch", "propagate", "stm", "stt", "stt_rhs"]

@@ -727,7 +727,7 @@ class IntervalFunction:
 
     ``native``: ``True`` evaluates Functions made of the correctly rounded operations
     (``+ - * /``, ``sq``, ``sqrt``, ``inv``, ``neg``, ``twice``) in a compiled C interpreter, one
-    box at a time (:mod:`ocreach.native.interval_kernel`: the bounds of the ``nextafter`` mode,
+    box at a time (:mod:`ocreach.intervals.kernel`: the bounds of the ``nextafter`` mode,
     ~20x faster for the few boxes of a reachability step); any failure re-runs the numpy
     evaluator, which reports it.  Without a compiler, or for other operations, numpy is used.
     """
@@ -855,7 +855,7 @@ class IntervalFunction:
         self.n_ops = len(node_op)
         if not isinstance(native, (bool, np.bool_)):
             raise ProblemError(f"native must be True or False; got {native!r}")
-        #: the compiled kernel (:mod:`ocreach.native.interval_kernel`), built on the first call
+        #: the compiled kernel (:mod:`ocreach.intervals.kernel`), built on the first call
         #: when ``native=True``; False when not wanted or not available
         self._native: Any = None if native else False
 
@@ -922,7 +922,7 @@ class IntervalFunction:
         the right shapes; non-finite results are still reported by the NaN guard and the caller."""
         los, his, B = self._check_inputs(lo, hi) if check else self._trusted_inputs(lo, hi)
         if self._native is None:
-            from ocreach.native.interval_kernel import build_interval_kernel
+            from ocreach.intervals.kernel import build_interval_kernel
             self._native = build_interval_kernel(self) or False
         if self._native:
             res = self._native(los, his, B)
@@ -1029,7 +1029,7 @@ def interval_function(fun: ca.Function, *, model: Any = None, key: Any = None,
                       native: bool = False) -> IntervalFunction:
     """:class:`IntervalFunction` of ``fun``, cached through ``model.cached`` when ``model`` is
     given (``key`` defaults to the Function's name); ``native=True`` evaluates it in compiled C
-    where it can (:mod:`ocreach.native.interval_kernel`, the same bounds)."""
+    where it can (:mod:`ocreach.intervals.kernel`, the same bounds)."""
     if model is None:
         return IntervalFunction(fun, undecided=undecided, kinks=kinks, native=native)
     k = ("intervals", key if key is not None else fun.name(), undecided, kinks, native)

@@ -2,10 +2,10 @@
 the near rectilinear halo orbit": a zero-thrust reachable tube about the reference from the initial
 deviation set under the disturbance ``W``, refreshed at every apolune).
 
-:func:`drift_schedule` builds the :class:`~ocreach.control.tube.TubeSchedule` of a periodic
+:func:`drift_schedule` builds the :class:`~ocreach.control.stationkeeping.tubes.TubeSchedule` of a periodic
 reference from a linearised or a sound tube (``taylor``/``sdc``, optionally with the linear tube
 where the method fails, or the adaptive partition of
-:func:`~ocreach.control.tube.sound_drift_partition`, cached per process by
+:func:`~ocreach.control.stationkeeping.tubes.sound_drift_partition`, cached per process by
 :func:`partition_key`); :func:`ephemeris_drift_schedule` the tubes along the ephemeris-corrected
 reference; :func:`tube_log` says which tube was used per refresh.
 """
@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.control.ephemeris_plant import EphemerisPlant
 from ocreach.control.reference import TrackingReference
-from ocreach.control.station_keeping_paper import PAPER_N, PAPER_W, paper_initial_set
-from ocreach.control.tube import (
+from ocreach.control.stationkeeping.ephemeris_plant import EphemerisPlant
+from ocreach.control.stationkeeping.paper import PAPER_N, PAPER_W, paper_initial_set
+from ocreach.control.stationkeeping.tubes import (
     Tube,
     TubeSchedule,
     linear_drift_tube,
@@ -48,7 +48,7 @@ TUBE_SOURCES = ("linear", "taylor", "sdc") + FALLBACK_SOURCES
 
 def _initial_generators(problem, initial: Any) -> Any:
     """The tubes' initial deviation set: ``"paper"`` (Patel & Subbarao's ``G_pos``, ``G_vel``,
-    :func:`~ocreach.control.station_keeping_paper.paper_initial_set`) or the generators given."""
+    :func:`~ocreach.control.stationkeeping.paper.paper_initial_set`) or the generators given."""
     if isinstance(initial, str):
         if initial != "paper":
             raise ProblemError(f"initial must be 'paper' or generators; got {initial!r}")
@@ -79,15 +79,15 @@ def drift_schedule(problem, reference: TrackingReference, *, initial: Any = "pap
     """Drift tubes (zero thrust) about the reference, refreshed at ``phase`` every ``every``
     revolutions; each covers its interval plus ``lookahead`` steps.
 
-    ``source``: ``"linear"`` (:func:`~ocreach.control.tube.linear_drift_tube`, not guaranteed),
-    ``"taylor"`` / ``"sdc"`` (:func:`~ocreach.control.tube.reach_drift_tube`, guaranteed; with
+    ``source``: ``"linear"`` (:func:`~ocreach.control.stationkeeping.tubes.linear_drift_tube`, not guaranteed),
+    ``"taylor"`` / ``"sdc"`` (:func:`~ocreach.control.stationkeeping.tubes.reach_drift_tube`, guaranteed; with
     ``tube_options`` for the method, and ``interval`` for tubes shorter than a revolution; a
     method that cannot enclose the interval raises), or ``"taylor-or-linear"`` /
     ``"sdc-or-linear"`` (the sound tube where the method succeeds, else the linear one, its
     ``meta["fallback_reason"]`` the method's error).  :func:`tube_log` lists which was used.
     ``interval="adaptive"`` (with ``"taylor"`` / ``"sdc"``): guaranteed tubes over every whole
     revolution, each restarted from the initial set where the previous one stops
-    (:func:`~ocreach.control.tube.sound_drift_partition`: on the NRHO a short tube across
+    (:func:`~ocreach.control.stationkeeping.tubes.sound_drift_partition`: on the NRHO a short tube across
     perilune); computed once for one period from ``phase`` and re-used, shifted, every period.
     ``membership``: ``"zonotope"`` (exact gauge of the set) or
     ``"box"`` (its interval hull).
@@ -137,8 +137,8 @@ _PARTITIONS: dict[str, list[Tube]] = {}
 
 def partition_key(problem, reference: TrackingReference, phase: int, G0: Any, disturbance: Any,
                   method: str, options: dict) -> str:
-    """Everything :func:`~ocreach.control.tube.sound_drift_partition` depends on, hashed: the
-    model it runs on (the reference's, :func:`~ocreach.control.tube._drift_problem`), the
+    """Everything :func:`~ocreach.control.stationkeeping.tubes.sound_drift_partition` depends on, hashed: the
+    model it runs on (the reference's, :func:`~ocreach.control.stationkeeping.tubes._drift_problem`), the
     parameters, the reference states and times, the sets, the method and options.
     Arrays enter by dtype, shape and bytes (:func:`_hash_value`), never by ``repr``, which numpy
     shortens with ``...`` for large arrays (two different arrays would share a key)."""
@@ -188,7 +188,7 @@ def _adaptive_schedule(problem, reference: TrackingReference, G0: Any, disturban
                        method: str, wrap: Callable[[Tube], Tube], phase: int | str,
                        options: dict) -> TubeSchedule:
     """Guaranteed tubes over one period from ``phase``, refreshed where the sound method stops
-    (:func:`~ocreach.control.tube.sound_drift_partition`), re-used every period.  MPC windows that
+    (:func:`~ocreach.control.stationkeeping.tubes.sound_drift_partition`), re-used every period.  MPC windows that
     cross a refresh take the next tube's sets, so no tube needs a lookahead."""
     M = reference.n_steps
     p0 = refresh_phase(reference, phase)
@@ -231,14 +231,14 @@ def ephemeris_drift_schedule(problem, ref: TrackingReference, initial: Any, dist
                              options: dict | None, source_given: bool, n_p: int,
                              plant: EphemerisPlant) -> TubeSchedule:
     """Drift tubes along the ephemeris-corrected reference
-    (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`: refreshed at every
+    (:func:`~ocreach.control.stationkeeping.ephemeris_tubes.along_reference_schedule`: refreshed at every
     apolune and where the sound method stops, nothing re-used).  A sound source taken from the
     problem's defaults (not given) becomes ``"<method>-or-linear"``: guaranteed where the method
     encloses, the linearised tube (labelled) where it cannot.  The sound method runs on the
     plant's frame model restricted to each interval (:meth:`EphemerisPlant.frame_model_on`: the
     same function there up to a rigorously bounded difference added to W, re-expanded on the
     window without the ``if_else`` between DE421 fit pieces: docs/intervals.md)."""
-    from ocreach.control.ephemeris_tubes import along_reference_schedule
+    from ocreach.control.stationkeeping.ephemeris_tubes import along_reference_schedule
 
     wrap = _membership_wrap(membership)
     if phase != "apolune":

@@ -3,7 +3,7 @@
 
 ``ocreach report station-keeping --problem nrho-9-2 [--controllers event-mpc,tube-mpc,mpc,lqr]
 [--revolutions N] [--plant cr3bp|ephemeris] [--reference cr3bp|ephemeris] [--out DIR]
-[--set key=value]`` runs :func:`~ocreach.control.station_keeping.
+[--set key=value]`` runs :func:`~ocreach.control.stationkeeping.runs.
 run_station_keeping` and writes, atomically, ``metrics.json`` (one entry per controller and the
 settings), ``report.md``, ``report.html`` and the figures ``trajectory.png`` (3-D with the thrust
 arcs), ``projections.png`` (x-y and y-z with the tube boxes), ``gauge.png`` (with the trigger and
@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.control.station_keeping import CONTROLLERS, StationKeepingRun, run_station_keeping
-from ocreach.control.station_keeping_metrics import delta_v_si
-from ocreach.control.station_keeping_paper import PAPER_DELTA_V_MPS, PAPER_TF_HOURS
+from ocreach.control.stationkeeping.metrics import delta_v_si
+from ocreach.control.stationkeeping.paper import PAPER_DELTA_V_MPS, PAPER_TF_HOURS
+from ocreach.control.stationkeeping.runs import CONTROLLERS, StationKeepingRun, run_station_keeping
 from ocreach.errors import ProblemError
-from ocreach.plot import save_figure
-from ocreach.reach.result import atomic_write_text, json_text, jsonable
+from ocreach.fileio import atomic_write_text, json_text, jsonable
+from ocreach.reach.plot import save_figure
 
 DESCRIPTIONS = {
     "event-mpc": "event-triggered MPC: thrust off inside the drift tube, soft tube-constrained MPC "
@@ -50,7 +50,7 @@ TABLE_KEYS = ["revolutions", "delta_v_mps", "delta_v_per_rev_mps", "activations"
 def station_keeping_report(problem, out_dir: str | Path, **options: Any) -> dict:
     """Run the station-keeping comparison on ``problem`` and write the report into ``out_dir``.
 
-    Options are those of :func:`~ocreach.control.station_keeping.run_station_keeping`
+    Options are those of :func:`~ocreach.control.stationkeeping.runs.run_station_keeping`
     (``controllers`` also as a comma-separated string).  Returns the content of ``metrics.json``.
     """
     allowed = [n for n in inspect.signature(run_station_keeping).parameters if n != "problem"]

@@ -5,7 +5,7 @@ against time per FOV, the focal-plane view), all written atomically.
 For every (problem, control set) the reachable balls come from :class:`ReachableBalls` (one
 warm-started ``bvp`` solve per horizon, shared by all observers and FOVs).  For every observer and
 FOV the custody probability uses the *outer* ball (conservative; the boresight on its centre) and
-the horizon search of :func:`ocreach.custody.custody_horizon`; the same search on the inner ball
+the horizon search of :func:`ocreach.custody.horizon.custody_horizon`; the same search on the inner ball
 (the MEB of the bvp endpoints, Tucker Sec. 2.3) and Tucker's Eq. 14 as printed are reported beside
 it.
 """
@@ -17,50 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach import custody as cu
-from ocreach.custody_reach import ReachableBalls, validate_with_mc
+from ocreach.custody.fov import FOV, ball_outline, gnomonic, make_fov, points_in_fov
+from ocreach.custody.horizon import Horizon, custody_horizon
+from ocreach.custody.observers import Observer, parse_observer
+from ocreach.custody.probability import check_probability, custody_probability
+from ocreach.custody.reach_balls import ReachableBalls, validate_with_mc
 from ocreach.errors import ProblemError
 
 #: resolution of the report's figures (with 8-bit palette PNGs they take ~20 KB each)
 FIGURE_DPI = 100
 CUSTODY_PROBLEMS = ("custody-l1", "custody-l2", "custody-l3", "custody-l4", "custody-l5", "custody-gateway")
-
-
-def parse_observer(spec: str, problem, epoch: str = "2026-01-01") -> cu.Observer:
-    """``geocentre`` | ``L1`` ... ``L5`` (fixed at the Lagrange point) | ``ground:LAT,LON,ALT`` (deg,
-    deg, km) | ``orbit:PROBLEM`` for ``problem``'s CR3BP."""
-    spec = str(spec).strip()
-    mu = problem.model.param("mu", problem.params)
-    if spec in ("geocentre", "geocenter", "earth"):
-        return cu.geocentre(mu)
-    if spec.upper() in ("L1", "L2", "L3", "L4", "L5"):
-        from ocreach.orbits import lagrange_points
-
-        pt = lagrange_points(mu)[int(spec[1]) - 1]
-        return cu.Observer(spec.upper(), "fixed", lambda t: np.tile(pt, (t.size, 1)))
-    if spec.startswith("ground:"):
-        parts = spec[7:].split(",")
-        if len(parts) != 3:
-            raise ProblemError(f"--observer ground:LAT,LON,ALT needs three numbers (deg, deg, km); got {spec!r}")
-        return cu.ground_site(*parts, epoch, mu=mu, units=problem.units)
-    if spec.startswith("orbit:"):
-        from ocreach.problem import get_problem
-
-        other = get_problem(spec[6:])
-        if not other.model.name.startswith("cr3bp") or other.model.n_x != 6 or \
-                abs(other.model.param("mu", other.params) - mu) > 1e-9:
-            raise ProblemError(f"--observer {spec}: the observer's problem must be a spatial CR3BP with "
-                               f"mu = {mu}; {other.id} has model {other.model.name}")
-        return cu.orbit_observer(other.model, other.x0, other.params, name=f"orbit:{other.id}")
-    raise ProblemError(f"--observer must be geocentre, L1..L5, ground:LAT,LON,ALT or orbit:PROBLEM; got {spec!r}")
-
-
-def make_fov(full_deg: float, shape: str) -> cu.FOV:
-    if shape == "circle":
-        return cu.FOV.circle(full_deg)
-    if shape == "square":
-        return cu.FOV.rect(full_deg)
-    raise ProblemError(f"fov_shape (--fov-shape) must be 'circle' or 'square'; got {shape!r}")
 
 
 @dataclass
@@ -87,11 +53,11 @@ class CaseResult:
     search_message: str = ""
 
 
-def first_set_time(observer: cu.Observer, problem, t_max: float, tol: float) -> float | None:
+def first_set_time(observer: Observer, problem, t_max: float, tol: float) -> float | None:
     """First time (days) the unpowered object drops below a ground site's elevation mask: a
     10-minute scan of the nominal trajectory and bisection to ``tol``; None for observers in space
     or when it stays visible up to ``t_max``.  The custody search of a ground site stops there."""
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     if observer.up_fn is None:
         return None
@@ -123,17 +89,17 @@ def first_set_time(observer: cu.Observer, problem, t_max: float, tol: float) -> 
 def _search(prob, p_required, t_max, step, tol, t_set):
     """Custody horizon, stopped where a ground site loses sight of the object."""
     if t_set is not None and t_set <= 0:
-        return cu.Horizon(None, 0.0, p_required, (), True, "the object is below the site's elevation mask at t = 0")
+        return Horizon(None, 0.0, p_required, (), True, "the object is below the site's elevation mask at t = 0")
     if t_set is None or t_set >= t_max:
-        return cu.custody_horizon(prob, p_required, t_max, t_step=step, tol=tol)
-    h = cu.custody_horizon(prob, p_required, t_set, t_step=min(step, t_set), tol=tol)
+        return custody_horizon(prob, p_required, t_max, t_step=step, tol=tol)
+    h = custody_horizon(prob, p_required, t_set, t_step=min(step, t_set), tol=tol)
     if h.t_loss is None:  # custody holds until the object sets
-        return cu.Horizon(max(h.t_safe - tol, 0.0), t_set, p_required, h.evaluations, h.converged,
+        return Horizon(max(h.t_safe - tol, 0.0), t_set, p_required, h.evaluations, h.converged,
                           f"custody holds until the object sets at t = {t_set:g} d")
     return h
 
 
-def _probability(rb: ReachableBalls, observer: cu.Observer, fov: cu.FOV, ball: str = "outer",
+def _probability(rb: ReachableBalls, observer: Observer, fov: FOV, ball: str = "outer",
                  model: str = "covered"):
     day = rb.base.extra["day_TU"]
 
@@ -145,7 +111,7 @@ def _probability(rb: ReachableBalls, observer: cu.Observer, fov: cu.FOV, ball: s
             b = hb.outer if ball == "outer" else hb.inner
             center, radius = b.center, b.radius
         o = observer.position([t_days * day])[0]
-        return cu.custody_probability(center, radius, o, fov, model=model)
+        return custody_probability(center, radius, o, fov, model=model)
 
     return p
 
@@ -158,7 +124,7 @@ def analyse(problem_ids: Sequence[str], observers: Sequence[str], fovs: Sequence
     holds the :class:`ReachableBalls`, the report horizons and the MC validation rows."""
     from ocreach.errors import check_positive
 
-    p_required = cu.check_probability(p_required)
+    p_required = check_probability(p_required)
     check_positive("tol (days)", tol_days)
     check_positive("step (days)", step_days)
     if mc_samples < 0:
@@ -201,7 +167,7 @@ def analyse(problem_ids: Sequence[str], observers: Sequence[str], fovs: Sequence
                         rng_km = float(np.linalg.norm(hb.outer.center - o) * rb.base.units.length / 1e3)
                         extra = {}
                         if mc_rows:  # sampled reachable positions inside the FOV (gnomonic projection)
-                            inside = cu.points_in_fov(mc_rows[i]["points"], o, fov, hb.outer.center - o)
+                            inside = points_in_fov(mc_rows[i]["points"], o, fov, hb.outer.center - o)
                             extra["mc_fraction_in_fov"] = float(inside.mean())
                         rows.append({**extra, "t_days": t, "meb_radius_km": hb.inner.radius * rb.base.units.length / 1e3,
                                      "inner_radius_km": hb.inner.radius * rb.base.units.length / 1e3,
@@ -259,7 +225,7 @@ def mc_table(per_problem: dict) -> str:
 
 def write_outputs(cases, per_problem, out: str | Path, *, figures: bool = True, p_required: float = 0.95) -> dict:
     """``custody.json``, ``custody.md`` and the figures in ``out`` (atomic writes)."""
-    from ocreach.reach.result import atomic_write_text, json_text
+    from ocreach.fileio import atomic_write_text, json_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -295,7 +261,7 @@ def write_figures(pid: str, cs: str, info: dict, cases, out: Path, p_required: f
 
     from ocreach.geometry import convex_hull_polygon
     from ocreach.orbits import lagrange_points
-    from ocreach.plot import save_figure as _save
+    from ocreach.reach.plot import save_figure as _save
 
     def save_figure(fig, path):  # committed to docs/figures/tucker: 100 dpi, 8-bit palette PNG
         return _save(fig, path, dpi=FIGURE_DPI, palette=True)
@@ -347,7 +313,7 @@ def write_figures(pid: str, cs: str, info: dict, cases, out: Path, p_required: f
     fig.tight_layout()
     written.append(save_figure(fig, out / f"{tag}_xy_zoom.png"))
     if pid == "custody-gateway":  # the set in 3-D with the orbit (Tucker Figs. 13-15)
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
 
         fig = plt.figure(figsize=(6.5, 5.5))
         ax = fig.add_subplot(projection="3d")
@@ -399,11 +365,11 @@ def write_figures(pid: str, cs: str, info: dict, cases, out: Path, p_required: f
             o = obs.position([t * prob.extra["day_TU"]])[0]
             axis = hb.outer.center - o
             fig, ax = plt.subplots(figsize=(5.5, 5.5))
-            XY, front = cu.gnomonic(hb.endpoints, o, axis)
+            XY, front = gnomonic(hb.endpoints, o, axis)
             ax.plot(np.rad2deg(np.arctan(XY[front, 0])), np.rad2deg(np.arctan(XY[front, 1])), ".", ms=3,
                     color="tab:blue", label=f"bvp endpoints ({t:g} d)")
             for b, ls, lab in ((hb.inner, "--", "MEB"), (hb.outer, ":", "outer ball")):
-                ell = cu.ball_outline(b.center, b.radius, o, axis)
+                ell = ball_outline(b.center, b.radius, o, axis)
                 if ell is not None:
                     e = np.rad2deg(np.arctan(np.vstack([ell, ell[:1]])))
                     ax.plot(e[:, 0], e[:, 1], ls, color="k", lw=1, label=lab)

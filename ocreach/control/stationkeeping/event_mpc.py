@@ -1,8 +1,8 @@
 """Event-triggered MPC on a drift tube (Patel & Subbarao, "Station-keeping in the near
 rectilinear halo orbit").
 
-The thrust is off while the state stays in the drift tube ``R(t)`` (:mod:`ocreach.control.tube`,
-schedules of :mod:`ocreach.control.drift_tubes`).  When the gauge of the state exceeds 1 the MPC of
+The thrust is off while the state stays in the drift tube ``R(t)`` (:mod:`ocreach.control.stationkeeping.tubes`,
+schedules of :mod:`ocreach.control.stationkeeping.drift_tubes`).  When the gauge of the state exceeds 1 the MPC of
 Eq. 27 is switched on, its predicted states constrained to the ``beta``-shrunk tube (soft: a
 penalised slack keeps the NLP feasible from outside the tube); it stays on until the gauge has been
 ``<= beta`` for ``m`` consecutive steps (hysteresis, :class:`EventTrigger`), then the thrust is off
@@ -18,9 +18,9 @@ import numpy as np
 from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference
-from ocreach.control.station_keeping_paper import PAPER_N
-from ocreach.control.tube import TubeSchedule
-from ocreach.control.tube_mpc import MPCWrapper
+from ocreach.control.stationkeeping.paper import PAPER_N
+from ocreach.control.stationkeeping.tube_mpc import MPCWrapper
+from ocreach.control.stationkeeping.tubes import TubeSchedule
 from ocreach.errors import ProblemError
 
 

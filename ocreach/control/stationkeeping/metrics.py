@@ -10,7 +10,7 @@ import numpy as np
 from ocreach.control.common import control_scale
 from ocreach.control.reference import TrackingReference
 from ocreach.control.simulate import SimResult
-from ocreach.control.tube import TubeSchedule
+from ocreach.control.stationkeeping.tubes import TubeSchedule
 
 
 def delta_v_si(U: np.ndarray, a_max: float, dt: float, units) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ocreach.errors import ProblemError
-from ocreach.reach.result import atomic_write_text
+from ocreach.fileio import atomic_write_text
 
 
 def replace_markdown_section(path: str | Path, text: str) -> Path:

@@ -16,14 +16,14 @@ trajectory of the plant's own equations, over many revolutions from a given epoc
    four epochs); four converge in 5 iterations for both problems at the four epochs tried
    (docs/ephemeris.md).  The seed states come from the periodic CR3BP reference, read in the
    coordinates of the plant's rotating frame fixed at the epoch
-   (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: the same map the plant uses, so the
+   (:class:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant`: the same map the plant uses, so the
    seed is the mapped CR3BP orbit).
-2. **Multiple shooting** (:mod:`ocreach.shooting`) in the plant's dynamics in those coordinates
+2. **Multiple shooting** (:mod:`ocreach.dynamics.shooting`) in the plant's dynamics in those coordinates
    (:meth:`EphemerisPlant.frame_model`, Moon, Earth, Sun point masses, DE421 refit, Patel &
    Scheeres Eq. 11): with the epoch and all patch times fixed, the free variables are the
    ``6 (n + 1)`` patch states and the constraints the ``6 n`` arc-end defects
    ``F_j = phi(X_j; t_j, t_{j+1}) - X_{j+1}``.  The Jacobian has the blocks ``[Phi_j, -I]``
-   (``Phi_j`` the arc's STM from the model's variational equations, :func:`ocreach.flow.stm_batch`),
+   (``Phi_j`` the arc's STM from the model's variational equations, :func:`ocreach.dynamics.flow.stm_batch`),
    and the update is the minimum-norm Newton step ``dX = -DF^T (DF DF^T)^{-1} F`` (the multiple
    shooting of T. A. Pavlak, "Mission design applications in the Earth-Moon system: transfer
    trajectories and stationkeeping", M.S. thesis, Purdue University, 2010, Ch. 3, used for
@@ -60,15 +60,25 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, EphemerisPlant
 from ocreach.control.reference import TrackingReference, reference_from_problem, verified_substeps
+from ocreach.control.stationkeeping.ephemeris_plant import (
+    DEFAULT_BODIES,
+    DEFAULT_EPOCH,
+    EphemerisPlant,
+)
+from ocreach.dynamics.shooting import (
+    ARC_ATOL,
+    ARC_RTOL,
+    DEFECT_TOL,
+    multiple_shooting,
+    patch_defects,
+)
 from ocreach.errors import ProblemError, SolverError, check_count, check_positive, check_real
-from ocreach.shooting import ARC_ATOL, ARC_RTOL, DEFECT_TOL, multiple_shooting, patch_defects
 
 if TYPE_CHECKING:
     from ocreach.problem import Problem
 
-log = logging.getLogger("ocreach.control.ephemeris_reference")
+log = logging.getLogger("ocreach.control.stationkeeping.ephemeris_reference")
 
 _CACHE_VERSION = 1
 
@@ -99,7 +109,7 @@ class EphemerisOrbit:
     def sample(self, n_steps: int | None = None) -> np.ndarray:
         """States on the control grid ``t_k = k dt``, ``k = 0..n_steps`` (default: all), each from
         the arc that contains it: ``(n_steps + 1, 6)``."""
-        from ocreach.flow import propagate
+        from ocreach.dynamics.flow import propagate
 
         last = int(self.steps[-1])
         n = last if n_steps is None else int(n_steps)
@@ -214,7 +224,7 @@ def _cache_load(name: str, settings: dict, n_patch: int) -> dict | None:
 
 
 def _cache_store(name: str, arrays: dict, meta: dict) -> None:
-    from ocreach.reach.result import atomic_write_bytes, atomic_write_text, jsonable
+    from ocreach.fileio import atomic_write_bytes, atomic_write_text, jsonable
 
     npz, js = _cache_paths(name)
     buf = io.BytesIO()

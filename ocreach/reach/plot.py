@@ -150,7 +150,7 @@ def save_figure(fig, path: str | Path, *, dpi: int = 120, palette: bool = False,
 
     import matplotlib.pyplot as plt
 
-    from ocreach.reach.result import atomic_write_bytes
+    from ocreach.fileio import atomic_write_bytes
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, **savefig_kw)

@@ -9,7 +9,7 @@ value ``h_j = d_j . x_j``.  Two balls per horizon:
 
 * ``inner``: the exact minimum enclosing ball of the endpoints (Tucker Sec. 2.3; an inner
   estimate of the ball of the true set, since the endpoints are points of the set);
-* ``outer``: the ball around the polytope ``{x : d_j . x <= h_j}`` (:func:`ocreach.meb.support_outer_ball`),
+* ``outer``: the ball around the polytope ``{x : d_j . x <= h_j}`` (:func:`ocreach.geometry.meb.support_outer_ball`),
   which contains the set whenever the ``h_j`` are the true support values (bvp finds local
   extremals; ``validate_with_mc`` checks Monte Carlo endpoints against every ``h_j``).
 
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import ProblemError, SolverError
-from ocreach.meb import EnclosingBall, minimum_enclosing_ball, support_outer_ball
+from ocreach.geometry.meb import EnclosingBall, minimum_enclosing_ball, support_outer_ball
 
 
 @dataclass
@@ -63,7 +63,7 @@ class ReachableBalls:
 
     def __init__(self, problem_id: str, *, overrides: dict | None = None, bvp_options: dict | None = None,
                  keep_results: bool = False) -> None:
-        from ocreach.problem import get_problem
+        from ocreach.registry import get_problem
 
         self.problem_id = problem_id
         self.overrides = dict(overrides or {})
@@ -88,7 +88,7 @@ class ReachableBalls:
         return np.asarray(E.q, dtype=float)[pos], float(np.sqrt(np.linalg.eigvalsh(Q).max()))
 
     def problem(self, t_days: float):
-        from ocreach.problem import get_problem
+        from ocreach.registry import get_problem
 
         # keep the grid step; at least 4 segments so short horizons are resolved
         dt_h = min(float(self.overrides.get("dt_hours", 2.0)), t_days * 24.0 / 4)

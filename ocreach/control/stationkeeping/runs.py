@@ -1,14 +1,14 @@
 """Station keeping on the NRHO: the closed-loop runs (Patel & Subbarao, "Station-keeping in the
 near rectilinear halo orbit").
 
-:func:`run_station_keeping` runs the event-triggered MPC (:mod:`ocreach.control.event_mpc`, on the
-drift tubes of :mod:`ocreach.control.drift_tubes`), a robust tube MPC
-(:mod:`ocreach.control.tube_mpc`), the continuous MPC and the periodic LQR on the true CR3BP plant
-(or the DE421 ephemeris plant of :mod:`ocreach.control.ephemeris_plant`, the CR3BP then only the
+:func:`run_station_keeping` runs the event-triggered MPC (:mod:`ocreach.control.stationkeeping.event_mpc`, on the
+drift tubes of :mod:`ocreach.control.stationkeeping.drift_tubes`), a robust tube MPC
+(:mod:`ocreach.control.stationkeeping.tube_mpc`), the continuous MPC and the periodic LQR on the true CR3BP plant
+(or the DE421 ephemeris plant of :mod:`ocreach.control.stationkeeping.ephemeris_plant`, the CR3BP then only the
 prediction model) with the same seeded offset, disturbance and (optional) navigation-error draws
 (:class:`NavigationError`), over many revolutions, and computes the metrics of
-:func:`~ocreach.control.station_keeping_metrics.station_keeping_metrics`.  The paper's settings:
-:mod:`ocreach.control.station_keeping_paper`.
+:func:`~ocreach.control.stationkeeping.metrics.station_keeping_metrics`.  The paper's settings:
+:mod:`ocreach.control.stationkeeping.paper`.
 """
 from __future__ import annotations
 
@@ -17,16 +17,32 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.control.drift_tubes import drift_schedule, ephemeris_drift_schedule, tube_log
-from ocreach.control.ephemeris_plant import DEFAULT_BODIES, DEFAULT_EPOCH, PLANTS, EphemerisPlant
-from ocreach.control.ephemeris_reference import ephemeris_reference, reference_settings
-from ocreach.control.event_mpc import EventTrigger, EventTriggeredMPC, check_anticipate
 from ocreach.control.lqr import LQR
 from ocreach.control.mpc import MPC
 from ocreach.control.reference import TrackingReference, reference_from_problem
 from ocreach.control.simulate import SimOptions, SimResult, simulate
-from ocreach.control.station_keeping_metrics import station_keeping_metrics
-from ocreach.control.station_keeping_paper import (
+from ocreach.control.stationkeeping.drift_tubes import (
+    drift_schedule,
+    ephemeris_drift_schedule,
+    tube_log,
+)
+from ocreach.control.stationkeeping.ephemeris_plant import (
+    DEFAULT_BODIES,
+    DEFAULT_EPOCH,
+    PLANTS,
+    EphemerisPlant,
+)
+from ocreach.control.stationkeeping.ephemeris_reference import (
+    ephemeris_reference,
+    reference_settings,
+)
+from ocreach.control.stationkeeping.event_mpc import (
+    EventTrigger,
+    EventTriggeredMPC,
+    check_anticipate,
+)
+from ocreach.control.stationkeeping.metrics import station_keeping_metrics
+from ocreach.control.stationkeeping.paper import (
     PAPER_DELTA_V_MPS,
     PAPER_G_POS,
     PAPER_G_VEL,
@@ -35,7 +51,7 @@ from ocreach.control.station_keeping_paper import (
     PAPER_W,
     paper_initial_set,
 )
-from ocreach.control.tube import TubeSchedule
+from ocreach.control.stationkeeping.tubes import TubeSchedule
 from ocreach.errors import ProblemError, check_count
 
 
@@ -72,7 +88,7 @@ class NavigationError:
 
 
 def run_tube_logs(schedule, n_steps: int, n_p: int) -> tuple[list[dict], list[dict]]:
-    """The tube log of a run (:func:`~ocreach.control.drift_tubes.tube_log` over its ``n_steps``
+    """The tube log of a run (:func:`~ocreach.control.stationkeeping.drift_tubes.tube_log` over its ``n_steps``
     steps) and the tubes refreshed after its last step that the MPC predictions still reach (the
     plan made at step ``n_steps - 1`` constrains steps up to ``n_steps - 1 + n_p``): both count
     for whether the tubes used were guaranteed."""
@@ -84,7 +100,7 @@ def run_tube_logs(schedule, n_steps: int, n_p: int) -> tuple[list[dict], list[di
 
 
 def tubes_enclose_plant(tubes: list[dict], plant: str, reference: str) -> bool | None:
-    """Whether every tube of the run (:func:`~ocreach.control.drift_tubes.tube_log`) is a
+    """Whether every tube of the run (:func:`~ocreach.control.stationkeeping.drift_tubes.tube_log`) is a
     guaranteed enclosure of the drift of the plant the run simulates: the tubes are sound for the
     reference's model, so with the DE421 plant and the CR3BP reference (tubes of the CR3BP drift)
     none is, whatever method built them.  ``None`` without tubes."""
@@ -126,7 +142,7 @@ CONTROLLERS = ("event-mpc", "tube-mpc", "mpc", "lqr")
 #: Controllers that need a tube schedule (a periodic reference).
 TUBE_CONTROLLERS = ("event-mpc", "tube-mpc")
 #: References of :func:`run_station_keeping`: the problem's periodic CR3BP orbit, or its
-#: DE421-corrected multi-revolution orbit (:mod:`ocreach.control.ephemeris_reference`).
+#: DE421-corrected multi-revolution orbit (:mod:`ocreach.control.stationkeeping.ephemeris_reference`).
 REFERENCES = ("cr3bp", "ephemeris")
 
 
@@ -149,39 +165,39 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     Same seeded draws for every controller: the initial offset (``"paper"``: uniform in the
     paper's initial deviation set; or a vector; or ``None``), the disturbance ``W`` per step, and
     the navigation error (half-widths ``navigation`` on the measured state, or ``None``).
-    Controllers: ``event-mpc`` (:class:`~ocreach.control.event_mpc.EventTriggeredMPC`), ``tube-mpc``
-    (:class:`~ocreach.control.tube_mpc.TubeMPC`), ``mpc`` (continuous :class:`MPC`, no tube), ``lqr``
+    Controllers: ``event-mpc`` (:class:`~ocreach.control.stationkeeping.event_mpc.EventTriggeredMPC`), ``tube-mpc``
+    (:class:`~ocreach.control.stationkeeping.tube_mpc.TubeMPC`), ``mpc`` (continuous :class:`MPC`, no tube), ``lqr``
     (periodic LQR).  Weights default to Table 3 (``R`` on the thrust acceleration).  The
     reference, LQR and tubes use ``n_sub`` RK4 substeps (``"auto"``: one-step error <= 1e-6); the
     MPCs predict with ``prediction_substeps`` substeps and the reference's defect correction
-    (``None``: ``n_sub``, no correction).  ``tube_source``: see :func:`~ocreach.control.drift_tubes.drift_schedule`
+    (``None``: ``n_sub``, no correction).  ``tube_source``: see :func:`~ocreach.control.stationkeeping.drift_tubes.drift_schedule`
     (``"taylor-or-linear"``: the sound tube where taylor encloses the interval, the linear one
     elsewhere); ``tube_interval="adaptive"`` with ``"taylor"``/``"sdc"``: guaranteed tubes over
-    whole revolutions, refreshed where the sound method stops (:func:`~ocreach.control.drift_tubes.drift_schedule`);
-    ``settings["tubes"]`` (:func:`~ocreach.control.drift_tubes.tube_log`) says which tube was used per refresh.
+    whole revolutions, refreshed where the sound method stops (:func:`~ocreach.control.stationkeeping.drift_tubes.drift_schedule`);
+    ``settings["tubes"]`` (:func:`~ocreach.control.stationkeeping.drift_tubes.tube_log`) says which tube was used per refresh.
     ``tube_source=None`` (default): the problem's ``extra["station_keeping"]`` (source and
     interval; nrho-9-2: ``"taylor"``, ``"adaptive"``), else ``"linear"`` once per revolution.
     ``anticipate``: the event-triggered MPC also fires on the predicted gauge at the next refresh
-    (:class:`~ocreach.control.event_mpc.EventTriggeredMPC`); ``None``: from the same ``extra`` entry, else False.
+    (:class:`~ocreach.control.stationkeeping.event_mpc.EventTriggeredMPC`); ``None``: from the same ``extra`` entry, else False.
 
-    ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.tube_mpc`).
+    ``terminal_set``: the tube MPC's LQR terminal set (:mod:`ocreach.control.stationkeeping.tube_mpc`).
     ``plant``: ``"cr3bp"`` (the problem's model, default) or ``"ephemeris"``
-    (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`: DE421 point masses
+    (:class:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant`: DE421 point masses
     ``ephemeris_bodies`` from ``epoch`` = reference time 0, the CR3BP rotating frame fixed at the
     epoch); with ``reference="cr3bp"`` (default) the controllers, tubes and reference stay CR3BP
     (the prediction model) either way.  ``reference="ephemeris"`` (with ``plant="ephemeris"``):
-    the DE421-corrected orbit of :mod:`ocreach.control.ephemeris_reference` from ``epoch``, a
+    the DE421-corrected orbit of :mod:`ocreach.control.stationkeeping.ephemeris_reference` from ``epoch``, a
     natural orbit of the plant; the LQR (finite-horizon, the reference is not periodic), the MPCs
     and the tubes then linearise and predict with the plant's own dynamics in the CR3BP frame
     fixed at the epoch.  The tubes (only when ``event-mpc`` or ``tube-mpc`` runs) are computed
     along the reference per refresh interval, nothing re-used
-    (:func:`~ocreach.control.ephemeris_tubes.along_reference_schedule`; ``tube_interval`` None
+    (:func:`~ocreach.control.stationkeeping.ephemeris_tubes.along_reference_schedule`; ``tube_interval`` None
     or ``"adaptive"``, ``phase`` ``"apolune"``; the problem's default ``"taylor"`` becomes
     ``"taylor-or-linear"``), and the tube MPC's margins and terminal set are computed over the
-    run's solve steps (:class:`~ocreach.control.tube_mpc.TubeMPC`).
+    run's solve steps (:class:`~ocreach.control.stationkeeping.tube_mpc.TubeMPC`).
     """
     from ocreach.control.report import PAPER_Q, paper_pattern
-    from ocreach.control.tube_mpc import TubeMPC
+    from ocreach.control.stationkeeping.tube_mpc import TubeMPC
 
     if problem.reference is None:
         raise ProblemError(f"station keeping needs a periodic reference orbit; problem "

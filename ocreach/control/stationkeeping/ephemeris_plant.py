@@ -28,7 +28,7 @@ not depleted (as in the CR3BP plant).  With :class:`ocreach.ephemeris.CircularEa
 
 :meth:`EphemerisPlant.frame_model` is the same dynamics as a CasADi model in the CR3BP
 coordinates: the model of the ephemeris-corrected reference
-(:mod:`ocreach.control.ephemeris_reference`) and of the controllers that track it.
+(:mod:`ocreach.control.stationkeeping.ephemeris_reference`) and of the controllers that track it.
 """
 from __future__ import annotations
 
@@ -148,7 +148,7 @@ class EphemerisPlant:
         + a_max u``, with ``a`` the acceleration of the Moon-centred ICRF model (Patel & Scheeres
         Eq. 11 plus the Moon-centred frame's indirect term), called symbolically, so every derivative (STM, MPC) comes from the one CasADi
         model.  It is the plant of :meth:`step` expressed in the controllers' coordinates (the
-        dynamics of :mod:`ocreach.control.ephemeris_reference`).  Cached on the plant's model.
+        dynamics of :mod:`ocreach.control.stationkeeping.ephemeris_reference`).  Cached on the plant's model.
         """
         return self.model.cached(("cr3bp_frame_model", self.t0, self.mu), self._build_frame_model)
 

@@ -226,7 +226,7 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
     ``samples`` initial states from ``N(x0_mean, x0_cov)``; at every step ``k`` fresh controls
     ``u_k ~ N(u_nominal[k], u_cov)`` per sample.  ``step="euler"`` uses the split Euler map of
     :func:`step_map_for` (the system the ``cut`` method propagates); ``step="flow"`` integrates the
-    continuous model over each segment with :func:`ocreach.flow.integrate_batch` (DOP853, ``rtol``,
+    continuous model over each segment with :func:`ocreach.dynamics.flow.integrate_batch` (DOP853, ``rtol``,
     ``atol``) to measure the discretisation error.  Vectorised over samples.
 
     Only what is asked for is kept: the sample mean and std at every grid time (``grid_mean``,
@@ -261,7 +261,7 @@ def stochastic_monte_carlo(problem, samples: int = 10000, seed: int = 0,
     if step == "euler":
         sm = step_map_for(problem)
     else:
-        from ocreach.flow import flow_rhs, integrate_batch
+        from ocreach.dynamics.flow import flow_rhs, integrate_batch
 
         rhs = flow_rhs(problem.model)
         P = np.broadcast_to(problem.params, (samples, problem.model.n_p))

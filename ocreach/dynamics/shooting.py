@@ -2,10 +2,10 @@
 
 Patch states ``X_j`` at fixed times ``t_j``; constraints the arc-end defects
 ``F_j = phi(X_j; t_j, t_{j+1}) - X_{j+1}``; Jacobian blocks ``[Phi_j, -I]`` with ``Phi_j`` the
-arc's STM from the model's variational equations (:func:`ocreach.flow.stm_batch`); update the
+arc's STM from the model's variational equations (:func:`ocreach.dynamics.flow.stm_batch`); update the
 minimum-norm solution ``dX = -DF^T (DF DF^T)^{-1} F`` of the linearised constraints (T. A.
 Pavlak, M.S. thesis, Purdue University, 2010, Ch. 3; Pavlak & Howell, AIAA 2012-4665; cited from
-memory).  Used by :mod:`ocreach.control.ephemeris_reference` to turn a CR3BP orbit into a
+memory).  Used by :mod:`ocreach.control.stationkeeping.ephemeris_reference` to turn a CR3BP orbit into a
 continuous orbit of the DE421 model.
 """
 from __future__ import annotations
@@ -25,8 +25,8 @@ def patch_defects(model: Model, times: np.ndarray, states: np.ndarray,
                   params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Arc-end defects ``F_j = phi(X_j; t_j, t_{j+1}) - X_{j+1}`` (n, n_x) and the arcs' STMs
     (n, n_x, n_x), the arcs integrated as one batch without control
-    (:func:`ocreach.flow.stm_batch`, DOP853 at ``ARC_RTOL``, ``ARC_ATOL``)."""
-    from ocreach.flow import stm_batch
+    (:func:`ocreach.dynamics.flow.stm_batch`, DOP853 at ``ARC_RTOL``, ``ARC_ATOL``)."""
+    from ocreach.dynamics.flow import stm_batch
 
     X1, Phi = stm_batch(model, states[:-1], times[:-1], times[1:], p=params, rtol=ARC_RTOL,
                         atol=ARC_ATOL)

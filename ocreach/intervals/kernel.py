@@ -42,7 +42,7 @@ import numpy as np
 from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library
 
 if TYPE_CHECKING:
-    from ocreach.intervals import IntervalFunction
+    from ocreach.intervals.evaluator import IntervalFunction
 
 __all__ = ["IntervalKernel", "build_interval_kernel"]
 
@@ -168,7 +168,7 @@ int ocr_iv_eval(int64_t nb, int64_t n_in, int64_t n_const, int64_t n_ops, int64_
 
 def _entries(ivf: IntervalFunction) -> list[tuple[str, int, int, int | None]] | None:
     """``(kind, out, a, b)`` per operation in schedule order, or None if an op is not supported."""
-    from ocreach import intervals as iv
+    from ocreach.intervals import evaluator as iv
 
     simple = {ca.OP_ADD: "add", ca.OP_SUB: "sub", ca.OP_MUL: "mul", ca.OP_DIV: "div",
               iv._OP_MULC: "mulc_min", ca.OP_NEG: "neg", ca.OP_TWICE: "twice", ca.OP_INV: "inv",

@@ -1,5 +1,5 @@
 """``ocreach custody PROBLEM --observer ... --fov DEG ...`` (Tucker et al. custody; see
-:mod:`ocreach.custody_report`)."""
+:mod:`ocreach.custody.report`)."""
 from __future__ import annotations
 
 import argparse
@@ -19,7 +19,7 @@ def _floats(text: str, name: str) -> list[float]:
 
 
 def cmd_custody(args: argparse.Namespace) -> int:
-    from ocreach.custody_report import CUSTODY_PROBLEMS, analyse, write_outputs
+    from ocreach.custody.report import CUSTODY_PROBLEMS, analyse, write_outputs
 
     problems = list(CUSTODY_PROBLEMS) if args.problem == "all" else \
         [p.strip() for p in args.problem.split(",") if p.strip()]
@@ -33,7 +33,7 @@ def cmd_custody(args: argparse.Namespace) -> int:
                                  mc_samples=args.mc, progress=lambda s: print(s, file=sys.stderr))
     out = args.out or f"out/custody_{'all' if args.problem == 'all' else problems[0]}"
     paths = write_outputs(cases, per_problem, out, figures=not args.no_figures, p_required=args.p)
-    from ocreach.custody_report import markdown_table
+    from ocreach.custody.report import markdown_table
 
     print(markdown_table(cases))
     print(f"wrote {paths['json']}, {paths['md']} and {len(paths['figures'])} figure(s)")
