@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 
 import ocreach
-from ocreach.dynamics.flow import propagate
+from ocreach.dynamics.flow import propagate, stt_polynomial
 from ocreach.errors import ProblemError
 from ocreach.geometry import hull_area, outline_area, points_in_polygons
 from ocreach.problem import ControlSet
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.stt import STTReach, fused_step, make_dependent, stt_polynomial
+from ocreach.reach.stt import STTReach, fused_step
 from ocreach.registry import get_problem
 from ocreach.sets import Interval, PolyZonotope, PZUnion, new_ids, tensor_map
+from ocreach.sets.polyzonotope import make_dependent
 
 
 # ---------------------------------------------------------------------------- helpers

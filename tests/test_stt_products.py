@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 import ocreach
+from ocreach.dynamics.flow import stt_polynomial
 from ocreach.errors import ProblemError
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.stt import STTReach, fused_step, stt_polynomial
+from ocreach.reach.stt import STTReach, fused_step
 from ocreach.reach.stt_products import BoundedOrder3Products, Order3Products, order3_products
 from ocreach.registry import get_problem
 from ocreach.sets import PolyZonotope, new_ids

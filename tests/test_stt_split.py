@@ -14,10 +14,11 @@ import pytest
 from ocreach.errors import ProblemError, SolverError
 from ocreach.geometry import hull_area, outline_area, points_in_polygons
 from ocreach.reach.mc import MonteCarlo
-from ocreach.reach.stt import STTReach, make_dependent
+from ocreach.reach.stt import STTReach
 from ocreach.reach.stt_split import error_samples, split_box, split_factor, truncation_error
 from ocreach.registry import get_problem
 from ocreach.sets import Interval, PolyZonotope, PZUnion, new_ids
+from ocreach.sets.polyzonotope import make_dependent
 
 
 def random_pz(rng, n, h, p, q):

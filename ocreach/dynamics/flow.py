@@ -37,6 +37,7 @@ one :func:`integrate_batch` call as K independent samples.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import casadi as ca
@@ -355,6 +356,17 @@ def stt(model: Model, x0: ArrayLike, controls: ArrayLike, grid: ArrayLike, order
                          max_steps=max_steps)
     phi = _stt_unpack(model, order, Y1)
     return STTResult(times=g, states=states, controls=U, phi=tuple(phi))
+
+
+def stt_polynomial(phi: Sequence[np.ndarray], dz: np.ndarray) -> list[np.ndarray]:
+    """Terms ``1/j! Phi^(j)[dz]^j`` (j = 1..n) for samples ``dz`` (N, n_z) (Foss Eq. 13): the
+    STT expansion of the flow, ``phi`` as returned by :func:`stt` for one step."""
+    out = [dz @ phi[0].T]
+    if len(phi) >= 2:
+        out.append(0.5 * np.einsum("iab,na,nb->ni", phi[1], dz, dz, optimize=True))
+    if len(phi) >= 3:
+        out.append(np.einsum("iabc,na,nb,nc->ni", phi[2], dz, dz, dz, optimize=True) / 6.0)
+    return out
 
 
 def _batch_values(name: str, value: ArrayLike, n: int, size: int | None = None) -> np.ndarray:

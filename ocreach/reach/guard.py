@@ -24,10 +24,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocreach.errors import SolverError
+from ocreach.reach.result import ReachResult
 
 if TYPE_CHECKING:
     from ocreach.problem import Problem
-    from ocreach.reach.result import ReachResult
 
 #: Default bound on ``||x||_inf`` of a result, in units of the problem's scale.
 DIVERGENCE_FACTOR = 100.0
@@ -86,22 +86,6 @@ def _message(method: str, problem: Problem, t: float, size: float, bound: float,
             f"step or horizon, another method, or --set divergence_factor=... to accept larger sets")
 
 
-def truncated(result: ReachResult, n: int, reason: str) -> ReachResult:
-    """The first ``n`` times of ``result`` flagged ``meta["truncated"] = True``."""
-    from ocreach.reach.result import ReachResult
-
-    tubes = None if result.tubes is None else list(result.tubes[: max(n - 1, 0)])
-    return ReachResult(
-        times=result.times[:n],
-        sets=None if result.sets is None else list(result.sets[:n]),
-        points=None if result.points is None else list(result.points[:n]),
-        controls=result.controls if result.controls is None else result.controls[:, : max(n - 1, 0)],
-        trajectories=None if result.trajectories is None else result.trajectories[:, :n],
-        meta={**result.meta, "truncated": True, "truncated_reason": reason},
-        tubes=tubes,
-    )
-
-
 def check_result(result: ReachResult, problem: Problem, factor: float = DIVERGENCE_FACTOR) -> ReachResult:
     """``result`` unchanged if every set / sample is finite and within the bound, else a
     :class:`SolverError` with the valid prefix as ``partial``."""
@@ -115,7 +99,7 @@ def check_result(result: ReachResult, problem: Problem, factor: float = DIVERGEN
     if k is None:
         return result
     msg = _message(result.method, problem, float(result.times[k]), float(sizes[k]), bound, factor, k)
-    partial = truncated(result, k, msg) if k >= 1 else None
+    partial = result.truncated(k, msg) if k >= 1 else None
     raise SolverError(msg, partial=partial)
 
 
@@ -123,7 +107,6 @@ def check_step(method: Any, problem: Problem, sets: list[Any], tubes: list[Any] 
     """Per-step check of a set-propagating method (call after appending ``sets[-1]``): raises the
     :class:`SolverError` of :func:`check_result` with ``sets[:-1]`` as the partial result."""
     from ocreach.interrupt import check_interrupt
-    from ocreach.reach.result import ReachResult
 
     check_interrupt()
     factor = getattr(method, "divergence_factor", DIVERGENCE_FACTOR)

@@ -55,14 +55,26 @@ class ReachResult:
                        f"(method {self.meta.get('method', '?')!r})")
                 partial = None
                 if k >= 1:
-                    from ocreach.reach.guard import truncated
-
-                    partial = truncated(dataclasses.replace(self, points=self.points[:k],
-                                                            times=self.times[:k]), k, msg)
+                    partial = dataclasses.replace(self, points=self.points[:k],
+                                                  times=self.times[:k]).truncated(k, msg)
                 raise SolverError(msg, partial=partial)
         if self.tubes is not None and len(self.tubes) != self.times.size - 1:
             raise ProblemError(f"ReachResult.tubes must have one entry per segment "
                                f"({self.times.size - 1}); got {len(self.tubes)}")
+
+    def truncated(self, n: int, reason: str) -> ReachResult:
+        """The first ``n`` times of this result, flagged ``meta["truncated"] = True`` with
+        ``meta["truncated_reason"] = reason`` (the partial result of a failed run)."""
+        m = max(n - 1, 0)
+        return ReachResult(
+            times=self.times[:n],
+            sets=None if self.sets is None else list(self.sets[:n]),
+            points=None if self.points is None else list(self.points[:n]),
+            controls=self.controls if self.controls is None else self.controls[:, :m],
+            trajectories=None if self.trajectories is None else self.trajectories[:, :n],
+            meta={**self.meta, "truncated": True, "truncated_reason": reason},
+            tubes=None if self.tubes is None else list(self.tubes[:m]),
+        )
 
     @classmethod
     def from_trajectories(cls, times: Any, trajectories: np.ndarray, *,

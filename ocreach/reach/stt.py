@@ -43,11 +43,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ocreach.dynamics.flow import stt_polynomial
 from ocreach.errors import ProblemError, SetError, SolverError, check_count, check_tolerances
 from ocreach.problem import ControlSet, Problem
 from ocreach.reach.base import Method, Timer, requirements
 from ocreach.reach.result import ReachResult
 from ocreach.reach.stt_split import PartStep, check_split_options
+from ocreach.sets.polyzonotope import make_dependent
 from ocreach.sets.pz_union import PZUnion
 from ocreach.sets.reduce import GROUPS as REDUCE_GROUPS  # the reduce_group values
 
@@ -141,35 +143,10 @@ def input_pz(kind: str, n_u: int, n_throttle: int = 0, ball: str = "pz") -> Poly
     return U.cartesian(box(n_throttle)) if n_throttle else U
 
 
-def make_dependent(pz: PolyZonotope) -> PolyZonotope:
-    """The same set with every independent generator turned into a dependent one with a fresh
-    linear factor (exact: an independent generator is a factor that appears in one monomial)."""
-    from ocreach.sets import PolyZonotope, new_ids
-
-    q = pz.n_independent
-    if q == 0:
-        return pz
-    h, p = pz.n_dependent, pz.n_factors
-    E = np.zeros((p + q, h + q), dtype=np.int64)
-    E[:p, :h] = pz.E
-    E[p:, h:] = np.eye(q, dtype=np.int64)
-    return PolyZonotope(pz.c, np.hstack([pz.G, pz.GI]), None, E, np.concatenate([pz.id, new_ids(q)]))
-
-
 def _point_pz(c: np.ndarray):
     from ocreach.sets import PolyZonotope
 
     return PolyZonotope(np.asarray(c, float))
-
-
-def stt_polynomial(phi: Sequence[np.ndarray], dz: np.ndarray) -> list[np.ndarray]:
-    """Terms ``1/j! Phi^(j)[dz]^j`` (j = 1..n) for samples ``dz`` (N, n_z) (Foss Eq. 13)."""
-    out = [dz @ phi[0].T]
-    if len(phi) >= 2:
-        out.append(0.5 * np.einsum("iab,na,nb->ni", phi[1], dz, dz, optimize=True))
-    if len(phi) >= 3:
-        out.append(np.einsum("iabc,na,nb,nc->ni", phi[2], dz, dz, dz, optimize=True) / 6.0)
-    return out
 
 
 def nonlinearity_index(phi: Sequence[np.ndarray], dZ: PolyZonotope, samples: int = 64, seed: int = 0) -> float:

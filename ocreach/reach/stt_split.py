@@ -29,7 +29,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ocreach.dynamics.flow import stt_polynomial
 from ocreach.errors import ProblemError, check_count
+from ocreach.sets.polyzonotope import make_dependent
 
 if TYPE_CHECKING:
     from ocreach.sets import PolyZonotope
@@ -91,8 +93,6 @@ def truncation_error(phi: list[np.ndarray], S: np.ndarray, true: np.ndarray) -> 
     ||true_s - mean(true)||``: an estimate (samples, not a bound) of how far the truncated expansion
     is from the true flow, in units of the part's size.
     """
-    from ocreach.reach.stt import stt_polynomial
-
     poly = sum(stt_polynomial(phi, S))
     size = float(np.max(np.linalg.norm(true - true.mean(axis=0), axis=1)))
     err = float(np.max(np.linalg.norm(poly - true, axis=1)))
@@ -109,8 +109,6 @@ def split_factor(dR: PolyZonotope, phi2: np.ndarray | None = None) -> tuple[Poly
     contain it (padded with zero controls); without ``phi2`` by the largest generator norm
     (:meth:`PolyZonotope.split`'s default).  The union of the halves equals ``dR``.
     """
-    from ocreach.reach.stt import make_dependent
-
     dep = make_dependent(dR)
     if phi2 is None:
         return dep.split()

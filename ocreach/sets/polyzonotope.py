@@ -568,6 +568,19 @@ def cartesian_product(a, b) -> PolyZonotope:
     return PolyZonotope(np.concatenate([a.c, b.c]), G, GI, E, ids)
 
 
+def make_dependent(pz: PolyZonotope) -> PolyZonotope:
+    """The same set with every independent generator turned into a dependent one with a fresh
+    linear factor (exact: an independent generator is a factor that appears in one monomial)."""
+    q = pz.n_independent
+    if q == 0:
+        return pz
+    h, p = pz.n_dependent, pz.n_factors
+    E = np.zeros((p + q, h + q), dtype=np.int64)
+    E[:p, :h] = pz.E
+    E[p:, h:] = np.eye(q, dtype=np.int64)
+    return PolyZonotope(pz.c, np.hstack([pz.G, pz.GI]), None, E, np.concatenate([pz.id, new_ids(q)]))
+
+
 def sym_tensor(T: np.ndarray) -> np.ndarray:
     """Average of T over all permutations of its input indices (same multilinear form on x..x)."""
     N = T.ndim - 1
