@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
 
 _ID_COUNTER = itertools.count(1)
 _ID_LOCK = threading.Lock()
@@ -166,18 +167,12 @@ class SetBase:
 
     def plot(self, ax, dims=(0, 1), **kw):
         """Plot the 2-D projection on ``dims`` into matplotlib axes ``ax`` (see :mod:`ocreach.sets.plot`)."""
-        from ocreach.sets.plot import plot_set
-
-        return plot_set(self, ax, dims=dims, **kw)
+        return dispatch.plot(self, ax, dims=dims, **kw)
 
     def containment_constraints(self, x):
         """cvxpy constraints ``x in self`` and the latent factor variable (or None)."""
-        from ocreach.sets.contains import containment_constraints
-
-        return containment_constraints(self, x)
+        return dispatch.containment_constraints(self, x)
 
     def casadi_containment(self, x_sym):
         """CasADi containment ``g(x, xi)`` with bounds; see :func:`ocreach.sets.contains.casadi_containment`."""
-        from ocreach.sets.contains import casadi_containment
-
-        return casadi_containment(self, x_sym)
+        return dispatch.casadi_containment(self, x_sym)

@@ -47,10 +47,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import SetError
-from ocreach.sets.convert import (  # polynomials as {exponent tuple: coefficient}
-    _poly_mul,
-    components_pz,
-)
+from ocreach.sets.polynomials import components_pz, poly_mul
 
 #: issue 12's target: the input set's support within 3 % of the ball's
 RADIUS_TARGET = 1.03
@@ -108,8 +105,8 @@ def _build(tree: Any) -> tuple[list[dict], int]:
     m = md + mx + my
     c = _shift(D[0], 0, mx + my)
     s = _shift(D[1], 0, mx + my)
-    comps = ([_poly_mul(c, _shift(x, md, my)) for x in X]
-             + [_poly_mul(s, _shift(y, md + mx, 0)) for y in Y])
+    comps = ([poly_mul(c, _shift(x, md, my)) for x in X]
+             + [poly_mul(s, _shift(y, md + mx, 0)) for y in Y])
     return comps, m
 
 

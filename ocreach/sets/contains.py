@@ -22,7 +22,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from ocreach.errors import SetError, SolverError
-from ocreach.sets._base import as_matrix, as_points, as_vector
+from ocreach.sets import dispatch
+from ocreach.sets._base import SetBase, as_matrix, as_points, as_vector
+from ocreach.sets.ellipsoid import Ellipsoid
+from ocreach.sets.zonotope import Zonotope
 
 #: largest number of (n-1)-subsets of generators for which facets are enumerated
 MAX_FACET_SUBSETS = 20_000
@@ -340,3 +343,20 @@ def casadi_containment(S, x_sym) -> CasadiContainment:
         g = ca.mtimes([dx.T, ca.DM(Qinv), dx])
         return CasadiContainment(g, np.array([-np.inf]), np.array([1.0]), None, empty, empty)
     raise SetError(f"casadi_containment: unsupported set type {type(S).__name__}")
+
+
+# ------------------------------------------------------------------------------------------------
+# the set types' methods (ocreach.sets.dispatch)
+# ------------------------------------------------------------------------------------------------
+@dispatch.contains.register(Zonotope)
+def _zonotope_contains(Z: Zonotope, points: Any, tol: float) -> np.ndarray | bool:
+    return points_in_zonotope(Z, points, tol=tol)
+
+
+@dispatch.contains.register(Ellipsoid)
+def _ellipsoid_contains(E: Ellipsoid, points: Any, tol: float) -> np.ndarray | bool:
+    return points_in_ellipsoid(E, points, tol)
+
+
+dispatch.containment_constraints.register(SetBase, containment_constraints)
+dispatch.casadi_containment.register(SetBase, casadi_containment)

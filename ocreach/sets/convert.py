@@ -14,6 +14,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
+from ocreach.sets.ellipsoid import Ellipsoid
+from ocreach.sets.polynomials import components_pz, poly_add, poly_mul
 
 if TYPE_CHECKING:
     from ocreach.sets._base import SetBase
@@ -142,37 +145,6 @@ def _dodecahedron_axes() -> np.ndarray:
     return np.array(out).T
 
 
-def _poly_mul(p: dict, q: dict) -> dict:
-    out: dict = {}
-    for (ea, ca), (eb, cb) in itertools.product(p.items(), q.items()):
-        e = tuple(x + y for x, y in zip(ea, eb))
-        out[e] = out.get(e, 0.0) + ca * cb
-    return out
-
-
-def _poly_add(p: dict, q: dict, s: float = 1.0) -> dict:
-    out = dict(p)
-    for e, c in q.items():
-        out[e] = out.get(e, 0.0) + s * c
-    return out
-
-
-def components_pz(comps: list[dict], ids: Any = None) -> PolyZonotope:
-    """The polynomial zonotope ``x_i = sum_e comps[i][e] a^e`` (centre 0): one generator along axis
-    ``i`` per term ``{exponent tuple: coefficient}`` of component ``i``, in the dicts' order."""
-    from ocreach.sets.polyzonotope import PolyZonotope
-
-    n = len(comps)
-    cols, exps = [], []
-    for i, poly in enumerate(comps):
-        for e, v in poly.items():
-            g = np.zeros(n)
-            g[i] = v
-            cols.append(g)
-            exps.append(e)
-    return PolyZonotope(np.zeros(n), np.array(cols).T, None, np.array(exps, dtype=np.int64).T, ids)
-
-
 def unit_ball_pz(n: int, ids: Any = None) -> PolyZonotope:
     """Polynomial zonotope approximating the unit Euclidean ball ``{||u||_2 <= 1}``.
 
@@ -248,11 +220,11 @@ def _cube_ball_components(n: int) -> tuple[dict, ...]:
         s_poly: dict = {(0,) * n: coef[0]}
         tp = {(0,) * n: 1.0}
         for k in range(1, deg + 1):
-            tp = _poly_mul(tp, t)
-            s_poly = _poly_add(s_poly, tp, coef[k])
+            tp = poly_mul(tp, t)
+            s_poly = poly_add(s_poly, tp, coef[k])
         e_i = [0] * n
         e_i[i] = 1
-        comps.append({e: cval for e, cval in _poly_mul({tuple(e_i): 1.0}, s_poly).items()
+        comps.append({e: cval for e, cval in poly_mul({tuple(e_i): 1.0}, s_poly).items()
                       if cval != 0.0})
     return tuple(comps)
 
@@ -278,3 +250,10 @@ def _upper_sqrt_poly(t_max: float, deg: int) -> np.ndarray:
     deficit = np.max(np.sqrt(1.0 - tf) - np.vander(tf, deg + 1, increasing=True) @ c)
     c[0] += max(deficit, 0.0) + 1e-12
     return c
+
+
+@dispatch.to_zonotope.register(Ellipsoid)
+def _ellipsoid_to_zonotope(E: Ellipsoid, k: int | None = None) -> Zonotope:
+    """Outer zonotope of an ellipsoid: its linear map of :func:`unit_ball_zonotope` with ``k``
+    generators."""
+    return E.L @ unit_ball_zonotope(E.dim, k) + E.q

@@ -1,11 +1,12 @@
 """Ellipsoids ``{x : (x-q)^T Q^-1 (x-q) <= 1}`` with symmetric positive semi-definite ``Q``."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
 from ocreach.sets._base import (
     SetBase,
     as_dims,
@@ -16,10 +17,8 @@ from ocreach.sets._base import (
     check_linear_map,
     ro,
 )
-
-if TYPE_CHECKING:
-    from ocreach.sets.interval import Interval
-    from ocreach.sets.zonotope import Zonotope
+from ocreach.sets.interval import Interval
+from ocreach.sets.zonotope import Zonotope
 
 
 class Ellipsoid(SetBase):
@@ -69,25 +68,19 @@ class Ellipsoid(SetBase):
         return self.q + U @ self.L.T
 
     def contains(self, points: Any, tol: float = 1e-9) -> np.ndarray:
-        from ocreach.sets.contains import points_in_ellipsoid
-
-        return points_in_ellipsoid(self, points, tol)
+        return dispatch.contains(self, points, tol)
 
     def reduce(self, *args, **kwargs) -> Ellipsoid:
         return self
 
     def interval_hull(self) -> Interval:
-        from ocreach.sets.interval import Interval
-
         r = np.sqrt(np.diag(self.Q))
         return Interval(self.q - r, self.q + r)
 
     def to_zonotope(self, k: int | None = None) -> Zonotope:
-        """Outer zonotope with ``k`` generators (default: 2n in 2-D... see :func:`unit_ball_zonotope`)."""
-        from ocreach.sets.convert import unit_ball_zonotope
-
-        B = unit_ball_zonotope(self.dim, k)
-        return self.L @ B + self.q
+        """Outer zonotope with ``k`` generators (default: 2n in 2-D... see
+        :func:`ocreach.sets.convert.unit_ball_zonotope`)."""
+        return dispatch.to_zonotope(self, k)
 
     def project(self, dims: Any) -> Ellipsoid:
         idx = as_dims(dims, self.dim)

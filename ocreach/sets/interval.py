@@ -1,11 +1,12 @@
 """Axis-aligned boxes ``[lo, hi]`` (interval vectors)."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
 from ocreach.sets._base import (
     SetBase,
     as_dims,
@@ -16,10 +17,6 @@ from ocreach.sets._base import (
     factor_samples,
     ro,
 )
-
-if TYPE_CHECKING:
-    from ocreach.sets.polyzonotope import PolyZonotope
-    from ocreach.sets.zonotope import Zonotope
 
 
 class Interval(SetBase):
@@ -77,18 +74,15 @@ class Interval(SetBase):
     def interval_hull(self) -> Interval:
         return self
 
-    def to_zonotope(self) -> Zonotope:
-        """Exact conversion: centre and one axis generator per non-degenerate dimension."""
-        from ocreach.sets.zonotope import Zonotope
+    def to_zonotope(self):
+        """Exact conversion to a :class:`~ocreach.sets.zonotope.Zonotope`: centre and one axis
+        generator per non-degenerate dimension."""
+        return dispatch.to_zonotope(self)
 
-        r = self.radius
-        keep = r > 0
-        return Zonotope(self.center, np.diag(r)[:, keep])
-
-    def to_polyzonotope(self, ids: Any = None) -> PolyZonotope:
-        from ocreach.sets.polyzonotope import PolyZonotope
-
-        return PolyZonotope.from_interval(self, ids)
+    def to_polyzonotope(self, ids: Any = None):
+        """Exact conversion to a :class:`~ocreach.sets.polyzonotope.PolyZonotope` (fresh
+        identifiers unless ``ids`` are given)."""
+        return dispatch.to_polyzonotope(self, ids)
 
     def project(self, dims: Any) -> Interval:
         idx = as_dims(dims, self.dim)

@@ -6,6 +6,8 @@ from typing import Any
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
+from ocreach.sets._base import SetBase
 
 
 def _ccw(P: np.ndarray) -> np.ndarray:
@@ -59,3 +61,8 @@ def plot_set(S, ax, dims: Any = (0, 1), pieces: int = 64, **kw):
     ax.update_datalim(path.vertices)
     ax.autoscale_view()
     return patch
+
+
+@dispatch.plot.register(SetBase)
+def _plot(S: SetBase, ax: Any, dims: Any = (0, 1), **kw: Any) -> Any:
+    return plot_set(S, ax, dims=dims, **kw)

@@ -14,11 +14,12 @@ import heapq
 import itertools
 from collections.abc import Callable
 from math import comb
-from typing import TYPE_CHECKING, Any, Union
+from typing import Any, Union
 
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
 from ocreach.sets._base import (
     SetBase,
     as_dims,
@@ -30,10 +31,8 @@ from ocreach.sets._base import (
     new_ids,
     ro,
 )
-
-if TYPE_CHECKING:
-    from ocreach.sets.interval import Interval
-    from ocreach.sets.zonotope import Zonotope
+from ocreach.sets.interval import Interval
+from ocreach.sets.zonotope import Zonotope
 
 _HASH_SEED = 20240917
 
@@ -354,9 +353,6 @@ class PolyZonotope(SetBase):
 
         Zonotopes and intervals are added as independent generators (exact); a vector translates.
         """
-        from ocreach.sets.interval import Interval
-        from ocreach.sets.zonotope import Zonotope
-
         if isinstance(other, Interval):
             other = other.to_zonotope()
         if isinstance(other, Zonotope):
@@ -423,8 +419,6 @@ class PolyZonotope(SetBase):
     def to_zonotope(self) -> Zonotope:
         """Zonotope enclosure (Kochdumper & Althoff): monomials with all-even exponents range over
         [0, 1], so they shift the centre by half the generator and keep half as generator."""
-        from ocreach.sets.zonotope import Zonotope
-
         shift, Gz = enclose_monomials(self.G, self.E)
         return Zonotope(self.c + shift, np.hstack([Gz, self.GI]))
 
@@ -491,9 +485,7 @@ class PolyZonotope(SetBase):
     def reduce(self, h_max: int, method: str = "pca") -> PolyZonotope:
         """Sound order reduction to at most ``h_max`` generators (Foss et al. Sec. 2.4 Reduce(PZ,
         h_des)); see :func:`ocreach.sets.reduce.reduce_pz`."""
-        from ocreach.sets.reduce import reduce_pz
-
-        return reduce_pz(self, h_max, method)
+        return dispatch.reduce(self, h_max, method)
 
     def outline(self, dims: Any = (0, 1), pieces: int = 64) -> list[np.ndarray]:
         """Outer approximation of the 2-D projection as a list of convex polygons (each (k, 2),
@@ -545,9 +537,6 @@ def cartesian_product(a, b) -> PolyZonotope:
 
     Zonotopes/intervals are converted with fresh identifiers (exact).
     """
-    from ocreach.sets.interval import Interval
-    from ocreach.sets.zonotope import Zonotope
-
     def as_pz(s):
         if isinstance(s, PolyZonotope):
             return s
@@ -664,3 +653,13 @@ def tensor_map(T: Any, pz: PolyZonotope, chunk: int = 2_000_000) -> PolyZonotope
         Ed = Ed[used]
     # columns are already merged (distinct keys); only zero generators/unused factors are dropped
     return PolyZonotope._own(c, Gm[:, dep], GI, Ed, pz.id[used])
+
+
+@dispatch.to_polyzonotope.register(Interval)
+def _interval_to_pz(I: Interval, ids: Any = None) -> PolyZonotope:
+    return PolyZonotope.from_interval(I, ids)
+
+
+@dispatch.to_polyzonotope.register(Zonotope)
+def _zonotope_to_pz(Z: Zonotope, ids: Any = None) -> PolyZonotope:
+    return PolyZonotope.from_zonotope(Z, ids)

@@ -14,18 +14,18 @@
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
+from ocreach.sets._base import SetBase
+from ocreach.sets.polyzonotope import PolyZonotope, enclose_monomials, monomial_values
+from ocreach.sets.pz_exact import support_bounds
 from ocreach.sets.rounding import U as U_ROUND
 from ocreach.sets.rounding import rounding_radius, up
-
-if TYPE_CHECKING:
-    from ocreach.sets._base import SetBase
-    from ocreach.sets.polyzonotope import PolyZonotope
-    from ocreach.sets.zonotope import Zonotope
+from ocreach.sets.zonotope import Zonotope
 
 _METHODS = ("girard", "pca")
 #: ``group`` values of :func:`reduce_pz` (None: every removed monomial enclosed on its own;
@@ -108,8 +108,6 @@ def _girard_metric(absG: np.ndarray) -> np.ndarray:
 
 def reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> Zonotope:
     """Reduce a zonotope to at most ``floor(order * n)`` generators (order >= 1), sound outer approximation."""
-    from ocreach.sets.zonotope import Zonotope
-
     _check_method(method)
     n, h = Z.dim, Z.n_generators
     if not np.isfinite(order) or order < 1:
@@ -170,9 +168,6 @@ def scalar_range(alpha: np.ndarray, E: np.ndarray, tol: float = 0.02, max_boxes:
     sum within ``tol`` of its width, the interval sum is returned at once (it is then the range
     up to ``tol``; most groups of generic sets are such).
     """
-    from ocreach.sets.polyzonotope import PolyZonotope, monomial_values
-    from ocreach.sets.pz_exact import support_bounds
-
     E = np.asarray(E, dtype=np.int64)
     used = np.any(E > 0, axis=1)
     E = E[used]
@@ -217,8 +212,6 @@ def enclose_removed(G: np.ndarray, E: np.ndarray, group: str | None = None,
     Only the ``max_groups`` groups of largest ``sum_i |G_i|`` are grouped (the range costs
     ~1-100 ms a group); the others are enclosed monomial by monomial as with ``group=None``.
     """
-    from ocreach.sets.polyzonotope import enclose_monomials
-
     if group is None:
         return enclose_monomials(G, E)
     check_group(group)                                      # every other value groups
@@ -279,8 +272,6 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca", group: str | No
     ``"parallel-drop"``: as ``"parallel"``, and a group that the ranking splits is removed
     whole (:func:`regroup_drop`).
     """
-    from ocreach.sets.polyzonotope import PolyZonotope
-
     _check_method(method)
     check_group(group)
     n = pz.dim
@@ -312,9 +303,6 @@ def reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca", group: str | No
 
 def reduce(S: SetBase, size: float, method: str | None = None) -> SetBase:
     """Dispatch: ``reduce(pz, h_max, method='pca')`` or ``reduce(z, order, method='girard')``."""
-    from ocreach.sets.polyzonotope import PolyZonotope
-    from ocreach.sets.zonotope import Zonotope
-
     if isinstance(S, PolyZonotope):
         return reduce_pz(S, size, method or "pca")
     if isinstance(S, Zonotope):
@@ -322,3 +310,13 @@ def reduce(S: SetBase, size: float, method: str | None = None) -> SetBase:
     if hasattr(S, "reduce"):
         return S.reduce()
     raise SetError(f"reduce: unsupported set type {type(S).__name__}")
+
+
+@dispatch.reduce.register(Zonotope)
+def _reduce_zonotope(Z: Zonotope, order: float = 1.0, method: str = "girard") -> Zonotope:
+    return reduce_zonotope(Z, order, method)
+
+
+@dispatch.reduce.register(PolyZonotope)
+def _reduce_pz(pz: PolyZonotope, h_max: int, method: str = "pca") -> PolyZonotope:
+    return reduce_pz(pz, h_max, method)

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import itertools
 from math import comb
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ocreach.errors import SetError
+from ocreach.sets import dispatch
 from ocreach.sets._base import (
     SetBase,
     as_dims,
@@ -18,10 +19,7 @@ from ocreach.sets._base import (
     factor_samples,
     ro,
 )
-
-if TYPE_CHECKING:
-    from ocreach.sets.interval import Interval
-    from ocreach.sets.polyzonotope import PolyZonotope
+from ocreach.sets.interval import Interval
 
 #: largest number of n-subsets summed by :meth:`Zonotope.volume`
 VOLUME_MAX_SUBSETS = 3_000_000
@@ -82,8 +80,6 @@ class Zonotope(SetBase):
 
     def __add__(self, other):
         """Minkowski sum with a zonotope/interval (Patel & Subbarao Eq. 3) or a translation vector."""
-        from ocreach.sets.interval import Interval
-
         if isinstance(other, Interval):
             other = other.to_zonotope()
         if isinstance(other, Zonotope):
@@ -102,8 +98,6 @@ class Zonotope(SetBase):
 
     def cartesian(self, other) -> Zonotope:
         """Cartesian product ``Z1 x Z2`` (exact)."""
-        from ocreach.sets.interval import Interval
-
         if isinstance(other, Interval):
             other = other.to_zonotope()
         if not isinstance(other, Zonotope):
@@ -126,18 +120,16 @@ class Zonotope(SetBase):
     # -- enclosures / queries ---------------------------------------------------------------
     def interval_hull(self) -> Interval:
         """Tightest enclosing box: ``c -+ sum_i |g_i|`` (the support function along the axes)."""
-        from ocreach.sets.interval import Interval
-
         r = np.abs(self.G).sum(axis=1)
         return Interval(self.c - r, self.c + r)
 
     def to_zonotope(self) -> Zonotope:
         return self
 
-    def to_polyzonotope(self, ids: Any = None) -> PolyZonotope:
-        from ocreach.sets.polyzonotope import PolyZonotope
-
-        return PolyZonotope.from_zonotope(self, ids)
+    def to_polyzonotope(self, ids: Any = None):
+        """Exact conversion to a :class:`~ocreach.sets.polyzonotope.PolyZonotope` (fresh
+        identifiers unless ``ids`` are given)."""
+        return dispatch.to_polyzonotope(self, ids)
 
     def support(self, d: Any) -> np.ndarray | float:
         """Exact support function ``d.c + sum_i |d.g_i|``."""
@@ -151,16 +143,12 @@ class Zonotope(SetBase):
 
     def contains(self, points: Any, tol: float = 1e-7) -> np.ndarray:
         """Exact batched point membership (see :func:`ocreach.sets.contains.points_in_zonotope`)."""
-        from ocreach.sets.contains import points_in_zonotope
-
-        return points_in_zonotope(self, points, tol=tol)
+        return dispatch.contains(self, points, tol)
 
     def reduce(self, order: float = 1.0, method: str = "girard") -> Zonotope:
         """Sound order reduction (Girard 2005 or PCA, Kopetzki et al. 2017); see
         :func:`ocreach.sets.reduce.reduce_zonotope`."""
-        from ocreach.sets.reduce import reduce_zonotope
-
-        return reduce_zonotope(self, order, method)
+        return dispatch.reduce(self, order, method)
 
     def split(self, j: int | None = None) -> tuple[Zonotope, Zonotope]:
         """Split along generator ``j`` (default: the longest); the union of the halves contains ``Z``
@@ -254,3 +242,11 @@ def polygon_area(P: np.ndarray) -> float:
         return 0.0
     x, y = P[:, 0], P[:, 1]
     return float(0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+@dispatch.to_zonotope.register(Interval)
+def _interval_to_zonotope(I: Interval) -> Zonotope:
+    """Interval -> zonotope (exact): centre and one axis generator per non-degenerate dimension."""
+    r = I.radius
+    keep = r > 0
+    return Zonotope(I.center, np.diag(r)[:, keep])

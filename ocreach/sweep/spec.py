@@ -57,6 +57,7 @@ from ocreach.errors import OcreachError
 from ocreach.sweep.catalog import UNITS, read_catalog
 from ocreach.sweep.errors import SweepError
 from ocreach.sweep.keys import canonical_json, digest, task_key
+from ocreach.sweep.worker import HORIZON_UNITS, base_problem, build_problem, split_problem_ref
 
 TOP_KEYS = ("name", "description", "base", "catalog", "tasks", "product")
 TASK_KEYS = ("problem", "overrides", "state", "horizon", "method", "options", "keep", "tags", "label")
@@ -64,9 +65,6 @@ MERGED = ("overrides", "options", "keep", "tags")  # dict fields merged key by k
 CATALOG_KEYS = ("file", "limit")
 KEEP_DEFAULTS: dict[str, Any] = {"dims": "position", "extent": True, "support": [], "meb": False,
                                  "volume": False, "custody": None, "result": False}
-HORIZON_UNITS = {"TU": None, "s": 1.0, "h": 3600.0, "d": 86400.0}
-
-
 @dataclass
 class Spec:
     """An expanded, validated sweep: ``tasks[i]`` is plain data, ``keys[i]`` its key."""
@@ -239,17 +237,6 @@ def _finite(value: Any, what: str) -> float:
     return value
 
 
-def split_problem_ref(ref: str) -> tuple[str, str | None]:
-    """``"FILE.py:ID"`` -> ``("FILE.py", "ID")``; ``"FILE.py"`` -> ``("FILE.py", None)`` (the
-    problem registry's own rule, :func:`ocreach.registry.split_file_id`)."""
-    from ocreach.registry import split_file_id
-
-    file_spec = split_file_id(ref)
-    if file_spec is None:
-        return ref, None
-    return str(file_spec[0]), file_spec[1]
-
-
 def _problem_factory(ref: str, base: Path, files: dict[str, str], where: str):
     """``(factory, sha256 of the file or None)``; unknown ids, missing or broken files raise."""
     from ocreach.registry import problem_factories, problem_factory
@@ -319,7 +306,6 @@ def _check_with_problems(spec: Spec, origins: list[str]) -> None:
     catalog file and data row it came from, the value and what is allowed.
     """
     from ocreach.sweep.outputs import check_keep
-    from ocreach.sweep.worker import base_problem, build_problem
 
     for i, (task, origin) in enumerate(zip(spec.tasks, origins)):
         where = _where(i, task) + (f", {origin}" if origin else "")

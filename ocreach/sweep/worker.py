@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ocreach.registry import split_file_id
 from ocreach.sweep.catalog import UNITS
 from ocreach.sweep.errors import SweepError
 from ocreach.sweep.keys import canonical_json
@@ -38,6 +39,19 @@ _THREADS_LIMITED = False
 _TASK_LOCK = threading.Lock()
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
               "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+#: Units of a task's horizon: factor to seconds ("TU": the problem's own time unit).
+HORIZON_UNITS = {"TU": None, "s": 1.0, "h": 3600.0, "d": 86400.0}
+
+
+def split_problem_ref(ref: str) -> tuple[str, str | None]:
+    """``"FILE.py:ID"`` -> ``("FILE.py", "ID")``; ``"FILE.py"`` -> ``("FILE.py", None)`` (the
+    problem registry's own rule, :func:`ocreach.registry.split_file_id`)."""
+    file_spec = split_file_id(ref)
+    if file_spec is None:
+        return ref, None
+    return str(file_spec[0]), file_spec[1]
 
 
 def limit_threads() -> None:
@@ -60,7 +74,6 @@ def limit_threads() -> None:
 def base_problem(task: dict[str, Any], base_dir: str) -> Problem:
     """The task's problem before state/horizon overrides, cached per process."""
     from ocreach.registry import get_problem, load_problem_file
-    from ocreach.sweep.spec import split_problem_ref
 
     ref = task["problem"]
     cache_key = canonical_json([ref, task["problem_sha256"], task["overrides"], base_dir])
@@ -147,7 +160,6 @@ def state_vector(problem: Problem, state: dict[str, Any]) -> np.ndarray:
 
 
 def _grid(problem: Problem, horizon: dict[str, Any]) -> np.ndarray:
-    from ocreach.sweep.spec import HORIZON_UNITS
 
     factor = HORIZON_UNITS[horizon["unit"]]
     if factor is not None and problem.units is None:

@@ -22,6 +22,7 @@ from ocreach.control.reference import TrackingReference
 from ocreach.control.stationkeeping.ephemeris_plant import EphemerisPlant
 from ocreach.control.stationkeeping.paper import PAPER_N, PAPER_W, paper_initial_set
 from ocreach.control.stationkeeping.tubes import (
+    ADAPTIVE_TUBE_OPTIONS,
     Tube,
     TubeSchedule,
     linear_drift_tube,
@@ -33,13 +34,6 @@ from ocreach.control.stationkeeping.tubes import (
 from ocreach.errors import ProblemError, SolverError
 
 MEMBERSHIPS = ("zonotope", "box")
-#: Sound-method options of the adaptive tubes (``tube_interval="adaptive"``), measured on nrho-9-2
-#: with the paper's sets: 16 sub-steps per 1-h step keep the tube from perilune to the next
-#: apolune within 1.32x of the linearised tube's box (4 sub-steps: 3.7x; 1: fails after 24
-#: steps); the sub-step may be halved 10 times (at perilune ||A h||_inf of the unscaled CR3BP
-#: exceeds what 40 Taylor terms of e^{Ah} bound at 6 halvings); no splitting (a union's zonotope
-#: enclosure is looser than restarting the tube).
-ADAPTIVE_TUBE_OPTIONS = {"substeps": 16, "max_halvings": 10, "split": False}
 #: Tube sources: the linearised tube, a sound method, or a sound method with the linear tube
 #: wherever it fails (each tube's source and guarantee are logged per refresh).
 FALLBACK_SOURCES = ("taylor-or-linear", "sdc-or-linear")

@@ -38,6 +38,7 @@ import numpy as np
 
 from ocreach.control.reference import TrackingReference
 from ocreach.control.stationkeeping.tubes import (
+    ADAPTIVE_TUBE_OPTIONS,
     Tube,
     TubeSchedule,
     linear_drift_tube,
@@ -205,7 +206,6 @@ def along_reference_schedule(problem, reference: TrackingReference, G0: Any, dis
     if not 2 <= end <= reference.n_steps:
         raise ProblemError(f"end (step after the last tube step) must be in 2..{reference.n_steps}; "
                            f"got {end}")
-    from ocreach.control.stationkeeping.drift_tubes import ADAPTIVE_TUBE_OPTIONS
 
     opts = {**ADAPTIVE_TUBE_OPTIONS, **(options or {})}
     starts = refresh_starts(reference, end)
