@@ -22,7 +22,7 @@ import numpy as np
 
 import ocreach
 from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.reach.cut import standard_rule
 from ocreach.registry import get_problem
 

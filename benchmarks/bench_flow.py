@@ -29,7 +29,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ocreach.dynamics.flow import propagate, stm, stt
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.models import cr3bp
 
 RTOL, ATOL = 1e-10, 1e-12

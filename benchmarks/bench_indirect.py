@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.reach.base import reach
 from ocreach.reach.indirect import FFOE
 from ocreach.registry import get_problem

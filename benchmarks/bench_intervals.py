@@ -25,8 +25,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from _interval_truth import Reference, as_arrays
 
+from ocreach.fileio import replace_markdown_section
 from ocreach.intervals import evaluator as iv
-from ocreach.markdown import replace_markdown_section
 from ocreach.models import cr3bp, twobody
 from ocreach.models.reentry import reentry
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ocreach.fileio import replace_markdown_section
 from ocreach.geometry.meb import minimum_enclosing_ball
-from ocreach.markdown import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 

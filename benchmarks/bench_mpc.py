@@ -28,7 +28,7 @@ import numpy as np
 import ocreach
 from ocreach.control import LQR, MPC, Plant, reference_from_problem
 from ocreach.control.report import PAPER_OFFSET_BOX, PAPER_Q, PAPER_R
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 IPOPT_COMMON = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,

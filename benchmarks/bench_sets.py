@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.sets import PolyZonotope, Zonotope, new_ids, points_in_zonotope, reduce, tensor_map
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 PY = sys.executable

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.sweep import Spec, run_sweep, spec_from_dict
 from ocreach.sweep.executors import ExecutorHandle, single_thread_env
 from ocreach.sweep.store import LOG, Store

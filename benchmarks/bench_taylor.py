@@ -24,7 +24,7 @@ import numpy as np
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.registry import get_problem
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"

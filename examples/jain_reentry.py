@@ -30,7 +30,7 @@ import numpy as np
 
 import ocreach
 from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.reach.plot import save_figure
 from ocreach.registry import get_problem
 

@@ -20,7 +20,7 @@ from ocreach.custody.report import (
     mc_table,
     write_outputs,
 )
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "custody.md"

@@ -19,7 +19,6 @@ from ocreach.reach import Method, ReachResult, available_methods, load, method_c
 from ocreach.registry import get_problem, list_problems, load_problem_file
 from ocreach.units import Units
 
-
 __all__ = [
     "__version__",
     "ControlSet",

@@ -1,8 +1,10 @@
-"""Files written whole: atomic writes (temporary file, then rename) and strict JSON.
+"""Files written whole: atomic writes (temporary file, then rename), strict JSON, Markdown sections.
 
 Every file a user reads is written through :func:`atomic_write_bytes` (a reader sees the old or
 the new file, never half of one), and every JSON file through :func:`json_text` (NaN and
-infinities become ``null``: they are not JSON).  Folders written as a unit: :mod:`ocreach.outdir`.
+infinities become ``null``: they are not JSON); :func:`replace_markdown_section` rewrites one
+section of a Markdown file (the benchmark and validation tables each script keeps).  Folders
+written as a unit: :mod:`ocreach.outdir`.
 """
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ocreach.errors import ProblemError
 
 
 def _umask() -> int:
@@ -75,3 +79,28 @@ def json_text(obj: Any, indent: int | None = 2) -> str:
     custody.json): :func:`jsonable`, then every NaN or infinity as ``null`` (they are not JSON,
     and strict parsers refuse them), dumped with ``allow_nan=False``."""
     return json.dumps(_finite_or_none(jsonable(obj)), indent=indent, allow_nan=False)
+
+
+def replace_markdown_section(path: str | Path, text: str) -> Path:
+    """Replace the ``## Heading`` section of a markdown file by ``text`` (or append it).
+
+    ``text`` starts with its ``## `` heading line; the old section runs to the next ``## ``
+    heading.  The rest of the file is left alone and the file is written atomically, so several
+    scripts can each keep their own section of ``docs/benchmarks.md`` or ``docs/validation.md``.
+    """
+    path = Path(path)
+    heading = text.lstrip().splitlines()[0].strip() if text.strip() else ""
+    if not heading.startswith("## "):
+        raise ProblemError(f"text must start with a '## ' heading line; got {heading[:40]!r}")
+    old = path.read_text() if path.exists() else ""
+    lines = old.splitlines()
+    start = next((i for i, ln in enumerate(lines) if ln.strip() == heading), None)
+    body = text.strip().splitlines()
+    if start is None:
+        new = (old.rstrip() + "\n\n" if old.strip() else "") + "\n".join(body) + "\n"
+    else:
+        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
+                   len(lines))
+        tail = [""] + lines[end:] if end < len(lines) else []
+        new = "\n".join(lines[:start] + body + tail) + "\n"
+    return atomic_write_text(path, new)

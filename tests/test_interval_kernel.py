@@ -14,8 +14,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from ocreach.intervals import evaluator as iv
 from ocreach.intervals import IntervalDomainError, IntervalFunction
+from ocreach.intervals import evaluator as iv
 from ocreach.intervals.kernel import _entries
 from ocreach.reach.sdc import third_interval
 from ocreach.reach.taylor import hessian_interval

@@ -23,9 +23,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from mpmath import mp
 
-from ocreach.intervals import evaluator as iv
 from ocreach.errors import ProblemError
 from ocreach.intervals import IntervalDomainError, IntervalFunction
+from ocreach.intervals import evaluator as iv
 from ocreach.models import cr3bp, ephemeris_synodic, twobody, vanderpol
 from ocreach.models.reentry import reentry
 from ocreach.units import Units

@@ -2,7 +2,7 @@
 import pytest
 
 from ocreach import ProblemError
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 
 
 def test_replace_keeps_other_sections(tmp_path):
