@@ -108,3 +108,46 @@ def test_docs_named_in_the_code_exist():
         if bad:
             missing[str(src.relative_to(ROOT))] = bad
     assert not missing, f"files under docs/ named in the code but missing: {missing}"
+
+
+#: ``ocreach/...`` paths the docs quote, e.g. ``ocreach/sets/zonotope.py`` or ``ocreach/custody/``
+MODULE_PATH = re.compile(r"(?<![\w./-])(ocreach/[\w./-]*\w)")
+#: dotted names in backticks, e.g. ```ocreach.sets.pz_exact.support_bounds```
+DOTTED = re.compile(r"`(ocreach(?:\.\w+)+)")
+
+
+def _repo_path(path: str) -> Path:
+    """The file behind a package path (``ocreach/problems`` is the folder ``problems/``)."""
+    rel = path.replace("ocreach/problems", "problems", 1) if path.startswith("ocreach/problems") \
+        else path
+    return ROOT / rel
+
+
+def _resolves(name: str) -> bool:
+    """Whether ``ocreach.a.b.c`` names a module, or an attribute of one, that exists."""
+    import importlib
+
+    parts = name.split(".")
+    for i in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:i]))
+        except ImportError:
+            continue
+        for attr in parts[i:]:
+            if not hasattr(obj, attr):
+                return False
+            obj = getattr(obj, attr)
+        return True
+    return False
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_modules_named_in_the_docs_exist(page):
+    """The module map moves; the docs follow it: every ``ocreach/...`` path and every dotted
+    ``ocreach.x.y`` name in backticks names a file, module or attribute that exists."""
+    text = page.read_text()
+    paths = {p for p in MODULE_PATH.findall(text)
+             if not _repo_path(p).exists() and not _repo_path(p + ".py").exists()}
+    names = {n for n in DOTTED.findall(text) if not _resolves(n)}
+    missing = sorted(paths | names)
+    assert not missing, f"{page.relative_to(ROOT)}: names missing modules {missing}"
