@@ -59,7 +59,7 @@ def guide_blocks(text: str) -> list[Block]:
         while j < len(lines) and not lines[j].startswith(fence):
             j += 1
         if j == len(lines):
-            raise AssertionError(f"docs/guide.md:{start + 1}: code block never closed")
+            raise AssertionError(f"line {start + 1}: code block never closed")
         prev = next((lines[k] for k in range(start - 1, -1, -1) if lines[k].strip()), "")
         mk = MARKER.search(prev)
         marker = None if mk is None else mk.group(1).split()[0]
@@ -134,3 +134,26 @@ def test_every_guide_block_runs(tmp_path, monkeypatch):
                                           f"stderr:\n{proc.stderr[-3000:]}")
     finally:
         plt.close("all")
+
+
+def test_guide_problem_table_lists_every_bundled_problem():
+    """The guide's table of bundled problems names each id of ``ocreach.list_problems()`` once
+    (``custody-l1`` ... ``custody-l5`` stands for the five)."""
+    import ocreach
+
+    text = GUIDE.read_text()
+    table = text[text.index("| id | scenario | source |"):]
+    table = table[:table.index("\n\n")]
+    ids = re.findall(r"`([a-z0-9-]+)`", table)
+    if "custody-l1" in ids and "custody-l5" in ids:
+        ids += [f"custody-l{i}" for i in range(2, 5)]
+    assert sorted(ids) == sorted(ocreach.list_problems())
+
+
+def test_readme_python_blocks_run(tmp_path, monkeypatch):
+    """The README's Python example runs too (its two commands are the CI's own job)."""
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {"__name__": "__readme__"}
+    for b in guide_blocks((ROOT / "README.md").read_text()):
+        if b.lang == "python":
+            exec(compile(b.code, f"README.md:{b.line}", "exec"), namespace)
