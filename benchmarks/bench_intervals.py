@@ -111,7 +111,7 @@ def main() -> None:
         "## Interval evaluator",
         "",
         (f"`python benchmarks/bench_intervals.py` ({time.strftime('%Y-%m-%d')}; the machine was "
-         "shared with other developers' work, so times are CPU times of the benchmark process, "
+         "shared with other work, so times are CPU times of the benchmark process, "
          "both sides single-threaded).  ocreach: one vectorised call "
          f"over {args.boxes:,} random boxes (median of 3), per box; peer: the same CasADi graph "
          "walked instruction by instruction with `mpmath.iv` (53-bit directed rounding), per box, "

@@ -66,7 +66,7 @@ def section(rows: list[dict]) -> str:
     lines = ["## Minimum enclosing ball", "",
              "`python benchmarks/bench_meb.py` (standard-normal points; ocreach: median of 5 runs; SOCP: "
              "`min r s.t. |p_i - c| <= r` in cvxpy + Clarabel, one run, canonicalisation included; "
-             "the machine was shared with other developers' jobs, so absolute times are noisy).", "",
+             "the machine was shared with other jobs, so absolute times are noisy).", "",
              "| d | points | ocreach exact MEB | sweeps | support | SOCP (cvxpy + Clarabel) | speed-up | "
              "SOCP radius - exact | max dist / r - 1 | min barycentric |",
              "|---|---|---|---|---|---|---|---|---|---|"]

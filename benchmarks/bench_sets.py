@@ -4,7 +4,7 @@
    generators followed by PCA reduction back to 400 generators: ``ocreach.sets.tensor_map`` +
    ``reduce`` against the same math written here in plain numpy (full einsum over all h^2 pairs,
    exponent sums, ``np.unique(axis=1)`` merge, PCA box of the smallest generators).  Target <= 1.5x.
-   And against a careful numpy reference of the same exact math (issue #16: pairs i <= j, one
+   And against a careful numpy reference of the same exact math (pairs i <= j, one
    int64 key per monomial, argsort + reduceat), interleaved runs, CPU time.  Target <= 1.0x.
 2. Membership of 10,000 points in a 6-D zonotope with 50 generators in ONE call against one cvxpy
    (Clarabel) solve per point; the per-point loop is timed on 200 points and extrapolated.
@@ -81,7 +81,7 @@ def _pca_reduce(c_new, G, E, keep):
 
 
 def careful_reference(T, c, G, E, h_max):
-    """Careful numpy (issue #16): the symmetrised tensor contracted once, the pairs i <= j only
+    """Careful numpy: the symmetrised tensor contracted once, the pairs i <= j only
     (multiplicity 2 off the diagonal), one exact int64 key per monomial (mixed radix of the
     exponent rows), argsort + reduceat merge, then the same PCA reduction."""
     m, n = T.shape[0], G.shape[0]

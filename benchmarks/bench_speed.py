@@ -1,4 +1,4 @@
-"""Speed and memory (issue #16): batch integrator vs heyoka's batch mode, BLAS threads under
+"""Speed and memory: batch integrator vs heyoka's batch mode, BLAS threads under
 contention, stochastic Monte Carlo peak memory.
 
 1. 1,000 planar CR3BP DRO trajectories (grid 0:0.1:3, random disk controls, one ``propagate``
@@ -9,7 +9,7 @@ contention, stochastic Monte Carlo peak memory.
 2. ``stt`` on ``dro`` (order 2, h_max 400, warm) while another process spins on a core, in the
    default environment (OpenBLAS free to start 2 threads; ``reach`` limits BLAS to 1) vs with
    ``OPENBLAS_NUM_THREADS=1``, with the limit lifted (``OCREACH_BLAS_THREADS=2``, the state
-   before issue #16) and with one native kernel thread (``OCREACH_THREADS=1``).  Each run in a
+   before the limit) and with one native kernel thread (``OCREACH_THREADS=1``).  Each run in a
    fresh process, the settings interleaved run by run in rotated order, ratios paired within a
    round; median, quartiles and range of the paired ratios, wall and CPU time.
 3. Peak resident memory of ``reach("shuttle-reentry", "mc", samples=100000)`` in a subprocess.
@@ -325,7 +325,7 @@ _SETTING_ROWS = {
     "blas1": "`OPENBLAS_NUM_THREADS=1` (no BLAS threads at all)",
     "default": ("default environment (`import ocreach` first starts OpenBLAS with 1 thread; "
                 "`reach()` limits BLAS to 1 via threadpoolctl)"),
-    "unlimited": "default environment, limit lifted (`OCREACH_BLAS_THREADS=2`: before issue #16)",
+    "unlimited": "default environment, limit lifted (`OCREACH_BLAS_THREADS=2`: as before the limit)",
     "kernel1": "default environment, one native kernel thread (`OCREACH_THREADS=1`)",
 }
 
@@ -348,7 +348,7 @@ def contention_markdown(s: dict) -> str:
                + (", and so is the upper quartile)." if d["q3"] <= 1.3 else "; the upper quartile is not)."))
     if s["spinner_core_share"] < 0.8:
         verdict += (f"  The spinner got only {100 * s['spinner_core_share']:.0f} % of a core (other jobs "
-                    "shared the machine), so the condition is only approximately the issue's (one other "
+                    "shared the machine), so the condition is only approximately the intended one (one other "
                     "process holding a core) and the wall times carry the other jobs' scheduling.")
     verdict += (f"  CPU time, which scheduling moves much less: default / single-threaded BLAS "
                 f"{c['median']:.2f} [{c['q1']:.2f}, {c['q3']:.2f}]"
@@ -403,7 +403,7 @@ peak memory `VmHWM` (imports included); load average after each run.
 {table}
 
 CPU time exact / bound: {gains}.  {scaling}  Tightness of the two boxes against the true
-hull: docs/validation.md, "Pruned order-3 products bounded instead of formed"."""
+hull: docs/validation/stt-tightness.md, "Pruned order-3 products bounded instead of formed"."""
 
 
 def markdown(env: dict, s: dict, m: dict, o3: list[dict] | None) -> str:
@@ -417,7 +417,7 @@ def markdown(env: dict, s: dict, m: dict, o3: list[dict] | None) -> str:
     o3_text = "\n\n" + order3_markdown(o3) if o3 else ""
     return f"""## Speed and memory
 
-`python benchmarks/bench_speed.py` (issue #16; the batch integrator has its own section below).
+`python benchmarks/bench_speed.py` (the batch integrator has its own section below).
 Environment of this run: {env['cpu']},
 {env['cores']} cores (load average {env['load'][0]:.1f} /
 {env['load'][1]:.1f} / {env['load'][2]:.1f} when it started; the machine is shared), BLAS: {blas}; ocreach's default
@@ -455,8 +455,8 @@ per run in consecutive processes (the two vCPUs share resources), hence the pair
 Earlier single-shot runs of this comparison (medians of 9 runs per setting, not paired) gave 0.76
 (load 16), 1.58 (load 15), 0.98 (load 2.4), and 0.88 and 1.34 minutes apart at load 0.2: the
 spread of one unpaired comparison.  On a quiet machine (2026-12-02 01:37 UTC, load ~0.3, one
-spinner, 4 rounds x 3 runs interleaved) the lead measured default 0.491 s,
-`OPENBLAS_NUM_THREADS=1` 0.486 s (1.01), limit lifted 0.569 s.  The 2-5x of issue #16 for
+spinner, 4 rounds x 3 runs interleaved): default 0.491 s,
+`OPENBLAS_NUM_THREADS=1` 0.486 s (1.01), limit lifted 0.569 s.  The 2-5x once measured for
 unlimited 2-thread OpenBLAS under contention does not reproduce with this code.
 
 **Memory** (peak resident set size of a fresh process, `VmHWM` of `/proc/self/status`):
@@ -475,7 +475,7 @@ def markdown_dro(env: dict, d: dict) -> str:
     gains = ", ".join(f"{g:.2f}" for g in d["thread_gains"])
     return f"""## Batch integrator vs heyoka's batch mode
 
-`python benchmarks/bench_speed.py [--dro-only]` (issue #16): {d['n']} planar CR3BP DRO
+`python benchmarks/bench_speed.py [--dro-only]`: {d['n']} planar CR3BP DRO
 trajectories, grid 0:0.1:3 (30 piecewise-constant control segments), random disk controls, one
 `propagate` call; heyoka `taylor_adaptive_batch` one `propagate_until` per segment.  All runs in
 one process, interleaved round by round ({d['repeat']} rounds), medians; endpoint error = max |x(3) -

@@ -8,7 +8,7 @@ box input) and ``nrho-flyby`` (n = 2, h_max = 60, ball input), split like Foss T
 generation, tensor maps, reductions); the peer on ``dro`` is the extremal-ODE method with 100
 trajectories (Foss Table 2 reports stt/ode = 5.7925 / 4.0389 = 1.43); and the two set-propagation
 engines (the fused step against the set library's tensor maps + sum + reduction) on ``dro``;
-and the peak resident memory of vdp at order 3 with ``h_max`` 400 and 800 (issue #16: the
+and the peak resident memory of vdp at order 3 with ``h_max`` 400 and 800 (the
 order-3 products formed in bounded blocks; ``--no-memory`` skips it), each in a fresh process.
 Each timing is the median of ``--repeat`` warm runs (compilation and caches excluded; the first
 run's time is reported apart).
@@ -94,7 +94,7 @@ def bench_engines(repeat: int) -> dict:
     return out
 
 
-#: issue #16's measurement before the order-3 products were formed in blocks (same machine type)
+#: measured before the order-3 products were formed in blocks (same machine type)
 MEMORY_BEFORE = {400: (16.0, 1.5), 800: (143.0, 10.1)}  # h_max: (seconds, GB)
 
 
@@ -108,11 +108,11 @@ def bench_memory(h_values=(400, 800)) -> list[dict]:
 def memory_markdown(mem: list[dict]) -> list[str]:
     if not mem:
         return []
-    lines = ["**Order-3 memory** (issue #16): vdp, order 3, one `reach` in a fresh process, peak",
+    lines = ["**Order-3 memory**: vdp, order 3, one `reach` in a fresh process, peak",
              "resident set size (`VmHWM`, includes the ~95 MB of imports), wall time, OPENBLAS_NUM_THREADS="
              f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}",
              "(the machine is shared: times move by tens of percent).", "",
-             "| h_max | peak memory | time | before (issue #16: all products materialised) | target |",
+             "| h_max | peak memory | time | before (all products materialised) | target |",
              "|---:|---:|---:|---:|---|"]
     for m in mem:
         t0, gb0 = MEMORY_BEFORE.get(m["h"], (float("nan"), float("nan")))
@@ -159,7 +159,7 @@ def markdown(rows: list[dict], ratio: dict, eng: dict, mem: list[dict] | None = 
               "while the STT's cost is the numpy set propagation; stt itself is "
               + ", ".join(f"{PAPER[r['pid']]['total'] / r['t']:.1f}x ({r['pid']})" for r in rows)
               + " faster than the paper's Julia timings.  nrho-flyby has the paper's settings, whose",
-              "sets diverge near the Moon (docs/validation.md).", "",
+              "sets diverge near the Moon (docs/validation/stt.md).", "",
               "Set-propagation engine on dro (same options): fused step "
               f"{eng['fused']['t']:.3f} s (tensor maps {eng['fused']['runtime'].get('tensor_maps', 0):.3f} s, "
               f"reductions {eng['fused']['runtime'].get('reductions', 0):.3f} s) vs the set library's "

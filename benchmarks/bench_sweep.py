@@ -1,5 +1,5 @@
 """Sweep engine: catalog speed-up on 2 local workers, per-task overhead of Dask vs the process pool,
-and a paper estimate for a 64-core cluster (issue #15).
+and a paper estimate for a 64-core cluster.
 
     python benchmarks/bench_sweep.py [--write] [--objects 1000] [--tiny 400]
 
@@ -229,7 +229,7 @@ def markdown(cat, ov, t_recs, est, objects, share, load) -> str:
     lines = [
         "## Sweep",
         "",
-        "`python benchmarks/bench_sweep.py` (issue #15; one run; 1-minute load average "
+        "`python benchmarks/bench_sweep.py` (one run; 1-minute load average "
         f"{load[0]:.1f} at the start and {load[1]:.1f} at the end on {os.cpu_count()} cores, "
         f"{_threads()}; the serial run limited to 1 BLAS thread like the workers).  Serial and pool runs alternate over slices of the catalog so that "
         "load changes hit both alike.",

@@ -2,8 +2,7 @@
 
 1. earth-mars (Table 1): wall time of ``taylor`` and ``sdc`` on the 200 d and 300 d daily grids
    against the paper's 3.443 s / 5.103 s (MATLAB + CORA, Intel i7 2.1 GHz).  The sound enclosure
-   stops where the Lagrange remainder can no longer be enclosed (see docs/validation.md, "Sound
-   zonotope reachability"), so the time to that point and the time per daily step are reported;
+   stops where the Lagrange remainder can no longer be enclosed (see docs/validation/sound-zonotope.md), so the time to that point and the time per daily step are reported;
    the ratio is paper time per step / our time per step (target >= 10x).
 2. nrho-9-2: runtime per 1 h step of ``taylor`` and ``sdc`` over the first 24 h.
 3. The compiled remainder bounds (:mod:`ocreach.intervals.kernel`) against the numpy
@@ -123,7 +122,7 @@ def main() -> None:
             f"compiles the interval kernels; {threads}; 1-minute load average {load0:.1f} at the "
             f"start and {load1:.1f} at the end, on 2 cores).  The paper's "
             "Table 1 times are MATLAB + CORA on an Intel i7 at 2.1 GHz for the whole horizon; the sound "
-            "enclosure stops before 200 d (docs/validation.md, 'Sound zonotope reachability'), so the "
+            "enclosure stops before 200 d (docs/validation/sound-zonotope.md), so the "
             "comparison is per daily step (ratio = paper ms per step / our CPU ms per step; the "
             "bracket is the ratio at the slowest and fastest run).  CPU is the process time, "
             "reported because the machine is shared (the wall time is then up to ~2x the CPU "

@@ -22,7 +22,7 @@ does any x1 it allows make the paper's STT run (n = 2, h_max = 60) work?
    (:func:`foss_fig6_nrho.pointwise_errors`).
 
 ``--half`` widens the box (to look beyond the rounding), ``--reading`` runs the STT sweep under
-another reading of item 2 (``--reading "x1 in"``: x1 in units of the Earth-Moon distance),
+another reading of point 2 above (``--reading "x1 in"``: x1 in units of the Earth-Moon distance),
 ``--stt-runs`` picks the runs (``o2_h60``, ``o2_h200``, ``o2_h400``).  Prints tables; writes
 ``OUT/foss_flyby_sensitivity[_halfH][_x1][_RUNS].json`` (per time: min / median / max over the x1;
 per x1: perilune and a summary; ``--full`` keeps every x1's arrays).
@@ -53,7 +53,7 @@ STT_RUN_OPTIONS = {"o2_h60": dict(order=2, h_max=60), "o2_h200": dict(order=2, h
                    "o2_h400": dict(order=2, h_max=400)}
 #: the default selection (``--stt-runs``)
 STT_RUNS = ("o2_h60", "o2_h200")
-#: the issue's target: extent within this factor of the truth's at every time
+#: the target: extent within this factor of the truth's at every time
 TARGET = 1.5
 
 

@@ -1,4 +1,4 @@
-"""LQR vs MPC where the thrust bound binds (issue 14, item 5; Patel & Subbarao Table 2).
+"""LQR vs MPC where the thrust bound binds (Patel & Subbarao Table 2).
 
 Runs the ``lqr-vs-mpc`` report on l2-halo in three cases with the same seeds:
 

@@ -3,7 +3,7 @@
 Runs the report (``ocreach report lqr-vs-mpc --problem l2-halo`` does the same) and, with
 ``--study``, a small sensitivity study: several seeds of the paper's scenario, an initial offset
 10x larger (thrust saturation active), the frozen-time DARE LQR, and the MPC with the box thrust
-set of Eq. 28 (inscribed in the ball).  Prints markdown tables (used in docs/validation.md).
+set of Eq. 28 (inscribed in the ball).  Prints markdown tables (used in docs/validation/lqr-vs-mpc.md).
 
 Usage: ``python examples/lqr_vs_mpc_l2_halo.py [--out DIR] [--study] [--seeds 5]``.
 """
@@ -71,7 +71,7 @@ def _ratio_summary(label: str, res_list: list[dict]) -> str:
 
 
 def study(n_seeds: int = 5) -> str:
-    """Which LQR design gives the paper's Table 2 gap? (docs/validation.md, 'LQR vs MPC on l2-halo')."""
+    """Which LQR design gives the paper's Table 2 gap? (docs/validation/lqr-vs-mpc.md)."""
     prob = ocreach.get_problem("l2-halo")
     ref = reference_from_problem(prob, n_sub=2)
     Q, R = np.diag(PAPER_Q), np.diag(PAPER_R)

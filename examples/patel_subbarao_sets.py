@@ -18,7 +18,7 @@ set's width to the samples' width in 50 random position directions, and of the p
 
 Figures: ``fig2_l2_halo_taylor.png``, ``fig4_nrho_taylor_vs_sdc.png``, ``fig5_nrho_volume.png``,
 ``fig6_nrho_sdc_orbit.png``; table and numbers: ``summary.md`` and ``summary.json`` (the
-numbers quoted in ``docs/validation.md``, section "Sound zonotope reachability").
+numbers quoted in ``docs/validation/sound-zonotope.md``).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Ball-input representations of stt measured on a problem (issue 12 item 1, docs/validation.md
+"""Ball-input representations of stt measured on a problem (docs/validation/stt-tightness.md,
 "Ball input within 3 % of the ball").
 
     python examples/stt_ball_input.py --problem nrho-flyby --steps 6 10 --h-max 60 200 --order 2

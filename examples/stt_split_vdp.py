@@ -1,4 +1,4 @@
-"""STT splitting on Van der Pol with an uncertain initial box (docs/validation.md, "STT reachability").
+"""STT splitting on Van der Pol with an uncertain initial box (docs/validation/stt.md).
 
     python examples/stt_split_vdp.py
 

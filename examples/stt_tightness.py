@@ -1,4 +1,4 @@
-"""Tightness of the STT sets measured with the exact polynomial-zonotope queries (issue 12).
+"""Tightness of the STT sets measured with the exact polynomial-zonotope queries.
 
     python examples/stt_tightness.py [--problem dro|vdp] [--input ball|box] [--order 2] [--h-max 400]
                                      [--reduction pca|girard] [--pruned-box exact|bound]

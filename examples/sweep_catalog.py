@@ -1,4 +1,4 @@
-"""Write the 1,000-object cislunar catalog of ``examples/sweep_catalog.json`` (issue #15 item 4a).
+"""Write the 1,000-object cislunar catalog of ``examples/sweep_catalog.json``.
 
 Objects are spread over four groups, all in the Earth-Moon CR3BP (mu = 0.01215, units of Patel &
 Subbarao) and generated with :mod:`ocreach.orbits`:

@@ -55,7 +55,7 @@ def main() -> None:
     text = "\n".join([
         "## Results", "",
         f"`python examples/tucker_custody.py` ({elapsed / 60:.1f} min on the shared 2-core machine, "
-        f"loaded by other developers' jobs).  Custody probability from the outer ball, boresight on "
+        f"loaded by other jobs).  Custody probability from the outer ball, boresight on "
         f"its centre, p = 0.95, horizon bracketed on a 0.5-day scan and bisected to 0.01 d.  Ground "
         f"site: 40.0 N, 105.3 W, 1.6 km, epoch 2026-01-01 00:00 TDB (custody ends when the object "
         f"sets); orbit observer: a spacecraft at apolune of the 9:2 NRHO (custody-gateway x0).", "",

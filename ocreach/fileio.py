@@ -86,7 +86,8 @@ def replace_markdown_section(path: str | Path, text: str) -> Path:
 
     ``text`` starts with its ``## `` heading line; the old section runs to the next ``## ``
     heading.  The rest of the file is left alone and the file is written atomically, so several
-    scripts can each keep their own section of ``docs/benchmarks.md`` or ``docs/validation.md``.
+    scripts can each keep their own section of ``docs/benchmarks.md`` or of a file of
+    ``docs/validation/``.
     """
     path = Path(path)
     heading = text.lstrip().splitlines()[0].strip() if text.strip() else ""

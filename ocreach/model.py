@@ -309,7 +309,7 @@ class Model:
         the relaxed one, so the relaxed reachable set contains the true one; the relaxed ``f`` is
         smooth in the controls at ``u = 0``, where ``||u||`` (regularised or not) has no Taylor
         expansion: its second derivative there is ``1/eps`` (``1e15`` for the ``sqrt(|u|^2 + 1e-30)``
-        of the builders), which made the order-2 STT of the mass flow explode (issue 12).
+        of the builders), which made the order-2 STT of the mass flow explode.
         """
         import dataclasses
 

@@ -10,7 +10,7 @@ Two knobs, both without any change of results:
   Default: ``$OCREACH_THREADS``, else the number of cores this process may run on.
 * **BLAS threads** (:func:`blas_limit`): OpenBLAS/MKL start one thread per core.  For the
   medium-sized products of the set library and the STT engine that is a loss as soon as another
-  process holds a core (2-5x slower on 2 cores in issue #16's measurement; see
+  process holds a core (2-5x slower on 2 cores in an earlier measurement; see
   docs/benchmarks.md, "Speed and memory") and hardly a gain on a quiet machine, so ``reach()`` and the CLI run methods under a limit of ``$OCREACH_BLAS_THREADS``
   (default 1) through threadpoolctl.  With the default limit every run computes its products
   single-threaded whatever the environment, so results no longer depend on how many BLAS threads

@@ -76,7 +76,7 @@ class ControlSet:
                                "this problem's controls are 'free' (prescribed distribution)")
 
     def contains(self, u: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-        """Boolean mask over the leading axes of ``u`` (..., dim)."""
+        """Boolean mask with one entry per control vector of ``u`` (shape ``(..., dim)``)."""
         u = np.asarray(u, dtype=float)
         if self.kind == "free":
             return np.all(np.isfinite(u), axis=-1)

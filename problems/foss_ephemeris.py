@@ -6,8 +6,8 @@ Earth-Moon synodic frame with Sun and Venus perturbations (Foss Eq. 6-7), epoch
 
 The paper gives x1 to two digits; ``x0`` and ``epoch`` run the scenario from another initial
 state or epoch (``ocreach run nrho-flyby --set problem.x0=[...]``), and :func:`perilune` measures
-the close approach of ballistic trajectories (docs/validation.md, "Sensitivity to the two-digit
-x1").
+the close approach of ballistic trajectories (docs/validation/stt-flyby.md, "Sensitivity to
+the two-digit x1").
 """
 from __future__ import annotations
 

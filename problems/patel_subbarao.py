@@ -135,7 +135,7 @@ def nrho_9_2_problem(t_final: float = 76.0 * HOUR_TU, dt: float = HOUR_TU,
         initial_set=initial_set)
     # station keeping: guaranteed drift tubes over whole revolutions (taylor restarted from the
     # initial set where it stops near perilune), and the event trigger that anticipates those
-    # restarts (docs/validation.md "Station keeping on the 9:2 NRHO")
+    # restarts (docs/validation/station-keeping.md)
     prob.extra["station_keeping"] = {"tube_source": "taylor", "tube_interval": "adaptive",
                                      "anticipate": True}
     return prob

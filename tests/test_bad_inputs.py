@@ -1,9 +1,9 @@
-"""Bad inputs across the CLI and the Python API (issue #10, "Must show").
+"""Bad inputs across the CLI and the Python API.
 
 Every case must raise an :class:`ocreach.errors.OcreachError` (the CLI: exit code 2 with
 ``error: ...``) whose message names the parameter, before any long work.  With
 ``OCREACH_WRITE_BAD_INPUT_TABLE=1`` the test also writes the table (input -> error) into the
-"Bad input" section of ``docs/validation.md``.
+"Bad input" section of ``docs/validation/bad-input.md``.
 """
 from __future__ import annotations
 
@@ -235,7 +235,7 @@ def _write_table(rows) -> None:
              "row.", "", "| # | via | input | error |", "|---|---|---|---|"]
     for i, (surface, text, msg, _) in enumerate(rows, 1):
         lines.append(f"| {i} | {surface} | `{_cell(text)}` | {_cell(msg)} |")
-    doc = ROOT / "docs" / "validation.md"
+    doc = ROOT / "docs" / "validation" / "bad-input.md"
     old = doc.read_text()
     block = "\n".join(lines) + "\n"
     if SECTION in old:

@@ -1,4 +1,4 @@
-"""Compact polynomial-zonotope balls (ocreach/sets/ball_pz.py) and the n-D unit_ball_pz (issue 12).
+"""Compact polynomial-zonotope balls (ocreach/sets/ball_pz.py) and the n-D unit_ball_pz.
 
 Containment of the leaves is *proved* by the finite certificates of tests/_ball_certify.py
 (Lemma 1: odd map with ``|F| >= 1`` on the cube's boundary), their radii too (both by Bernstein

@@ -1,4 +1,4 @@
-"""Ctrl-C at named stages of `ocreach run` / `ocreach compare` (issue #10 item 4).
+"""Ctrl-C at named stages of `ocreach run` / `ocreach compare`.
 
 Each case runs the CLI in a subprocess that waits at a stage (``OCREACH_PAUSE_AT``), sends SIGINT
 there, and checks: exit code 130, the output folder is exactly the old complete one (or, after the

@@ -205,7 +205,7 @@ def test_shuttle_2000s_gap_to_monte_carlo_is_the_gaussian_closure():
     by fresh ones with exactly their mean and covariance (moment-matched, so the covariance does
     not random-walk).  That is the system the Gaussian closure propagates; ``cut`` must match it
     within its noise (~1 %) at t = 2000 s, while the plain Monte Carlo (no closure) has a smaller
-    spread of h and gamma (docs/validation.md: +8.6 %, +10.6 % at 10,000 samples).  A bug in the
+    spread of h and gamma (docs/validation/stochastic-cut.md: +8.6 %, +10.6 % at 10,000 samples).  A bug in the
     moment recursion (point scaling, time/control index, Euler map) would break the first check."""
     p = get_problem("shuttle-reentry")
     r = ocreach.reach(p, "cut")

@@ -1,4 +1,4 @@
-"""DE421 ephemeris plant under CR3BP-predicting controllers (issue 14, item "ephemeris plant").
+"""DE421 ephemeris plant under CR3BP-predicting controllers.
 
 Truth: with the circular Earth-Moon stand-in the plant must reproduce the CR3BP plant (an
 independent model and integrator path) step by step, thrust and disturbance included; the frame

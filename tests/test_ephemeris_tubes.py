@@ -1,5 +1,5 @@
 """Drift tubes along the ephemeris-corrected (non-periodic) reference, and event-triggered / tube
-MPC on the DE421 plant with that reference (ocreach.control.stationkeeping.ephemeris_tubes, issue 14)."""
+MPC on the DE421 plant with that reference (ocreach.control.stationkeeping.ephemeris_tubes)."""
 from __future__ import annotations
 
 import numpy as np

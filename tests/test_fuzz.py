@@ -1,4 +1,4 @@
-"""Fuzz suite (hypothesis) over the CLI parser and the public API entry points (issue #10 item 6).
+"""Fuzz suite (hypothesis) over the CLI parser and the public API entry points.
 
 Every case ends in either a result (finite numbers, a loadable file) or an
 :class:`~ocreach.errors.OcreachError` whose message names something the caller typed (the option,

@@ -1,4 +1,4 @@
-"""Stochastic Monte Carlo keeps only what is asked for (issue #16 item 4), with the same numbers."""
+"""Stochastic Monte Carlo keeps only what is asked for, with the same numbers."""
 from __future__ import annotations
 
 import numpy as np

@@ -199,7 +199,7 @@ def test_compare_ctrl_c_keeps_finished_work(tmp_path, monkeypatch, capsys):
     rc = main(["compare", "vdp", "--methods", "mc,ode", "--out", str(out), "--set", "mc.samples=40"])
     assert rc == 130
     assert not out.exists()  # an interrupted comparison never poses as a complete one
-    part = tmp_path / "cmp.partial"  # ... its finished work is kept beside it (issue #10)
+    part = tmp_path / "cmp.partial"  # ... its finished work is kept beside it
     assert (part / "vdp_mc.npz").is_file() and not (part / "vdp_ode.npz").exists()
     assert (part / "comparison.md").is_file() and (part / "overlay.png").is_file()
     assert "interrupted" in (part / "comparison.md").read_text()

@@ -1,4 +1,4 @@
-"""Reliability checks of issue #10: divergence guard, typed options, argument checks before work,
+"""Reliability checks: divergence guard, typed options, argument checks before work,
 discoverability (methods, list, FILE.py:ID, thrust metadata)."""
 from __future__ import annotations
 

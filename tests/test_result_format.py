@@ -1,4 +1,4 @@
-"""The result file format: arrays + JSON only (issue #10 item 1)."""
+"""The result file format: arrays + JSON only."""
 from __future__ import annotations
 
 import io

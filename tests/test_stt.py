@@ -166,13 +166,13 @@ def test_dro_box_covers_mc_endpoints():
         polys = r.sets[-1].outline(dims, pieces=32)
         assert points_in_polygons(end[:, dims], polys).mean() >= 0.995
         ratio = outline_area(polys) / hull_area(end[:, dims])
-        assert 1.0 < ratio < 4.0   # MC hull is an inner estimate; measured ratios in validation.md
+        assert 1.0 < ratio < 4.0   # MC hull is an inner estimate; ratios: docs/validation/stt.md
 
 
 def test_initial_set_and_splitting_cover_mc():
     """An uncertain initial box (converted to a PZ) on Van der Pol: both the plain run and the
     split run (per-part references) cover the MC endpoints; splitting shrinks the area
-    (measured 5.9x -> 3.1x the MC hull, docs/validation.md)."""
+    (measured 5.9x -> 3.1x the MC hull, docs/validation/stt.md)."""
     base = get_problem("vdp")
     box = Interval(base.x0 - 0.1, base.x0 + 0.1)
     p = dataclasses.replace(base, initial_set=box)

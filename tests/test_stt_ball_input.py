@@ -1,4 +1,4 @@
-"""Zonotope ball input of stt (issue 12: the ball input's tightness after reduction).
+"""Zonotope ball input of stt: the ball input's tightness after reduction.
 
 Truth: the support function of the true reachable set by direct multiple shooting
 (``transcription_support``, independent of the STT code) and Monte Carlo endpoints."""
@@ -124,7 +124,7 @@ def test_nd_ball_zonotope_contains_the_ball():
 
 
 def test_dro_disk_ball_input_support_within_10_percent_of_truth():
-    """Foss's DRO with the disk control set, n = 2, h_max = 400 (issue 12's target: support never
+    """Foss's DRO with the disk control set, n = 2, h_max = 400 (the target: support never
     more than 10 % of the width above the true support; no MC endpoint outside)."""
     p = get_problem("dro")
     p = dataclasses.replace(p, control_set=ControlSet("ball", p.model.n_u))

@@ -1,5 +1,5 @@
 """Order-3 products of the fused STT step with the pruned ones bounded, never formed
-(``pruned_box="bound"``, :class:`ocreach.reach.stt_products.BoundedOrder3Products`; issue #16)."""
+(``pruned_box="bound"``, :class:`ocreach.reach.stt_products.BoundedOrder3Products`)."""
 from __future__ import annotations
 
 import numpy as np

@@ -105,7 +105,7 @@ def test_no_split_triggered_equals_unsplit():
 def test_split_union_covers_mc_where_unsplit_diverges():
     """vdp with the initial box x0 +- 0.3: the unsplit order-2 STT diverges (measured area 1e31x
     the MC hull), the split one keeps every MC endpoint inside its union (measured 3.8x the MC
-    hull with 12 parts, docs/validation.md)."""
+    hull with 12 parts, docs/validation/stt.md)."""
     p = vdp_box(0.3)
     with pytest.raises(SolverError):
         STTReach(order=2, h_max=40).solve(p)

@@ -1,5 +1,5 @@
-"""STT on models whose mass flow depends on ||u|| (issue 12, task: elliptic-earth / lunar-flyby
-exploded to ~1e10 DU after one step).
+"""STT on models whose mass flow depends on ||u|| (elliptic-earth / lunar-flyby, which exploded
+to ~1e10 DU after one step before the throttle relaxation).
 
 ``||u||`` has no Taylor expansion at the STT's reference control ``u = 0``: with the builders'
 regularised ``sqrt(|u|^2 + 1e-30)`` its second derivative there is ``1e15``, so the order-2 STT of

@@ -1,4 +1,4 @@
-"""ocreach.sweep: executors agree, resume, failures, corrupt logs, keys, validation (issue #15).
+"""ocreach.sweep: executors agree, resume, failures, corrupt logs, keys, validation.
 
 Tasks are tiny (Monte Carlo with 4 samples on Van der Pol) so the whole file stays fast.
 """

@@ -339,8 +339,8 @@ def _summary_lines(data: dict) -> list[str]:
         heavier = (f" (R_u = I, {1 / a**2:.0f}x heavier than R on the acceleration)" if a else "")
         lines.append(
             "Which LQR is the paper's is not identifiable from Table 2.  The sensitivity study "
-            "(examples/lqr_vs_mpc_l2_halo.py --study; numbers in docs/validation.md, 'LQR vs MPC "
-            "on l2-halo') finds the paper's pattern only for a constant-gain LQR with R on the "
+            "(examples/lqr_vs_mpc_l2_halo.py --study; numbers in docs/validation/lqr-vs-mpc.md) "
+            "finds the paper's pattern only for a constant-gain LQR with R on the "
             f"normalised throttle{heavier}, which does not stabilise the halo.")
     return lines
 

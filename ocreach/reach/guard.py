@@ -1,4 +1,4 @@
-"""Divergence and validity guard shared by every method (issue #10: no silent garbage).
+"""Divergence and validity guard shared by every method: no silent garbage.
 
 A reachable-set estimate whose sets or samples are non-finite, or reach further from the origin
 than ``divergence_factor`` times the problem's scale, is garbage: the run stops with a

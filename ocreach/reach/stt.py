@@ -65,18 +65,18 @@ PRUNED_BOX_DEFAULT = "bound"
 #: over the unit sphere (exact, :func:`ocreach.sets.zonotope_support_range`) in [1, 1.03] in 2-D
 #: (regular 16-gon, <= 1.0196) and 3-D (30 spread directions, <= 1.0269); 4-D 24 spread directions
 #: (<= 1.099: no 4-D zonotope within 3 % was found); other dimensions 2 n (axes + random
-#: directions, loose: [1, 2.75] in 4-D).  Measured in docs/validation.md "Ball input within 3 %".
+#: directions, loose: [1, 2.75] in 4-D).  Measured in docs/validation/stt-tightness.md.
 BALL_ZONOTOPE_GENERATORS = {2: 8, 3: 30, 4: 24}
 #: ``ball_input="zonotope-coarse"``: 2-D regular 12-gon (<= 1.0353), 3-D dodecahedral axes
 #: (<= 1.0954), 4-D 16 spread directions (<= 1.147)
 BALL_ZONOTOPE_GENERATORS_COARSE = {2: 6, 3: 10, 4: 16}
-#: ``ball_input="auto"`` (default) per input dimension, chosen by measurement (docs/validation.md,
-#: "Ball input within 3 % of the ball"): 2-D the 3 % zonotope (tighter dro sets, ~1.2x runtime);
-#: 3-D and 4-D the coarse zonotope: the 3 %-tight inputs (the 30-generator zonotope, the compact
-#: PZ) give tighter sets while few reductions have happened but looser ones once the reduction
-#: boxes the input generators (nrho-flyby h_max 60, 10 steps: +108 % for the compact PZ against
-#: +39 %; elliptic-earth 40 steps: +558 % against +208 %; the 4-D test model likewise); the
-#: cube-to-ball PZ (48 generators in 3-D) is looser throughout
+#: ``ball_input="auto"`` (default) per input dimension, chosen by measurement
+#: (docs/validation/stt-tightness.md, "Ball input within 3 % of the ball"): 2-D the 3 % zonotope
+#: (tighter dro sets, ~1.2x runtime); 3-D and 4-D the coarse zonotope: the 3 %-tight inputs (the
+#: 30-generator zonotope, the compact PZ) give tighter sets while few reductions have happened but
+#: looser ones once the reduction boxes the input generators (nrho-flyby h_max 60, 10 steps: +108 %
+#: for the compact PZ against +39 %; elliptic-earth 40 steps: +558 % against +208 %; the 4-D test
+#: model likewise); the cube-to-ball PZ (48 generators in 3-D) is looser throughout
 BALL_INPUT_AUTO = {2: "zonotope", 3: "zonotope-coarse", 4: "zonotope-coarse"}
 #: ``ball_input="auto"`` in the other dimensions: 1-D the interval, 5-D and up the compact PZ of
 #: :mod:`ocreach.sets.ball_pz` (support in [1, 1.03]; not measured on a problem, chosen because
@@ -439,7 +439,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         ``split_tol`` [0.01]: the truncation-error tolerance, a fraction of the part's image.
         ``split_keep`` [30]: generators a ``"box"`` split keeps before boxing the rest (0 = the
         PCA parallelotope; more = tighter but less compact parts; chosen on nrho-flyby,
-        docs/validation.md "STT splitting on nrho-flyby").
+        docs/validation/stt-flyby.md).
         ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
         ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
         library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set up to
@@ -471,7 +471,7 @@ the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
         compact PZ ball input within its range instead of ``|c0| + |c1|``);
         ``"parallel-drop"`` also removes whole a group the ranking splits
         (:func:`ocreach.sets.reduce.regroup_drop`).  Opt-in, measured
-        in docs/validation.md "Grouped reduction of parallel monomials".
+        in docs/validation/stt-tightness.md, "Grouped reduction of parallel monomials".
         ``rtol``, ``atol``: integrator tolerances of the STT generation.
         """
 

@@ -1,4 +1,4 @@
-"""Order-3 products of the fused STT step in bounded-memory blocks (Foss et al. Eq. 22; issue #16).
+"""Order-3 products of the fused STT step in bounded-memory blocks (Foss et al. Eq. 22).
 
 The order-3 tensor map forms ``mult * T3[g_i, g_j, g_k]`` for every multiset ``i <= j <= k`` of
 the ``H`` augmented generators of ``dZ`` -- ``C(H + 2, 3)`` products, 87 M at ``H = 800`` -- and

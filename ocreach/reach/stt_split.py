@@ -2,7 +2,7 @@
 
 Foss, Rosengren & Biria (AMOS 2024) name splitting as future work (Sec. 5): one STT expansion
 about one reference is a local approximation, and on a close flyby its truncation error exceeds
-the set (docs/validation.md, "STT reachability").  A split part is propagated about its own
+the set (docs/validation/stt.md).  A split part is propagated about its own
 reference trajectory with its own STTs (:meth:`ocreach.reach.stt.STTReach.solve`); the set at a
 time is the union of the parts (:class:`ocreach.sets.PZUnion`).
 
@@ -20,7 +20,7 @@ when few factors carry the set (an uncertain initial box); after many steps the 
 of many comparable generators (on nrho-flyby at 0.7 TU the largest of 200 carries 2.9 % of it)
 and halving one barely changes it.  ``split_box`` first reduces the part to its ``keep`` largest
 generators plus the PCA box of the rest (the sound reduction) and halves that exactly: more
-compact parts, at the price of the box (docs/validation.md, "STT splitting on nrho-flyby").
+compact parts, at the price of the box (docs/validation/stt-flyby.md).
 """
 from __future__ import annotations
 
@@ -127,6 +127,6 @@ def split_box(dR: PolyZonotope, phi2: np.ndarray | None = None, keep: int = 0) -
     their principal frame (``keep = 0``: the PCA parallelotope of ``dR``).  That set is split
     exactly by :func:`split_factor`.  The parts are more compact than exact halves of a set with
     many comparable generators; the price is the box, smaller the more generators are kept
-    (measured on nrho-flyby in docs/validation.md, "STT splitting on nrho-flyby").
+    (measured on nrho-flyby in docs/validation/stt-flyby.md).
     """
     return split_factor(dR.reduce(dR.dim + int(keep), "pca"), phi2)

@@ -1,4 +1,4 @@
-"""Spread unit directions for outer zonotopes of the 3-D and 4-D unit ball (issue 12).
+"""Spread unit directions for outer zonotopes of the 3-D and 4-D unit ball.
 
 :data:`SPREAD_3D_30`: 30 directions, one per antipodal pair, found by minimising a smoothed
 ``max / min`` of ``sum_i |g_i . d|`` over a 2,500-point Fibonacci sphere grid (L-BFGS from the

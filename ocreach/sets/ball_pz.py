@@ -1,4 +1,4 @@
-"""Compact polynomial zonotopes of the unit ball: few factors, low degree (issue 12).
+"""Compact polynomial zonotopes of the unit ball: few factors, low degree.
 
 Two facts make them (docs/stt.md, "Ball input"):
 
@@ -49,7 +49,7 @@ import numpy as np
 from ocreach.errors import SetError
 from ocreach.sets.polynomials import components_pz, poly_mul
 
-#: issue 12's target: the input set's support within 3 % of the ball's
+#: the target: the input set's support within 3 % of the ball's
 RADIUS_TARGET = 1.03
 #: coefficients of the leaves (see the module docstring)
 LEAF_COEF: dict[str, tuple[float, ...]] = {

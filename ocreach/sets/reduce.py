@@ -7,10 +7,11 @@
 * Polynomial zonotopes (Kochdumper & Althoff 2021; Foss et al. Sec. 2.4 "Reduce(PZ, h_des)"):
   the smallest dependent and independent generators are enclosed by a zonotope, which is reduced
   to a box (``girard``) or PCA box (``pca``) and appended as independent generators.
-  Opt-in ``group`` (issue 12, not in the papers): removed generators that are parallel are
+  Opt-in ``group`` (not in the papers): removed generators that are parallel are
   enclosed together by the range of their scalar polynomial (:func:`enclose_removed`), which
-  keeps cancellations that the monomial-wise enclosure loses; measured in docs/validation.md
-  "Grouped reduction of parallel monomials" (no gain that justifies a default).
+  keeps cancellations that the monomial-wise enclosure loses; measured in
+  docs/validation/stt-tightness.md, "Grouped reduction of parallel monomials" (no gain that
+  justifies a default).
 """
 from __future__ import annotations
 
@@ -248,7 +249,7 @@ def regroup_drop(G: np.ndarray, dep: np.ndarray, keep: np.ndarray, group: str | 
     that the ranking splits is removed whole (then enclosed by its range,
     :func:`enclose_removed`; fewer generators remain).  Other ``group`` values: ``keep``.
     (Keeping such groups whole instead, displacing the smallest other kept generators, was
-    measured far looser on nrho-flyby and is not offered: docs/validation.md.)"""
+    measured far looser on nrho-flyby and is not offered: docs/validation/stt-tightness.md.)"""
     if group != "parallel-drop" or keep.all() or not keep.any():
         return keep
     idx = np.flatnonzero(dep)

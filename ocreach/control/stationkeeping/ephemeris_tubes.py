@@ -1,5 +1,5 @@
 """Drift tubes along a non-periodic reference (the ephemeris-corrected NRHO), for event-triggered
-and tube MPC on the DE421 plant (issue 14).
+and tube MPC on the DE421 plant.
 
 The periodic schedule of :func:`~ocreach.control.stationkeeping.drift_tubes.drift_schedule` computes the
 tubes of one period and re-uses them shifted; an ephemeris-corrected orbit
@@ -26,7 +26,8 @@ method runs per interval on ``model_on(t_a - dt, t_b + dt)``
 that window without the ``if_else``, up to a difference bounded rigorously and added to the
 disturbance: :func:`with_model_error`, :func:`checked_model_error`); an interval across the
 blend of two pieces falls back
-(docs/validation.md "DE421 ephemeris plant, corrected reference: event-triggered and tube MPC").
+(docs/validation/station-keeping-ephemeris.md, "DE421 ephemeris plant, corrected reference:
+event-triggered and tube MPC").
 """
 from __future__ import annotations
 

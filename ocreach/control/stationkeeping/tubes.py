@@ -628,12 +628,12 @@ def sound_drift_partition(problem, reference: TrackingReference, start: int, sto
     the initial deviation set where the previous one stops.
 
     A sound method started from ``x_ref(r) + G0 [-1, 1]^q`` encloses the zero-thrust drift only up
-    to where its first-order remainder can no longer be closed (on the 9:2 NRHO: a few steps
-    after perilune from the apolune; docs/validation.md).  Greedily from ``r = start``: the tube
-    from ``r`` (:func:`reach_drift_tube` with ``partial=True``) covers ``r .. r' - 1``, ``r'`` its
-    last enclosed step, and the next tube starts at ``r'``; if that one cannot take a single step,
-    the restart moves back a step (at most to ``r + 1``).  Returns the tubes (``k0`` = their
-    refresh steps, each covering up to the next refresh); raises :class:`SolverError` if no
+    to where its first-order remainder can no longer be closed (on the 9:2 NRHO: a few steps after
+    perilune from the apolune; docs/validation/station-keeping.md).  Greedily from ``r = start``:
+    the tube from ``r`` (:func:`reach_drift_tube` with ``partial=True``) covers ``r .. r' - 1``,
+    ``r'`` its last enclosed step, and the next tube starts at ``r'``; if that one cannot take a
+    single step, the restart moves back a step (at most to ``r + 1``).  Returns the tubes (``k0`` =
+    their refresh steps, each covering up to the next refresh); raises :class:`SolverError` if no
     restart makes progress or more than ``max_tubes`` tubes would be needed.
     """
     start, stop = check_count("start", start, 0), check_count("stop", stop, 1)
