@@ -60,7 +60,6 @@ UNDECIDED = ("error", "hull")
 KINKS = ("bound", "error")
 
 
-
 class IntervalDomainError(SolverError):
     """An interval bound does not exist (or is not decidable) on a box.
 
@@ -79,12 +78,12 @@ class IntervalFunction:
     """Sound interval extension of a CasADi Function, evaluated over many boxes at once.
 
     Built once per Function (``__init__`` walks it into its :attr:`schedule`, a
-    :class:`~ocreach.intervals.walker.Schedule`); call with
-    ``lo``/``hi``: lists (one per Function input) of arrays of shape ``(numel_i,)`` or
-    ``(numel_i, B)`` (matrix inputs flattened column-major, as CasADi does; a scalar input also
-    takes shape ``(B,)``; a single column broadcasts over the ``B`` boxes).  Returns a list (one
-    per output) of ``(lo, hi)`` arrays of shape ``(numel_out, B)``, dense column-major (structural
-    zeros are exact zeros).  :meth:`reshape` turns one of them into ``(rows, cols, B)``.
+    :class:`~ocreach.intervals.walker.Schedule`); call with ``lo``/``hi``: lists (one per
+    Function input) of arrays of shape ``(numel_i,)`` or ``(numel_i, B)`` (matrix inputs
+    flattened column-major, as CasADi does; a scalar input also takes shape ``(B,)``; a single
+    column broadcasts over the ``B`` boxes).  Returns a list (one per output) of ``(lo, hi)``
+    arrays of shape ``(numel_out, B)``, dense column-major (structural zeros are exact zeros).
+    :meth:`reshape` turns one of them into ``(rows, cols, B)``.
 
     ``undecided``: ``"error"`` (default) raises :class:`IntervalDomainError` where a comparison or
     an ``if_else`` condition is undecided on a box; ``"hull"`` returns the sound hull of both
