@@ -18,7 +18,7 @@ from ocreach.intervals import IntervalDomainError, IntervalFunction
 from ocreach.intervals import evaluator as iv
 from ocreach.intervals.kernel import _entries
 from ocreach.reach.sdc import third_interval
-from ocreach.reach.taylor import hessian_interval
+from ocreach.reach.taylor_step import hessian_interval
 from ocreach.registry import get_problem
 
 TINY = 5e-324
@@ -174,7 +174,7 @@ def _quadratic_interval_reference(Hlo, Hhi, dlo, dhi):
 
 
 def test_stacked_quadratic_interval_equals_the_previous_formula():
-    from ocreach.reach.taylor import quadratic_interval
+    from ocreach.reach.taylor_step import quadratic_interval
 
     rng = np.random.default_rng(5)
     for nx, nz in ((6, 9), (4, 6), (2, 3), (7, 11)):
