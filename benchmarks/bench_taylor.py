@@ -55,7 +55,7 @@ def median_run(problem, method, reps, **opts):
 def kernel_vs_numpy(reps: int) -> tuple[list[float], list[float], int]:
     """CPU per earth-mars 200 d ``taylor`` run with the compiled interval Hessian and with the
     numpy evaluator (the kernel switched off on the cached IntervalFunction), interleaved."""
-    from ocreach.reach.taylor import hessian_interval
+    from ocreach.reach.taylor_step import hessian_interval
 
     p = get_problem("earth-mars", t_days=200.0)
     fun = hessian_interval(p.model)

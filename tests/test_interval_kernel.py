@@ -18,7 +18,7 @@ from ocreach.intervals import IntervalDomainError, IntervalFunction
 from ocreach.intervals import evaluator as iv
 from ocreach.intervals.kernel import _entries
 from ocreach.reach.sdc import third_interval
-from ocreach.reach.taylor import hessian_interval
+from ocreach.reach.taylor_step import hessian_interval
 from ocreach.registry import get_problem
 
 TINY = 5e-324
@@ -65,13 +65,13 @@ def test_every_compiled_op_matches_numpy_on_special_values(nextafter_mode):
     for F in (ca.Function("safe_ops", [x, y], [ca.vertcat(*outs)]),
               ca.Function("const_products", [x, y], [ca.vertcat(x * 3.0, y * -1e300)])):
         nat, ref = IntervalFunction(F, native=True), IntervalFunction(F)
-        kinds |= {e[0] for e in _entries(nat)}
+        kinds |= {e[0] for e in _entries(nat.schedule)}
         _assert_same(*_pair(nat, ref, lo, hi))
     assert {"add", "sub", "mul", "mulc_min", "mulc_corner", "neg", "twice", "sq"} <= kinds
     # quotients, inverses and roots where they exist (x >= 0, y without 0)
     G = ca.Function("dom_ops", [x, y], [ca.vertcat(x / y, 1 / y, ca.sqrt(x), x / y * 3.0 + x * y)])
     natg, refg = IntervalFunction(G, native=True), IntervalFunction(G)
-    assert {"div", "inv", "sqrt", "mul"} <= {e[0] for e in _entries(natg)}
+    assert {"div", "inv", "sqrt", "mul"} <= {e[0] for e in _entries(natg.schedule)}
     xs_ = [p for p in SPECIAL if p[0] >= 0]
     ys_ = [p for p in SPECIAL if p[0] > 0 or p[1] < 0]
     lo, hi = _boxes(list(itertools.product(xs_, ys_)))
@@ -174,7 +174,7 @@ def _quadratic_interval_reference(Hlo, Hhi, dlo, dhi):
 
 
 def test_stacked_quadratic_interval_equals_the_previous_formula():
-    from ocreach.reach.taylor import quadratic_interval
+    from ocreach.reach.taylor_step import quadratic_interval
 
     rng = np.random.default_rng(5)
     for nx, nz in ((6, 9), (4, 6), (2, 3), (7, 11)):

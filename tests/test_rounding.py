@@ -131,12 +131,12 @@ def test_linear_step_point_set_contains_the_exact_image_with_large_centre():
 def test_interval_outward_rounding_nextafter_mode(monkeypatch):
     """The ``np.nextafter`` mode of ``ocreach.intervals`` (small evaluations) rounds outward past
     the neighbouring float, also for subnormals, infinities and NaN, like the formula mode."""
-    from ocreach.intervals import evaluator as iv
+    from ocreach.intervals import ops
 
-    monkeypatch.setattr(iv._ROUNDING, "nextafter", True)
+    monkeypatch.setattr(ops._ROUNDING, "nextafter", True)
     x = np.array([0.0, -0.0, 5e-324, -5e-324, 2.0**-1022, 1.0, -1.0, 1.5, 1e308, -1e308, 3.0**40])
-    assert np.all(iv._up(x) >= np.nextafter(x, np.inf)) and np.all(iv._up(x) > x)
-    assert np.all(iv._dn(x) <= np.nextafter(x, -np.inf)) and np.all(iv._dn(x) < x)
-    assert iv._up(np.inf) == np.inf and iv._dn(-np.inf) == -np.inf
-    assert 1e308 < iv._dn(np.inf) < np.inf and -np.inf < iv._up(-np.inf) < -1e308
-    assert np.isnan(iv._dn(np.nan)) and np.isnan(iv._up(np.nan))
+    assert np.all(ops._up(x) >= np.nextafter(x, np.inf)) and np.all(ops._up(x) > x)
+    assert np.all(ops._dn(x) <= np.nextafter(x, -np.inf)) and np.all(ops._dn(x) < x)
+    assert ops._up(np.inf) == np.inf and ops._dn(-np.inf) == -np.inf
+    assert 1e308 < ops._dn(np.inf) < np.inf and -np.inf < ops._up(-np.inf) < -1e308
+    assert np.isnan(ops._dn(np.nan)) and np.isnan(ops._up(np.nan))

@@ -1,12 +1,12 @@
-"""A compiled (C) evaluation of an :class:`ocreach.intervals.IntervalFunction`, for the few boxes of
-one reachability step (the interval Hessian of ``taylor``, the third derivatives of ``sdc``).
+"""A compiled (C) evaluation of an interval :class:`~ocreach.intervals.walker.Schedule`, for the few
+boxes of one reachability step (the interval Hessian of ``taylor``, the third derivatives of ``sdc``).
 
 The numpy evaluator runs one group of like operations per numpy call; for two boxes its cost is
 the ~20-30 groups' call overhead (~0.35 ms for the earth-mars Hessian), not the arithmetic.  This
 module runs the same schedule, one operation and one box at a time, in a small C interpreter
 (``ocr_iv_eval``: one library for every Function, compiled once and cached on disk; a Function is
 a table of operation kinds and argument rows), with the *same* bound of every operation as the
-numpy kernels in their ``np.nextafter`` mode (:mod:`ocreach.intervals`:
+numpy kernels in their ``np.nextafter`` mode (:mod:`ocreach.intervals.ops`:
 ``_add2``/``_sub2``/``_addsub2``, ``_mul2``/``_div2``/``_muldiv2``, ``_mulc``, ``_neg``,
 ``_twice``, ``_inv``, ``_sq``, ``_sqrt``, ``_assign``):
 
@@ -29,20 +29,23 @@ margins and stay in numpy).  Every failure -- a divisor or an inverse containing
 negative numbers, a NaN in any value -- makes the kernel return a flag, and the caller re-runs
 the numpy evaluator, which raises the documented :class:`~ocreach.intervals.IntervalDomainError`
 naming the op and the box (or, where the NaN rules differ, returns its own sound result).
+
+Imports the schedule (:mod:`ocreach.intervals.walker`), the pseudo op codes of
+:mod:`ocreach.intervals.ops` and the compiler (:mod:`ocreach.native.compile`); the evaluator
+(:class:`~ocreach.intervals.IntervalFunction`) builds the kernel and calls it.
 """
 from __future__ import annotations
 
 import ctypes
 import warnings
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
+from ocreach.intervals.ops import _OP_ADDSUB, _OP_MULC, _OP_MULDIV
+from ocreach.intervals.walker import Schedule
 from ocreach.native.compile import COMPILE_ERRORS, compile_source, jit_enabled, load_library
-
-if TYPE_CHECKING:
-    from ocreach.intervals.evaluator import IntervalFunction
 
 __all__ = ["IntervalKernel", "build_interval_kernel"]
 
@@ -77,7 +80,7 @@ static inline double FMAX(double a, double b) { return (a > b || isnan(b)) ? a :
 #define FMAX4(p0, p1, p2, p3) FMAX(FMAX(FMAX(p0, p1), p2), p3)
 static const double FMAX_ = 1.7976931348623157e308;
 
-/* operation kinds (the order of KINDS in interval_kernel.py) */
+/* operation kinds (the order of KINDS in ocreach/intervals/kernel.py) */
 enum { K_ADD, K_SUB, K_MUL, K_MULC_CORNER, K_DIV, K_MULC_MIN, K_NEG, K_TWICE, K_INV, K_SQ, K_SQRT,
        K_ASSIGN };
 
@@ -166,24 +169,21 @@ int ocr_iv_eval(int64_t nb, int64_t n_in, int64_t n_const, int64_t n_ops, int64_
 """
 
 
-def _entries(ivf: IntervalFunction) -> list[tuple[str, int, int, int | None]] | None:
+def _entries(sch: Schedule) -> list[tuple[str, int, int, int | None]] | None:
     """``(kind, out, a, b)`` per operation in schedule order, or None if an op is not supported."""
-    from ocreach.intervals import evaluator as iv
-
     simple = {ca.OP_ADD: "add", ca.OP_SUB: "sub", ca.OP_MUL: "mul", ca.OP_DIV: "div",
-              iv._OP_MULC: "mulc_min", ca.OP_NEG: "neg", ca.OP_TWICE: "twice", ca.OP_INV: "inv",
+              _OP_MULC: "mulc_min", ca.OP_NEG: "neg", ca.OP_TWICE: "twice", ca.OP_INV: "inv",
               ca.OP_SQ: "sq", ca.OP_SQRT: "sqrt", ca.OP_ASSIGN: "assign"}
     out = []
-    for g, neg in zip(ivf._groups, ivf._group_neg):
+    for g in sch.groups:
         rows = range(g.start, g.stop)
-        a = np.arange(ivf.n_values)[g.a] if g.a is not None else None
-        b = np.arange(ivf.n_values)[g.b] if g.b is not None else None
+        a = np.arange(sch.n_values)[g.a] if g.a is not None else None
+        b = np.arange(sch.n_values)[g.b] if g.b is not None else None
         for j, r in enumerate(rows):
-            if g.op == iv._OP_ADDSUB:
-                kind = "sub" if bool(neg[j, 0]) else "add"
-            elif g.op == iv._OP_MULDIV:
-                isdiv, ismul = neg
-                kind = "div" if bool(isdiv[j, 0]) else "mul" if bool(ismul[j, 0]) else "mulc_corner"
+            if g.op == _OP_ADDSUB:
+                kind = "sub" if bool(g.sub[j, 0]) else "add"
+            elif g.op == _OP_MULDIV:
+                kind = "div" if bool(g.div[j, 0]) else "mul" if bool(g.mul[j, 0]) else "mulc_corner"
             elif g.op in simple:
                 kind = simple[g.op]
             else:
@@ -212,30 +212,31 @@ def _library():
 
 
 class IntervalKernel:
-    """The compiled evaluation of one :class:`~ocreach.intervals.IntervalFunction`: its schedule
-    as tables (kind, argument rows) run by the C interpreter ``ocr_iv_eval``.
+    """The compiled evaluation of one :class:`~ocreach.intervals.walker.Schedule` (of an
+    :class:`~ocreach.intervals.IntervalFunction`): its groups as tables (kind, argument rows) run
+    by the C interpreter ``ocr_iv_eval``.
 
     ``kernel(los, his, B)`` (the evaluator's input lists after its shape handling) returns the
     list of ``(lo, hi)`` outputs of shape ``(numel, B)``, or None when the kernel flags a failure
     (the caller then runs the numpy evaluator, which reports it)."""
 
-    def __init__(self, ivf: IntervalFunction, entries: list, fn):
+    def __init__(self, sch: Schedule, entries: list, fn):
         self._fn = fn
-        self._in_gather = ivf._in_gather
-        self._n_in = int(ivf._const_rows.start)
-        self._consts = np.ascontiguousarray(ivf._const_vals.ravel(), dtype=float)
-        op0 = ivf._op_start
+        self._in_gather = sch.in_gather
+        self._n_in = int(sch.const_rows.start)
+        self._consts = np.ascontiguousarray(sch.const_vals.ravel(), dtype=float)
+        op0 = sch.op_start
         if [e[1] for e in entries] != list(range(op0, op0 + len(entries))):
             raise ValueError("interval kernel: the operations are not in row order")
         code = {k: i for i, k in enumerate(KINDS)}
         self._kind = np.asarray([code[e[0]] for e in entries], dtype=np.int32)
         self._oa = np.asarray([e[2] for e in entries], dtype=np.int32)
         self._ob = np.asarray([-1 if e[3] is None else e[3] for e in entries], dtype=np.int32)
-        self._n_values = ivf.n_values
-        self._numel = list(ivf._out_numel)
+        self._n_values = sch.n_values
+        self._numel = list(sch.out_numel)
         self._size = 2 * sum(self._numel)
         rows, los, his, off = [], [], [], 0
-        for r, d, k in zip(ivf._out_rows, ivf._out_dense, ivf._out_numel):
+        for r, d, k in zip(sch.out_rows, sch.out_dense, sch.out_numel):
             rows.append(r)
             los.append(off + d)
             his.append(off + k + d)
@@ -266,13 +267,14 @@ class IntervalKernel:
         return res
 
 
-def build_interval_kernel(ivf: IntervalFunction) -> IntervalKernel | None:
-    """The kernel of ``ivf``; None if compilation is off, an op is not one of the correctly rounded
-    ones (module docstring), a constant is not finite, or the compiler fails (with a warning)."""
+def build_interval_kernel(sch: Schedule) -> IntervalKernel | None:
+    """The kernel of the schedule ``sch``; None if compilation is off, an op is not one of the
+    correctly rounded ones (module docstring), a constant is not finite, or the compiler fails
+    (with a warning)."""
     if not jit_enabled():
         return None
-    entries = _entries(ivf)
-    if entries is None or not np.all(np.isfinite(ivf._const_vals)):
+    entries = _entries(sch)
+    if entries is None or not np.all(np.isfinite(sch.const_vals)):
         return None
     try:
         fn = _library()
@@ -280,4 +282,4 @@ def build_interval_kernel(ivf: IntervalFunction) -> IntervalKernel | None:
         warnings.warn(f"ocreach.native: compiling the interval kernel failed ({exc}); using the "
                       "numpy evaluator (same bounds, slower)", RuntimeWarning, stacklevel=3)
         return None
-    return IntervalKernel(ivf, entries, fn)
+    return IntervalKernel(sch, entries, fn)

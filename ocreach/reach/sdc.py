@@ -1,7 +1,7 @@
 """``sdc``: guaranteed zonotope reachability with the state-dependent-coefficient (SDC) form
 (Patel & Subbarao Method 2, Eq. 17-25), in continuous time on the linear-system step of
-:mod:`ocreach.reach.linsys` and the fixed-point / sub-step / splitting driver of
-:mod:`ocreach.reach.taylor`.
+:mod:`ocreach.reach.linsys`, the fixed-point loop of :mod:`ocreach.reach.taylor_step` and the
+sub-step / splitting driver of :mod:`ocreach.reach.taylor`.
 
 For control-affine dynamics with a constant input matrix, ``f(x, u) = f0(x) + B u``, the SDC factor
 about the base point ``x*`` (the linearisation point of the step, the set centre moved by
@@ -45,16 +45,8 @@ from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import abs_extent, pad
 from ocreach.reach.result import ReachResult
-from ocreach.reach.taylor import (
-    ZonotopeOptions,
-    ZonotopeReach,
-    check_smooth,
-    eval_error,
-    initial_zonotope,
-    time_dependent,
-    tube_box,
-    unflatten_hessian,
-)
+from ocreach.reach.taylor import ZonotopeOptions, ZonotopeReach, check_smooth, initial_zonotope
+from ocreach.reach.taylor_step import eval_error, time_dependent, tube_box, unflatten_hessian
 from ocreach.sets.matzonotope import matzonotope_product
 from ocreach.sets.rounding import rounding_radius, up
 from ocreach.sets.zonotope import Zonotope
@@ -128,7 +120,7 @@ class SDCError:
     def bound(self, tube: Zonotope, xs: np.ndarray, vs: np.ndarray, Vbox: tuple, t_box: tuple,
               lin: tuple) -> Zonotope:
         """Error set ``R_dev + R_err d`` on the tube, plus (``base="center"``) the rounding of the
-        float ``f0``, ``A``, ``B`` (:func:`~ocreach.reach.taylor.eval_error`) and ``dA`` against
+        float ``f0``, ``A``, ``B`` (:func:`~ocreach.reach.taylor_step.eval_error`) and ``dA`` against
         their interval enclosures at ``x*``, and the rounding of the matrix-zonotope product."""
         n = self.model.n_x
         nu = self.model.n_u
