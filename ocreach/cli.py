@@ -185,7 +185,7 @@ def cmd_methods(args: argparse.Namespace) -> int:
         print()
     print("Options every method takes:")
     for key, (default, text) in COMMON_OPTIONS.items():
-        print(f"  {key} : float = {default!r}\n      {text}")
+        print(f"  {key} : {type(default).__name__} = {default!r}\n      {text}")
     print("\nSet with --set KEY=VALUE (run) or --set METHOD.KEY=VALUE (compare); booleans take "
           "true/false/1/0/yes/no/on/off; problem overrides are --set problem.KEY=VALUE "
           "(see `ocreach problem ID`).")

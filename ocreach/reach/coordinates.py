@@ -47,6 +47,9 @@ if TYPE_CHECKING:
     from ocreach.problem import Problem
     from ocreach.reach.base import Method
 
+#: how often a time-transformed run is repeated with a larger margin when its s-grid ended
+#: before every trajectory reached the final time
+MARGIN_RETRIES = 2
 #: points around the initial state at which a declared drift is compared with the model's
 DRIFT_CHECK_POINTS = 64
 
@@ -200,9 +203,10 @@ class _Converter:
         self.kw = {"tol": tr.spec.settings["tol"], "max_pieces": tr.spec.settings["pieces"]}
         self.pieces: list[int] = []
 
-    def __call__(self, S):
-        out = self.tr.back.image(S, **self.kw)
-        self.pieces.append(out.n_parts if isinstance(out, ZonotopeUnion) else 1)
+    def __call__(self, sets: list) -> list:
+        """The sets converted back (one batch of interval evaluations)."""
+        out = self.tr.back.images(list(sets), **self.kw) if len(sets) else []
+        self.pieces += [S.n_parts if isinstance(S, ZonotopeUnion) else 1 for S in out]
         return out
 
 
@@ -229,9 +233,9 @@ def _convert_same_time(tr: Transformed, res: ReachResult, conv: _Converter) -> R
     orig = tr.original
     sets = tubes = points = trajectories = None
     if res.sets is not None:
-        sets = [_initial_x(orig)] + [conv(S) for S in res.sets[1:]]
+        sets = [_initial_x(orig)] + conv(res.sets[1:])
     if res.tubes is not None:
-        tubes = [conv(T) for T in res.tubes]
+        tubes = conv(res.tubes)
     if res.points is not None:
         points = [tr.back.point(P) for P in res.points]
     if res.trajectories is not None:
@@ -262,35 +266,47 @@ def _convert_time_transformed(tr: Transformed, res: ReachResult, conv: _Converte
     n_cov = int(np.searchsorted(grid, t_done, side="right"))   # grid times every trajectory passed
     n_cov = max(1, min(n_cov, grid.size))
     keep = np.arange(orig.model.n_x)
-    converted: dict[int, Any] = {}
-
-    def tube_x(i):
-        if i not in converted:
-            converted[i] = conv(parts[i].project(keep))
-        return converted[i]
-
-    sets = [_initial_x(orig)]
+    owners, cuts = [], []
     for k in range(1, n_cov):
         tk = float(grid[k])
-        idx = np.flatnonzero((ranges[:, 0] <= tk) & (tk <= ranges[:, 1]))
-        cut = [slice_at(parts[i], row, tk) for i in idx]
-        cut = [conv(C) for C in cut if C is not None]
-        if not cut:
-            raise SolverError(f"coordinates {tr.spec.name!r}: no s-tube covers t = {tk:g}")
-        sets.append(_union(cut))
+        for i in np.flatnonzero((ranges[:, 0] <= tk) & (tk <= ranges[:, 1])):
+            C = slice_at(parts[i], row, tk)
+            if C is not None:
+                owners.append(k)
+                cuts.append(C)
+    found = set(owners)
+    missing = [k for k in range(1, n_cov) if k not in found]
+    if missing:
+        raise SolverError(f"coordinates {tr.spec.name!r}: no s-tube covers t = {grid[missing[0]]:g}")
+    by_time: list[list] = [[] for _ in range(n_cov)]
+    for k, X in zip(owners, conv(cuts)):
+        by_time[k].append(X)
+    sets = [_initial_x(orig)] + [_union(by_time[k]) for k in range(1, n_cov)]
+    tube_x = conv([P.project(keep) for P in parts])
     tubes = []
     for k in range(n_cov - 1):
         idx = np.flatnonzero((ranges[:, 0] <= grid[k + 1]) & (grid[k] <= ranges[:, 1]))
-        tubes.append(_union([tube_x(i) for i in idx]))
+        tubes.append(_union([tube_x[i] for i in idx]))
     out = ReachResult(times=grid[:n_cov], sets=sets, tubes=tubes, meta=res.meta)
     return out, n_cov == grid.size
+
+
+def _run_in_chart(method: Method, tr: Transformed) -> tuple[SolverError | None, ReachResult]:
+    """``method`` on the problem in the chart: ``(None, result)`` or ``(error, partial result)``."""
+    method._in_chart = True
+    try:
+        return None, method.solve(tr.problem)
+    except SolverError as exc:
+        if getattr(exc, "partial", None) is None:
+            raise
+        return exc, exc.partial
+    finally:
+        method._in_chart = False
 
 
 def solve_in_coordinates(method: Method, problem: Problem, spec: str) -> ReachResult:
     """Run ``method`` on ``problem`` in the coordinates ``spec`` and return the result in the
     model's coordinates (module docstring)."""
-    from ocreach.problem import Problem  # noqa: F401  (type of tr.problem)
-
     t_start = time.perf_counter()
     tr = transform(problem, spec)
     if tr.chart.time_transformed and getattr(method.options, "samples", None) is not None:
@@ -303,26 +319,23 @@ def solve_in_coordinates(method: Method, problem: Problem, spec: str) -> ReachRe
                            f"dx/dt in the model's coordinates; it is not transformed (use "
                            "coordinates='cartesian')")
     t_prep = time.perf_counter() - t_start
-    failure: SolverError | None = None
-    method._in_chart = True
-    try:
-        res = method.solve(tr.problem)
-    except SolverError as exc:
-        if getattr(exc, "partial", None) is None:
-            raise
-        failure, res = exc, exc.partial
-    finally:
-        method._in_chart = False
-    t_conv = time.perf_counter()
-    conv = _Converter(tr)
-    try:
-        if tr.chart.time_transformed:
-            out, complete = _convert_time_transformed(tr, res, conv)
-        else:
-            out = _convert_same_time(tr, res, conv)
-            complete = out.times.size == problem.grid.size
-    except ChartDomainError as exc:
-        raise SolverError(f"coordinates {tr.spec.name!r}: {exc}") from None
+    for attempt in range(MARGIN_RETRIES + 1):
+        failure, res = _run_in_chart(method, tr)
+        t_conv = time.perf_counter()
+        conv = _Converter(tr)
+        try:
+            if tr.chart.time_transformed:
+                out, complete = _convert_time_transformed(tr, res, conv)
+            else:
+                out = _convert_same_time(tr, res, conv)
+                complete = out.times.size == problem.grid.size
+        except ChartDomainError as exc:
+            raise SolverError(f"coordinates {tr.spec.name!r}: {exc}") from None
+        if complete or failure is not None or attempt == MARGIN_RETRIES:
+            break
+        # the s-grid ended before every trajectory reached the final time: a longer one
+        margin = 2.0 * tr.spec.settings["margin"] + 0.25
+        tr = transform(problem, CoordinateSpec(tr.spec.name, {**tr.spec.settings, "margin": margin}))
     meta = dict(out.meta)
     meta["runtime"] = {**meta.get("runtime", {}), "coordinates_setup": t_prep,
                        "coordinates_conversion": time.perf_counter() - t_conv}

@@ -30,7 +30,7 @@ from ocreach.errors import ProblemError, UnknownNameError
 from ocreach.model import Model
 from ocreach.models.coordinates.chart import Chart
 from ocreach.models.coordinates.convert import MAX_PIECES, SPLIT_TOL, MapEnclosure
-from ocreach.models.coordinates.mee import mee_chart
+from ocreach.models.coordinates.mee import mee_chart, reference_longitude, two_body_fit
 
 #: name -> one-line description (``ocreach methods`` and error messages list them)
 COORDINATES: dict[str, str] = {
@@ -122,13 +122,21 @@ def parse(spec: Any) -> CoordinateSpec:
 
 def chart_for(spec: CoordinateSpec, model: Model, x0: np.ndarray) -> Chart:
     """The chart of ``spec`` for ``model`` (the initial state ``x0`` fixes angle branches);
-    :class:`ProblemError` if the coordinates do not fit the model."""
+    :class:`ProblemError` if the coordinates do not fit the model.  Cached on the model, so its
+    derived Functions and interval extensions are built once per model and chart."""
     if spec.name in ("mee", "mee-longitude"):
-        return mee_chart(model, x0, longitude=spec.name == "mee-longitude")
+        ok, why = two_body_fit(model)
+        if not ok:
+            raise ProblemError(why)
+        L_ref = reference_longitude(x0)
+        return model.cached(("chart", spec.name, L_ref), lambda: mee_chart(
+            model, x0, longitude=spec.name == "mee-longitude"))
     if spec.name == "sundman":
         from ocreach.models.coordinates.sundman import sundman_chart
 
-        return sundman_chart(model, k=spec.settings["k"], body=spec.settings["body"])
+        k, body = spec.settings["k"], spec.settings["body"]
+        return model.cached(("chart", spec.name, k, body),
+                            lambda: sundman_chart(model, k=k, body=body))
     raise ProblemError(f"coordinates {spec.name!r} have no chart (the model's own state)")
 
 

@@ -86,97 +86,102 @@ class MapEnclosure:
 
         self.iv = build() if cache is None else cache(("map_enclosure", name), build)
 
-    # ------------------------------------------------------------------ one zonotope
-    def _bounds(self, c: np.ndarray, r: np.ndarray):
-        lo = np.stack([c, c - r], axis=1)
-        hi = np.stack([c, c + r], axis=1)
+    # ------------------------------------------------------------------ pieces
+    def _bounds(self, C: np.ndarray, R: np.ndarray):
+        """Interval outputs on the point boxes ``[c, c]`` (columns 0..B-1) and the boxes
+        ``[c - r, c + r]`` (columns B..2B-1) of ``B`` zonotopes (``C``, ``R``: (n, B))."""
+        lo = np.concatenate([C, C - R], axis=1)
+        hi = np.concatenate([C, C + R], axis=1)
         try:
             return self.iv([lo, self.p], [hi, self.p], check=False)
         except IntervalDomainError as exc:
-            raise ChartDomainError(f"{self.name}: the set [{np.array2string(c - r, precision=6)}, "
-                                   f"{np.array2string(c + r, precision=6)}] cannot be converted: "
+            k = exc.box % C.shape[1] if exc.box >= 0 else 0
+            raise ChartDomainError(f"{self.name}: the set [{np.array2string(lo[:, k], precision=6)}, "
+                                   f"{np.array2string(hi[:, k], precision=6)}] cannot be converted: "
                                    f"{exc} ({self.why})") from None
 
-    def piece(self, Z: Zonotope) -> Piece:
-        """The second-order enclosure of ``F(Z)`` (one zonotope, no splitting)."""
-        n, m = self.n_in, self.n_out
-        c = np.asarray(Z.c, dtype=float)
-        G = np.asarray(Z.G, dtype=float)
-        r = up(np.abs(G).sum(axis=1), G.shape[1] + 1)
-        (ylo, yhi), (Jlo, Jhi), (Hlo, Hhi), (vlo, _) = self._bounds(c, r)
-        if self.n_valid and not np.all(vlo[:, 1] > 0):
-            bad = int(np.argmin(vlo[:, 1]))
-            raise ChartDomainError(f"{self.name}: the set [{np.array2string(c - r, precision=6)}, "
-                                   f"{np.array2string(c + r, precision=6)}] reaches a singularity "
-                                   f"of the coordinates (validity expression {bad} has lower bound "
-                                   f"{vlo[bad, 1]:.3g} <= 0): {self.why}")
-        # F(c) and J(c): the point box; J column-major (m x n), H (m n, n) column-major
-        yc = 0.5 * (ylo[:, 0] + yhi[:, 0])
-        y_rad = up(np.maximum(yhi[:, 0] - yc, yc - ylo[:, 0]), 1)
-        Jm = 0.5 * (Jlo[:, 0] + Jhi[:, 0])
-        J_rad = up(np.maximum(Jhi[:, 0] - Jm, Jm - Jlo[:, 0]), 1).reshape(n, m).T
-        Jm = Jm.reshape(n, m).T
-        Hmag = np.maximum(np.abs(Hlo[:, 1]), np.abs(Hhi[:, 1])).reshape(n, m, n).transpose(1, 2, 0)
-        Hlo_d = np.einsum("iaa->ia", Hlo[:, 1].reshape(n, m, n).transpose(1, 2, 0))
-        Hhi_d = np.einsum("iaa->ia", Hhi[:, 1].reshape(n, m, n).transpose(1, 2, 0))
+    def pieces(self, Zs: list[Zonotope]) -> list[Piece]:
+        """The second-order enclosures of ``F(Z)`` for every ``Z`` (no splitting; one interval
+        evaluation for all of them)."""
+        n, m, B = self.n_in, self.n_out, len(Zs)
+        C = np.stack([np.asarray(Z.c, dtype=float) for Z in Zs], axis=1)
+        R = np.stack([up(np.abs(Z.G).sum(axis=1), Z.G.shape[1] + 1) for Z in Zs], axis=1)
+        (ylo, yhi), (Jlo, Jhi), (Hlo, Hhi), (vlo, _) = self._bounds(C, R)
+        if self.n_valid and not np.all(vlo[:, B:] > 0):
+            bad, k = np.unravel_index(int(np.argmin(vlo[:, B:])), (self.n_valid, B))
+            raise ChartDomainError(f"{self.name}: the set [{np.array2string(C[:, k] - R[:, k], precision=6)}, "
+                                   f"{np.array2string(C[:, k] + R[:, k], precision=6)}] reaches a "
+                                   f"singularity of the coordinates (validity expression {bad} has "
+                                   f"lower bound {vlo[bad, B + k]:.3g} <= 0): {self.why}")
+        # F(c), J(c): the point boxes; J column-major (m x n), H (m n, n) column-major per box
+        yc = 0.5 * (ylo[:, :B] + yhi[:, :B])
+        y_rad = up(np.maximum(yhi[:, :B] - yc, yc - ylo[:, :B]), 1)
+        Jm = 0.5 * (Jlo[:, :B] + Jhi[:, :B])
+        J_rad = up(np.maximum(Jhi[:, :B] - Jm, Jm - Jlo[:, :B]), 1).reshape(n, m, B).transpose(2, 1, 0)
+        Jm = Jm.reshape(n, m, B).transpose(2, 1, 0)                                   # (B, m, n)
+        Hl = Hlo[:, B:].reshape(n, m, n, B).transpose(3, 1, 2, 0)                       # (B, m, n, n)
+        Hh = Hhi[:, B:].reshape(n, m, n, B).transpose(3, 1, 2, 0)
+        Hmag = np.maximum(np.abs(Hl), np.abs(Hh))
+        r = R.T                                                                         # (B, n)
+        r2 = r**2
         # 1/2 d^T H d over d in [-r, r]: off-diagonal terms +- |H_ab| r_a r_b, diagonal in
         # [min(0, Hlo) r^2, max(0, Hhi) r^2] (d_a^2 in [0, r_a^2])
-        rr = np.outer(r, r)
-        off = (Hmag * rr[None]).sum(axis=(1, 2)) - (np.einsum("iaa->ia", Hmag) * r**2).sum(axis=1)
-        q_lo = 0.5 * (np.minimum(Hlo_d, 0.0) * r**2).sum(axis=1) - 0.5 * off
-        q_hi = 0.5 * (np.maximum(Hhi_d, 0.0) * r**2).sum(axis=1) + 0.5 * off
-        q_mag = 0.5 * (Hmag * rr[None]).sum(axis=(1, 2))
-        q_slack = rounding_radius(q_mag, 2 * n * n + 4)        # the float sums of these terms
+        full = np.einsum("kiab,ka,kb->ki", Hmag, r, r)
+        diag_mag = np.einsum("kiaa,ka->ki", Hmag, r2)
+        off = full - diag_mag
+        q_lo = 0.5 * np.einsum("kiaa,ka->ki", np.minimum(Hl, 0.0), r2) - 0.5 * off
+        q_hi = 0.5 * np.einsum("kiaa,ka->ki", np.maximum(Hh, 0.0), r2) + 0.5 * off
+        q_slack = rounding_radius(0.5 * full, 2 * n * n + 4)      # the float sums of these terms
         q_lo, q_hi = q_lo - q_slack, q_hi + q_slack
         qc = 0.5 * (q_lo + q_hi)
         q_rad = up(np.maximum(q_hi - qc, qc - q_lo), 1)
-        JG = Jm @ G
-        lin_abs = np.abs(Jm) @ np.abs(G).sum(axis=1)
-        fp = rounding_radius(lin_abs + np.abs(yc) + np.abs(qc), n + G.shape[1] + 4)
-        box = up(y_rad + q_rad + J_rad @ r + fp, 4)
-        centre = yc + qc
-        lin = np.abs(JG).sum(axis=1)
-        excess = float(np.max(box / np.maximum(lin, 1e-300))) if G.shape[1] else 0.0
-        gens = np.concatenate([JG, np.diag(box)[:, box > 0]], axis=1)
-        scores = (np.abs(G).T @ (Hmag.sum(axis=0) @ r)) if G.shape[1] else None
-        return Piece(Zonotope.trusted(centre, gens), excess, scores)
+        scores_w = Hmag.sum(axis=1) @ r[:, :, None]                                   # (B, n, 1)
+        out = []
+        for k, Z in enumerate(Zs):
+            G = np.asarray(Z.G, dtype=float)
+            JG = Jm[k] @ G
+            lin_abs = np.abs(Jm[k]) @ np.abs(G).sum(axis=1)
+            fp = rounding_radius(lin_abs + np.abs(yc[:, k]) + np.abs(qc[k]), n + G.shape[1] + 4)
+            box = up(y_rad[:, k] + q_rad[k] + J_rad[k] @ r[k] + fp, 4)
+            lin = np.abs(JG).sum()
+            excess = float(box.sum() / lin) if G.shape[1] and lin > 0 else 0.0
+            gens = np.concatenate([JG, np.diag(box)[:, box > 0]], axis=1)
+            scores = (np.abs(G).T @ scores_w[k, :, 0]) if G.shape[1] else None
+            out.append(Piece(Zonotope.trusted(yc[:, k] + qc[k], gens), excess, scores))
+        return out
 
-    def zonotope_image(self, Z: Zonotope, *, tol: float = SPLIT_TOL,
-                       max_pieces: int = MAX_PIECES) -> Zonotope | ZonotopeUnion:
-        """``F(Z)`` enclosed, splitting ``Z`` while the quadratic term exceeds ``tol`` times the
-        linear part (at most ``max_pieces`` pieces)."""
-        done: list[Zonotope] = []
-        queue = [(Z, self.piece(Z))]
-        while queue:
-            queue.sort(key=lambda e: e[1].excess)
-            Zi, pc = queue.pop()
-            if pc.excess <= tol or len(done) + len(queue) + 2 > max_pieces or pc.scores is None:
-                done.append(pc.Z)
-                continue
-            a, b = Zi.split(int(np.argmax(pc.scores)))
-            queue += [(a, self.piece(a)), (b, self.piece(b))]
-        return done[0] if len(done) == 1 else ZonotopeUnion(done)
+    def piece(self, Z: Zonotope) -> Piece:
+        """The second-order enclosure of ``F(Z)`` (one zonotope, no splitting)."""
+        return self.pieces([Z])[0]
+
+    def images(self, sets: list, *, tol: float = SPLIT_TOL, max_pieces: int = MAX_PIECES) -> list:
+        """``F(S)`` enclosed for every ``S`` of ``sets`` (zonotopes, unions, boxes, or sets with
+        ``to_zonotope`` such as polynomial zonotopes, through their zonotope enclosure).  Each
+        zonotope is split while its quadratic term exceeds ``tol`` times its linear part (the
+        sums of the radii over the outputs), at most ``max_pieces`` pieces per zonotope; all
+        pieces of a round are evaluated in one interval call."""
+        todo: list[tuple[int, Zonotope]] = []
+        for i, S in enumerate(sets):
+            todo += [(i, Z) for Z in _zonotopes(S, self.name)]
+        budget = {j: 1 for j in range(len(todo))}
+        result: list[list[Zonotope]] = [[] for _ in sets]
+        pending = [(j, i, Z) for j, (i, Z) in enumerate(todo)]
+        while pending:
+            done = self.pieces([Z for _, _, Z in pending])
+            nxt = []
+            for (j, i, Z), pc in zip(pending, done):
+                if pc.excess <= tol or pc.scores is None or budget[j] + 1 > max_pieces:
+                    result[i].append(pc.Z)
+                    continue
+                budget[j] += 1
+                a, b = Z.split(int(np.argmax(pc.scores)))
+                nxt += [(j, i, a), (j, i, b)]
+            pending = nxt
+        return [parts[0] if len(parts) == 1 else ZonotopeUnion(parts) for parts in result]
 
     def image(self, S, **kw) -> Zonotope | ZonotopeUnion:
-        """``F(S)`` enclosed for a zonotope, a union of sets, a box, or any set with
-        ``to_zonotope`` (a polynomial zonotope: through its zonotope enclosure)."""
-        if isinstance(S, ZonotopeUnion):
-            parts = []
-            for P in S.parts:
-                out = self.image(P, **kw)
-                parts.extend(out.parts if isinstance(out, ZonotopeUnion) else [out])
-            return parts[0] if len(parts) == 1 else ZonotopeUnion(parts)
-        if isinstance(S, Interval):
-            S = S.to_zonotope()
-        elif not isinstance(S, Zonotope):
-            if hasattr(S, "parts"):
-                return self.image(ZonotopeUnion([P.to_zonotope() for P in S.parts]), **kw)
-            if not hasattr(S, "to_zonotope"):
-                raise ChartDomainError(f"{self.name}: cannot convert a {type(S).__name__}; "
-                                       "expected a zonotope, a union, a box or a polynomial "
-                                       "zonotope")
-            S = S.to_zonotope()
-        return self.zonotope_image(S, **kw)
+        """``F(S)`` enclosed (:meth:`images` of one set)."""
+        return self.images([S], **kw)[0]
 
     def point(self, W: np.ndarray) -> np.ndarray:
         """``F`` at points ``W`` (N, n_in) in floating point (for samples; not an enclosure)."""
@@ -184,6 +189,21 @@ class MapEnclosure:
         f = self.iv.fun
         out = f.map(W.shape[0])(W.T, self.p)
         return np.asarray(out[0]).T
+
+
+def _zonotopes(S, name: str) -> list[Zonotope]:
+    """The zonotopes of a set: itself, a union's parts, a box, or the enclosure of a set with
+    ``to_zonotope``."""
+    if isinstance(S, Zonotope):
+        return [S]
+    if isinstance(S, Interval):
+        return [S.to_zonotope()]
+    if hasattr(S, "parts"):
+        return [Z for P in S.parts for Z in _zonotopes(P, name)]
+    if hasattr(S, "to_zonotope"):
+        return [S.to_zonotope()]
+    raise ChartDomainError(f"{name}: cannot convert a {type(S).__name__}; expected a zonotope, a "
+                           "union, a box or a polynomial zonotope")
 
 
 # ------------------------------------------------------------------------------------------------
