@@ -75,7 +75,7 @@ def bench(case: str, reps: int, samples: int) -> list[str]:
     else:
         problems = [(get_problem("nrho-9-2"), "76 h", None)]
         unit, scale = "h", HOUR
-    rows = [f"| problem | coordinates | reached (of) | warm wall [s] | vs paper | stopped because |",
+    rows = ["| problem | coordinates | reached (of) | warm wall [s] | vs paper | stopped because |",
             "|---|---|---|---|---|---|"]
     common = {}
     for p, label, days in problems:
@@ -116,9 +116,9 @@ def main() -> None:
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args()
     load = os.getloadavg()[0]
-    lines = ["## Regularised coordinates", "", f"Measured {time.strftime('%Y-%m-%d')}, 2-core shared machine (load {load:.1f}), "
+    lines = ["## Regularised coordinates", "", (f"Measured {time.strftime('%Y-%m-%d')}, 2-core shared machine (load {load:.1f}), "
              f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, taylor "
-             f"defaults (max_parts 64), medians of {args.reps} warm runs.", ""]
+             f"defaults (max_parts 64), medians of {args.reps} warm runs."), ""]
     for case in ([args.only] if args.only else list(CASES)):
         lines += bench(case, args.reps, args.samples) + [""]
     text = "\n".join(lines)

@@ -45,12 +45,12 @@ TIME_TRANSFORMED = ("mee-longitude", "sundman")
 #: setting -> (default, kind, description)
 SETTINGS: dict[str, tuple[Any, str, str]] = {
     "pieces": (MAX_PIECES, "count", "most pieces a set converted back may be split into (>= 1)"),
-    "tol": (SPLIT_TOL, "positive", "split a set before converting it back while the quadratic "
-            "term exceeds tol times the linear part (> 0)"),
-    "steps": (1.0, "positive", "steps of the independent variable per grid step (time-"
-              "transformed charts, > 0)"),
-    "margin": (0.15, "nonnegative", "propagate the independent variable this fraction past its "
-               "nominal end (time-transformed charts, >= 0)"),
+    "tol": (SPLIT_TOL, "positive", ("split a set before converting it back while the quadratic "
+            "term exceeds tol times the linear part (> 0)")),
+    "steps": (1.0, "positive", ("steps of the independent variable per grid step (time-"
+              "transformed charts, > 0)")),
+    "margin": (0.15, "nonnegative", ("propagate the independent variable this fraction past its "
+               "nominal end (time-transformed charts, >= 0)")),
     "k": (1.0, "positive", "Sundman exponent: dt = r^k ds (sundman, in (0, 2])"),
     "body": ("moon", "body", "primary of the Sundman transformation: moon or earth (sundman)"),
 }
@@ -76,7 +76,7 @@ class CoordinateSpec:
 
 
 def _setting(name: str, key: str, raw: Any) -> Any:
-    default, kind, desc = SETTINGS[key]
+    _default, kind, desc = SETTINGS[key]
     if kind == "body":
         val = str(raw).strip().lower()
         if val not in ("moon", "earth"):

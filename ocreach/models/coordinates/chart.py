@@ -165,9 +165,9 @@ class Chart:
         where ``f`` depends on the time, it depends on the state ``t``)."""
         m = self.model
         zdot = self.rates
-        common = dict(p=m.p, p_default=m.p_default, param_names=m.param_names,
-                      control_names=m.control_names, control_set=m.control_set, units=m.units,
-                      thrust_param=m.thrust_param)
+        common = {"p": m.p, "p_default": m.p_default, "param_names": m.param_names,
+                      "control_names": m.control_names, "control_set": m.control_set, "units": m.units,
+                      "thrust_param": m.thrust_param}
         if not self.time_transformed:
             return Model.build(f"{m.name}@{self.name}", self.z, m.u, zdot, t=m.t,
                                state_names=self.names, state_units=self.units,
