@@ -26,8 +26,8 @@ import numpy as np
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.problem import get_problem
-from ocreach.report import replace_markdown_section
+from ocreach.registry import get_problem
+from ocreach.fileio import replace_markdown_section
 from ocreach.sets.union import union_gauge
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
