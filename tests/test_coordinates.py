@@ -48,7 +48,7 @@ def _truth(problem: Problem, n_per_law: int, seed: int = 0):
 # ------------------------------------------------------------------------------------ the charts
 def test_mee_round_trip_and_kepler_drift():
     p = get_problem("earth-mars")
-    ch = chart_for(parse("mee"), p.model, p.x0)
+    ch = chart_for(parse("mee:frame=inertial"), p.model, p.x0)
     z0 = np.asarray(ch.function("phi")(p.x0, p.params)).ravel()
     x_back = np.asarray(ch.function("psi")(z0, p.params)).ravel()
     assert np.allclose(x_back, p.x0, rtol=0, atol=1e-14)
@@ -103,7 +103,8 @@ def test_slice_contains_the_states_at_that_time():
 # --------------------------------------------------------------------------------- bad inputs
 @pytest.mark.parametrize("spec, err", [("polar", UnknownNameError), ("mee:pieces=0", ProblemError),
                                        ("mee:foo=1", ProblemError), ("sundman:k=3", ProblemError),
-                                       ("sundman:body=mars", ProblemError), ("", ProblemError)])
+                                       ("sundman:body=mars", ProblemError), ("", ProblemError),
+                                       ("mee:frame=lvlh", ProblemError)])
 def test_bad_coordinate_specs(spec, err):
     with pytest.raises(err):
         parse(spec)
@@ -172,12 +173,12 @@ def test_chart_refuses_a_model_with_another_drift():
 
 
 # ------------------------------------------------------------------------ sound end to end
-@pytest.mark.parametrize("coords", ["mee", "mee-longitude"])
+@pytest.mark.parametrize("coords", ["mee", "mee-longitude", "mee:frame=inertial"])
 def test_taylor_in_mee_contains_cartesian_truth(coords):
     p = _earth_mars(6.0)
     res = ocreach.reach(p, "taylor", coordinates=coords, max_parts=1)
     assert res.meta["guaranteed"] and not res.meta.get("truncated")
-    assert res.meta["coordinates"]["name"] == coords
+    assert res.meta["coordinates"]["name"] == coords.partition(":")[0]
     assert np.allclose(res.times, p.grid)
     ends, mids = _truth(p, 20)
     assert res.times.size == ends.shape[1]
@@ -196,10 +197,13 @@ def test_taylor_sundman_on_the_nrho_contains_cartesian_truth():
 def test_mc_in_mee_matches_cartesian_mc():
     p = get_problem("earth-mars", t_days=10.0)
     a = ocreach.reach(p, "mc", samples=30, seed=3)
-    b = ocreach.reach(p, "mc", samples=30, seed=3, coordinates="mee")
-    assert b.meta["coordinates"]["name"] == "mee"
+    b = ocreach.reach(p, "mc", samples=30, seed=3, coordinates="mee:frame=inertial")
+    assert b.meta["coordinates"]["name"] == "mee" and b.controls is not None
     for k in range(p.grid.size):
         assert np.allclose(a.points[k], b.points[k], rtol=0, atol=1e-8)
+    # controls in the orbit's frame: other samples of the same set, controls not passed on
+    c = ocreach.reach(p, "mc", samples=30, seed=3, coordinates="mee")
+    assert c.controls is None and c.meta["coordinates"]["control_frame"] == "rtn"
 
 
 def test_problem_override_and_cli_spec():

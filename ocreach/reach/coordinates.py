@@ -156,7 +156,7 @@ def transform(problem: Problem, spec: CoordinateSpec | str) -> Transformed:
     if problem.backward:
         raise ProblemError(f"coordinates {spec.name!r}: problem {problem.id!r} has a backward grid; "
                            "only forward grids are supported")
-    chart = chart_for(spec, problem.model, problem.x0)
+    chart = chart_for(spec, problem.model, problem.x0, problem.control_set.kind)
     p = np.asarray(problem.params, dtype=float)
     fwd, back = _enclosures(chart, p)
     X0 = _initial_set_x(problem)
@@ -166,10 +166,11 @@ def transform(problem: Problem, spec: CoordinateSpec | str) -> Transformed:
         raise ProblemError(f"coordinates {spec.name!r} are singular on the initial set of "
                            f"{problem.id!r}: {exc}") from None
     z0 = np.asarray(chart.function("phi")(problem.x0, p)).ravel()
-    chart.check_drift(_drift_points(chart, z0, np.random.default_rng(0)), p, float(problem.grid[0]))
+    chart.check_forms(_drift_points(chart, z0, np.random.default_rng(0)), p, float(problem.grid[0]))
     info: dict[str, Any] = {"name": spec.name, "spec": str(spec), "description": chart.description,
                             "citation": chart.citation, "settings": dict(spec.settings),
-                            "state_names": list(chart.dynamics.state_names)}
+                            "state_names": list(chart.dynamics.state_names),
+                            "control_frame": "rtn" if chart.control_frame is not None else "model"}
     grid = problem.grid
     if chart.time_transformed:
         t0 = float(problem.grid[0])
@@ -241,8 +242,11 @@ def _convert_same_time(tr: Transformed, res: ReachResult, conv: _Converter) -> R
     if res.trajectories is not None:
         T = np.asarray(res.trajectories)
         trajectories = tr.back.point(T.reshape(-1, T.shape[-1])).reshape(T.shape[:-1] + (-1,))
+    # controls of a rotated control frame are u' with u = R(x) u': not the model's piecewise
+    # constant controls, so they are not passed on (the samples themselves are admissible states)
+    controls = res.controls if tr.chart.control_frame is None else None
     return dataclasses.replace(res, times=orig.grid[: res.times.size], sets=sets, points=points,
-                               tubes=tubes, trajectories=trajectories)
+                               tubes=tubes, trajectories=trajectories, controls=controls)
 
 
 def _convert_time_transformed(tr: Transformed, res: ReachResult, conv: _Converter

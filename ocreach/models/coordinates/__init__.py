@@ -53,9 +53,13 @@ SETTINGS: dict[str, tuple[Any, str, str]] = {
                "nominal end (time-transformed charts, >= 0)")),
     "k": (1.0, "positive", "Sundman exponent: dt = r^k ds (sundman, in (0, 2])"),
     "body": ("moon", "body", "primary of the Sundman transformation: moon or earth (sundman)"),
+    "form": ("simplified", "form", "dynamics of the elements: simplified (the chart's verified "
+             "closed forms of the chain rule) or generated (the chain rule alone)"),
+    "frame": ("auto", "frame", "control axes of the elements: rtn (radial / transverse / normal; "
+              "ball control sets only), inertial (the model's), auto (rtn for a ball)"),
 }
-_OWN = {"cartesian": (), "mee": ("pieces", "tol"),
-        "mee-longitude": ("pieces", "tol", "steps", "margin"),
+_OWN = {"cartesian": (), "mee": ("pieces", "tol", "frame", "form"),
+        "mee-longitude": ("pieces", "tol", "steps", "margin", "frame", "form"),
         "sundman": ("pieces", "tol", "steps", "margin", "k", "body")}
 
 
@@ -77,10 +81,13 @@ class CoordinateSpec:
 
 def _setting(name: str, key: str, raw: Any) -> Any:
     _default, kind, desc = SETTINGS[key]
-    if kind == "body":
+    choices = {"frame": ("auto", "rtn", "inertial"), "form": ("simplified", "generated"),
+               "body": ("moon", "earth")}
+    if kind in choices:
         val = str(raw).strip().lower()
-        if val not in ("moon", "earth"):
-            raise ProblemError(f"coordinates {name!r}: body must be 'moon' or 'earth'; got {raw!r}")
+        if val not in choices[kind]:
+            raise ProblemError(f"coordinates {name!r}: {key} must be one of {list(choices[kind])}; "
+                               f"got {raw!r}")
         return val
     try:
         val = float(raw)
@@ -120,8 +127,9 @@ def parse(spec: Any) -> CoordinateSpec:
     return CoordinateSpec(name, settings)
 
 
-def chart_for(spec: CoordinateSpec, model: Model, x0: np.ndarray) -> Chart:
-    """The chart of ``spec`` for ``model`` (the initial state ``x0`` fixes angle branches);
+def chart_for(spec: CoordinateSpec, model: Model, x0: np.ndarray, control_set: str = "ball") -> Chart:
+    """The chart of ``spec`` for ``model`` (the initial state ``x0`` fixes angle branches, the
+    control set's kind the control frame);
     :class:`ProblemError` if the coordinates do not fit the model.  Cached on the model, so its
     derived Functions and interval extensions are built once per model and chart."""
     if spec.name in ("mee", "mee-longitude"):
@@ -129,8 +137,15 @@ def chart_for(spec: CoordinateSpec, model: Model, x0: np.ndarray) -> Chart:
         if not ok:
             raise ProblemError(why)
         L_ref = reference_longitude(x0)
-        return model.cached(("chart", spec.name, L_ref), lambda: mee_chart(
-            model, x0, longitude=spec.name == "mee-longitude"))
+        frame = spec.settings["frame"]
+        if frame == "rtn" and control_set != "ball":
+            raise ProblemError(f"coordinates {spec.name!r}: frame=rtn rotates the controls, which "
+                               f"keeps only a ball control set; this one is {control_set!r} (use "
+                               f"frame=inertial)")
+        rtn = frame == "rtn" or (frame == "auto" and control_set == "ball")
+        simplified = spec.settings["form"] == "simplified"
+        return model.cached(("chart", spec.name, L_ref, rtn, simplified), lambda: mee_chart(
+            model, x0, longitude=spec.name == "mee-longitude", rtn=rtn, simplified=simplified))
     if spec.name == "sundman":
         from ocreach.models.coordinates.sundman import sundman_chart
 

@@ -18,6 +18,11 @@ Two charts:
   model gives);
 * ``mee-longitude``: the true longitude is the independent variable, ``dt/dL = 1 / (dL/dt)``; then
   Keplerian motion is the identity on ``(p, f, g, h, k)`` and the time is a state.
+
+For a thrust ball the control is taken in the orbit's radial / transverse / normal frame (the
+ball is the same ball in any frame), and the chart declares the simplified forms of its chain rule
+(Keplerian motion, Walker et al.'s perturbation equations), checked against the model before use
+(:mod:`ocreach.models.coordinates.chart`, "Simplified forms").
 """
 from __future__ import annotations
 
@@ -105,9 +110,42 @@ def reference_longitude(x0: np.ndarray) -> float:
     return float(np.arctan2(r @ ghat, r @ fhat))
 
 
-def mee_chart(model: Model, x0: np.ndarray, *, longitude: bool = False) -> Chart:
+def perturbation_matrix(z: ca.SX, mu: ca.SX) -> ca.SX:
+    """``dz/dt`` per unit acceleration in the radial / transverse / normal frame (Walker et al.
+    1985, the perturbation equations of the modified equinoctial elements), ``6 x 3``."""
+    p, f, g, h, k, L = (z[i] for i in range(6))
+    cL, sL = ca.cos(L), ca.sin(L)
+    w = 1 + f * cL + g * sL
+    s2 = 1 + h**2 + k**2
+    q = ca.sqrt(p / mu)
+    hk = h * sL - k * cL
+    zero = ca.SX(0)
+    rows = [(zero, 2 * p / w * q, zero),
+            (q * sL, q * ((w + 1) * cL + f) / w, -q * g * hk / w),
+            (-q * cL, q * ((w + 1) * sL + g) / w, q * f * hk / w),
+            (zero, zero, q * s2 * cL / (2 * w)),
+            (zero, zero, q * s2 * sL / (2 * w)),
+            (zero, zero, q * hk / w)]
+    return ca.vertcat(*[ca.horzcat(*r) for r in rows])
+
+
+def rtn_frame(x: ca.SX) -> ca.SX:
+    """The orbit's radial / transverse / normal axes as the columns of a 3 x 3 matrix."""
+    r, v = x[:3], x[3:6]
+    rh = r / ca.norm_2(r)
+    hv = _cross(r, v)
+    nh = hv / ca.norm_2(hv)
+    return ca.horzcat(rh, _cross(nh, rh), nh)
+
+
+def mee_chart(model: Model, x0: np.ndarray, *, longitude: bool = False, rtn: bool = True,
+              simplified: bool = True) -> Chart:
     """The modified equinoctial elements of a two-body ``model`` (module docstring); with
-    ``longitude=True`` the true longitude is the independent variable."""
+    ``longitude=True`` the true longitude is the independent variable; with ``rtn=True`` the
+    control is given in the orbit's radial / transverse / normal frame (ball control sets); with
+    ``simplified=True`` the chart declares Keplerian motion and (in that frame) Walker et al.'s
+    perturbation equations as the simplified forms of its chain rule, verified against the model
+    (:class:`~ocreach.models.coordinates.chart.Chart`); ``False``: the chain rule alone."""
     ok, why = two_body_fit(model)
     if not ok:
         raise ProblemError(why)
@@ -122,13 +160,18 @@ def mee_chart(model: Model, x0: np.ndarray, *, longitude: bool = False) -> Chart
     length = model.units.length_label if model.units is not None else "DU"
     name = "mee-longitude" if longitude else "mee"
     desc = ("modified equinoctial elements (p, f, g, h, k, L)"
-            + (" with the true longitude L as independent variable" if longitude else ""))
+            + (" with the true longitude L as independent variable" if longitude else "")
+            + (", control in the radial / transverse / normal frame" if rtn else "")
+            + ("" if simplified else ", dynamics by the chain rule alone"))
     return Chart(
         name=name, model=model, z=z, phi=phi, psi=psi, names=NAMES,
         units=(length, "", "", "", "", "rad"), valid_x=valid_x, valid_z=valid_z,
         valid_why=("the elements are singular where |r| = 0, r x v = 0 (rectilinear) or the "
                    "inclination is 180 deg (retrograde equatorial), and their inverse where "
                    "p <= 0 or w = 1 + f cos L + g sin L <= 0"),
-        drift=kepler, drift_name="Keplerian motion about a central body at the origin",
+        drift=kepler if simplified else None,
+        drift_name="Keplerian motion about a central body at the origin",
+        input_matrix=perturbation_matrix(z, mu) if (simplified and rtn) else None,
+        control_frame=rtn_frame(model.x) if rtn else None,
         independent=5 if longitude else None, s_name="L" if longitude else "t",
         s_unit="rad" if longitude else "TU", description=desc, citation=CITATION)
