@@ -202,6 +202,11 @@ def cmd_problem(args: argparse.Namespace) -> int:
     doc = inspect.getdoc(factory) or ""
     print(f"{pid}: {doc.splitlines()[0] if doc else ''}")
     print(format_fields(describe_fields(factory)))
+    from ocreach.models.coordinates import COORDINATES
+
+    print(f"  coordinates : str = 'cartesian'\n      every problem: the coordinates the methods "
+          f"propagate in, one of {sorted(COORDINATES)} (NAME:key=value,... for settings; "
+          "ocreach.models.coordinates); results come back in the model's coordinates")
     return 0
 
 

@@ -45,7 +45,7 @@ METHOD_PATHS: dict[str, str] = {
 
 
 #: Options every method takes besides its own ``Options`` fields: name -> (default, description).
-COMMON_OPTIONS: dict[str, tuple[float, str]] = {
+COMMON_OPTIONS: dict[str, tuple[Any, str]] = {
     "divergence_factor": (100.0, "stop with a SolverError (keeping the truncated part) when a set "
                           "or sample is non-finite or ||x||_inf exceeds this factor times the "
                           "problem scale max(1, ||x0||_inf, ||initial set||_inf) (ocreach.reach.guard); "
