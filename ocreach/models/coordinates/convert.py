@@ -90,8 +90,9 @@ class MapEnclosure:
     def _bounds(self, C: np.ndarray, R: np.ndarray):
         """Interval outputs on the point boxes ``[c, c]`` (columns 0..B-1) and the boxes
         ``[c - r, c + r]`` (columns B..2B-1) of ``B`` zonotopes (``C``, ``R``: (n, B))."""
-        lo = np.concatenate([C, C - R], axis=1)
-        hi = np.concatenate([C, C + R], axis=1)
+        # the boxes rounded outward, so that they contain the zonotopes
+        lo = np.concatenate([C, np.nextafter(C - R, -np.inf)], axis=1)
+        hi = np.concatenate([C, np.nextafter(C + R, np.inf)], axis=1)
         try:
             return self.iv([lo, self.p], [hi, self.p], check=False)
         except IntervalDomainError as exc:
