@@ -45,7 +45,9 @@ from ocreach.sets.zonotope import Zonotope
 
 if TYPE_CHECKING:
     from ocreach.problem import Problem
-    from ocreach.reach.base import Method
+
+#: the method instance (:class:`ocreach.reach.base.Method`, which imports this module)
+Method = Any
 
 #: how often a time-transformed run is repeated with a larger margin when its s-grid ended
 #: before every trajectory reached the final time
