@@ -185,7 +185,7 @@ def cmd_methods(args: argparse.Namespace) -> int:
         print()
     print("Options every method takes:")
     for key, (default, text) in COMMON_OPTIONS.items():
-        print(f"  {key} : float = {default!r}\n      {text}")
+        print(f"  {key} : {type(default).__name__} = {default!r}\n      {text}")
     print("\nSet with --set KEY=VALUE (run) or --set METHOD.KEY=VALUE (compare); booleans take "
           "true/false/1/0/yes/no/on/off; problem overrides are --set problem.KEY=VALUE "
           "(see `ocreach problem ID`).")
@@ -202,6 +202,11 @@ def cmd_problem(args: argparse.Namespace) -> int:
     doc = inspect.getdoc(factory) or ""
     print(f"{pid}: {doc.splitlines()[0] if doc else ''}")
     print(format_fields(describe_fields(factory)))
+    from ocreach.models.coordinates import COORDINATES
+
+    print(f"  coordinates : str = 'cartesian'\n      every problem: the coordinates the methods "
+          f"propagate in, one of {sorted(COORDINATES)} (NAME:key=value,... for settings; "
+          "ocreach.models.coordinates); results come back in the model's coordinates")
     return 0
 
 

@@ -156,6 +156,9 @@ class Problem:
     units : conversion to SI.
     method_options : per-method default options, e.g. ``{"stt": {"order": 2, "h_max": 400}}``.
     position_dims, velocity_dims : state indices used for plots and position-space directions.
+    coordinates : the coordinates the methods propagate in (:mod:`ocreach.models.coordinates`:
+        ``"cartesian"``, the model's own state, or e.g. ``"mee"``); results are always given in the
+        model's coordinates.
     """
 
     id: str
@@ -174,6 +177,7 @@ class Problem:
     position_dims: tuple[int, ...] | None = None
     velocity_dims: tuple[int, ...] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    coordinates: str = "cartesian"
 
     def __post_init__(self) -> None:
         if self.params is None:
@@ -213,6 +217,9 @@ class Problem:
         for d in (*self.position_dims, *self.velocity_dims):
             if not 0 <= d < self.model.n_x:
                 raise ProblemError(f"position/velocity dims must be in [0, {self.model.n_x}); got {d}")
+        from ocreach.models.coordinates import parse
+
+        self.coordinates = str(parse(self.coordinates))
         return self
 
     def thrust_acceleration_si(self) -> float | None:

@@ -44,6 +44,12 @@ def list_problems() -> dict[str, str]:
 
 
 def _call_factory(pid: str, factory: Callable[..., Problem], overrides: dict[str, Any]) -> Problem:
+    overrides = dict(overrides)
+    coordinates = overrides.pop("coordinates", None)   # every problem takes it (Problem.coordinates)
+    if coordinates is not None:
+        prob = _call_factory(pid, factory, overrides)
+        prob.coordinates = coordinates
+        return prob.validate()
     sig = inspect.signature(factory)
     accepts_any = any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values())
     allowed = [n for n, p in sig.parameters.items() if p.kind is not p.VAR_KEYWORD]

@@ -8,6 +8,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
+#: a point is inside a set when its scaled gauge is at most this
+GAUGE_TOL = 1 + 1e-9
+
 
 def cr3bp_rhs(mu: float, a_max: float):
     def rhs(X: np.ndarray, U: np.ndarray) -> np.ndarray:  # X (N, 6), U (N, 3) acceleration incl. w
@@ -89,3 +92,17 @@ def simulate(problem, X0: np.ndarray, U: np.ndarray, W: np.ndarray | None = None
         X = Y[-1]
         out[:, k + 1] = X
     return out, mid
+
+
+def assert_contained(res, traj: np.ndarray, mid: np.ndarray) -> None:
+    """Every state of ``traj`` (N, K+1, n) in the set at its grid time, every interior state of
+    ``mid`` (N, K, inner, n) in its step's tube (scaled gauge <= :data:`GAUGE_TOL`)."""
+    from ocreach.sets.union import union_gauge
+
+    for k in range(res.times.size):
+        g = union_gauge(res.sets[k], traj[:, k])
+        assert g.max() <= GAUGE_TOL, f"time index {k}: gauge {g.max()!r} > 1"
+    for k in range(res.times.size - 1):
+        for j in range(mid.shape[2]):
+            g = union_gauge(res.tubes[k], mid[:, k, j])
+            assert g.max() <= GAUGE_TOL, f"tube {k}, interior time {j}: gauge {g.max()!r} > 1"

@@ -12,6 +12,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from _reach_truth import assert_contained as _assert_contained
 from _reach_truth import ball_controls, initial_samples, simulate
 from scipy.linalg import expm
 
@@ -44,16 +45,6 @@ def _mc(problem, n_per_law: int, seed: int = 0, W: float | None = None):
         Wacc = np.zeros((3 * n_per_law, K, 3))
         Wacc[:] = W * rng.choice([-1.0, 1.0], size=(3 * n_per_law, 1, 3))
     return simulate(problem, X0, U, Wacc, inner=2)
-
-
-def _assert_contained(res, traj, mid):
-    for k in range(res.times.size):
-        g = union_gauge(res.sets[k], traj[:, k])
-        assert g.max() <= TOL, f"time index {k}: gauge {g.max()!r} > 1"
-    for k in range(res.times.size - 1):
-        for j in range(mid.shape[2]):
-            g = union_gauge(res.tubes[k], mid[:, k, j])
-            assert g.max() <= TOL, f"tube {k}, interior time {j}: gauge {g.max()!r} > 1"
 
 
 # ------------------------------------------------------------------------------------------ linsys

@@ -45,7 +45,7 @@ METHOD_PATHS: dict[str, str] = {
 
 
 #: Options every method takes besides its own ``Options`` fields: name -> (default, description).
-COMMON_OPTIONS: dict[str, tuple[float, str]] = {
+COMMON_OPTIONS: dict[str, tuple[Any, str]] = {
     "divergence_factor": (100.0, "stop with a SolverError (keeping the truncated part) when a set "
                           "or sample is non-finite or ||x||_inf exceeds this factor times the "
                           "problem scale max(1, ||x0||_inf, ||initial set||_inf) (ocreach.reach.guard); "
@@ -53,6 +53,9 @@ COMMON_OPTIONS: dict[str, tuple[float, str]] = {
     "max_memory_gb": (4.0, "refuse, before any work, a run whose estimated memory (samples x "
                       "times kept x values x 8 B x 4 copies, Method.memory_estimate) exceeds "
                       "this many GB; > 0"),
+    "coordinates": ("cartesian", "propagate in other coordinates and convert the results back "
+                    "soundly (ocreach.models.coordinates: cartesian, mee, mee-longitude, sundman; "
+                    "NAME:key=value,... for settings); overrides the problem's coordinates"),
 }
 
 #: Bytes per stored number and working copies in :meth:`Method.memory_estimate`.
@@ -94,6 +97,9 @@ class Method:
         self.max_memory_gb = check_real("max_memory_gb", common["max_memory_gb"])
         if not self.max_memory_gb > 0:
             raise ProblemError(f"max_memory_gb must be > 0; got {common['max_memory_gb']!r}")
+        from ocreach.models.coordinates import parse
+
+        self.coordinates = str(parse(common["coordinates"]))
         values = strict_bools(self.Options, options, f"{self.name} option ")
         try:
             self.options = self.Options(**values)
@@ -113,6 +119,14 @@ class Method:
         def solve(self, problem, *args, **kwargs):
             if getattr(self, "_solving", False):  # a subclass calling super().solve()
                 return inner(self, problem, *args, **kwargs)
+            coords = self.coordinates if self.coordinates != "cartesian" else problem.coordinates
+            if coords != "cartesian" and not getattr(self, "_in_chart", False):
+                # ocreach.reach.coordinates runs this solve on the problem carried into the chart
+                from ocreach.reach.coordinates import solve_in_coordinates
+                from ocreach.reach.guard import check_result
+
+                return check_result(solve_in_coordinates(self, problem, coords), problem,
+                                    self.divergence_factor)
             self.check_before(problem)
             self._solving = True
             try:
