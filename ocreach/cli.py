@@ -12,6 +12,7 @@ import argparse
 import json
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 from ocreach.errors import OcreachError, ProblemError, SolverError, check_count
@@ -184,11 +185,11 @@ def cmd_methods(args: argparse.Namespace) -> int:
         print(format_fields(describe_fields(cls.Options)))
         print()
     print("Options every method takes:")
-    for key, (default, text) in COMMON_OPTIONS.items():
-        print(f"  {key} : {type(default).__name__} = {default!r}\n      {text}")
-    print("\nSet with --set KEY=VALUE (run) or --set METHOD.KEY=VALUE (compare); booleans take "
-          "true/false/1/0/yes/no/on/off; problem overrides are --set problem.KEY=VALUE "
-          "(see `ocreach problem ID`).")
+    print(format_fields([{"name": key, "type": type(default).__name__, "default": repr(default),
+                          "doc": text} for key, (default, text) in COMMON_OPTIONS.items()]))
+    print("\n" + textwrap.fill("Set with --set KEY=VALUE (run) or --set METHOD.KEY=VALUE (compare); "
+                               "booleans take true/false/1/0/yes/no/on/off; problem overrides are "
+                               "--set problem.KEY=VALUE (see `ocreach problem ID`).", 100))
     return 0
 
 

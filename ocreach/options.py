@@ -6,9 +6,16 @@ values typed on the command line are converted by that declared type, not by gue
 ``bool`` accepts only true/false/1/0/yes/no/on/off (any case), everything else is parsed as a
 Python literal (``400``, ``1e-3``, ``(4, 0.01)``, ``None``) or kept as a string.
 
-:func:`describe_fields` lists a dataclass's (or a factory's) options with default, type and the
-text of its docstring that documents the field (the docstring is the one place options are
-documented; ``ocreach methods NAME`` prints it).
+:func:`describe_fields` lists a dataclass's (or a factory's) options with default, type and
+description (``ocreach methods NAME`` and ``ocreach problem ID`` print it).  A dataclass field is
+described by the ``#:`` comment lines right above it (or a ``#:`` comment on its line), searched
+through the class's bases, as Sphinx reads attribute comments::
+
+    #: zonotope order (generators / n) after each step, >= 1
+    order: float = 10.0
+
+A field without one, and a factory's parameter, get the sentence of the docstring that names it
+in double backquotes.
 """
 from __future__ import annotations
 
@@ -16,6 +23,7 @@ import ast
 import dataclasses
 import inspect
 import re
+import textwrap
 from typing import Any
 
 import numpy as np
@@ -141,16 +149,48 @@ def _doc_for(doc: str, name: str) -> str:
     return chunk.strip().rstrip(";,").strip()
 
 
+def field_comments(cls: type) -> dict[str, str]:
+    """``{field: text}`` of the ``#:`` comments of the annotated class attributes of ``cls`` and
+    its bases (the nearest class wins); classes without source (built-ins) add nothing."""
+    out: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        try:
+            lines, _ = inspect.getsourcelines(klass)
+        except (OSError, TypeError):
+            continue
+        tree = ast.parse(textwrap.dedent("".join(lines)))
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for node in body:
+            if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
+                continue
+            i = node.lineno - 1                      # index of the field's line in ``lines``
+            text = []
+            _, _, trailing = lines[i].partition("#:")
+            if trailing.strip():
+                text.append(trailing.strip())
+            j = i - 1
+            above = []
+            while j >= 0 and lines[j].strip().startswith("#:"):
+                above.insert(0, lines[j].strip()[2:].strip())
+                j -= 1
+            text = above + text
+            if text:
+                out[node.target.id] = " ".join(text)
+    return out
+
+
 def describe_fields(target: Any, doc: str | None = None) -> list[dict[str, str]]:
     """``[{"name", "type", "default", "doc"}]`` of a dataclass's fields or a factory's parameters."""
     doc = inspect.getdoc(target) if doc is None else doc
     rows = []
     if dataclasses.is_dataclass(target):
+        comments = field_comments(target if isinstance(target, type) else type(target))
         items = []
         for f in dataclasses.fields(target):
             default = f.default if f.default is not dataclasses.MISSING else (
                 f.default_factory() if f.default_factory is not dataclasses.MISSING else "(required)")
-            items.append((f.name, f.type, default, f.metadata.get("doc", "")))
+            items.append((f.name, f.type, default,
+                          f.metadata.get("doc", "") or comments.get(f.name, "")))
     else:
         items = [(p.name, p.annotation, "(required)" if p.default is p.empty else p.default, "")
                  for p in inspect.signature(target).parameters.values()
@@ -161,11 +201,13 @@ def describe_fields(target: Any, doc: str | None = None) -> list[dict[str, str]]
     return rows
 
 
-def format_fields(rows: list[dict[str, str]], indent: str = "  ") -> str:
-    """Rows of :func:`describe_fields` as aligned text (name, type, default, then the doc)."""
+def format_fields(rows: list[dict[str, str]], indent: str = "  ", width: int = 100) -> str:
+    """Rows of :func:`describe_fields` as text: name, type and default, then the description
+    wrapped to ``width`` columns."""
     lines = []
     for r in rows:
         lines.append(f"{indent}{r['name']} : {r['type'] or '?'} = {r['default']}")
         if r["doc"]:
-            lines.append(f"{indent}    {r['doc']}")
+            lines += textwrap.wrap(r["doc"], width, initial_indent=indent + "    ",
+                                   subsequent_indent=indent + "    ", break_on_hyphens=False)
     return "\n".join(lines)

@@ -225,16 +225,16 @@ def requirements(problem: Problem, *, bounded: bool = False, control_affine: boo
 
 @dataclasses.dataclass
 class SamplingOptions:
-    """Options every sample-based method shares (``mc``, ``ode``; ``ffoe``/``ole`` can adopt it).
+    """Options every sample-based method shares (``mc``, ``ode``, ``ffoe``, ``ole``, ``bvp``).
+    Subclasses add fields and call ``super().__post_init__()``."""
 
-    ``samples``: number of trajectories (integer >= 1); ``seed``: RNG seed (integer >= 0, or
-    None for fresh entropy); ``rtol``: relative integrator tolerance in (0, 1e-3); ``atol``:
-    absolute tolerance (finite, >= 0).  Subclasses add fields and call ``super().__post_init__()``.
-    """
-
+    #: number of trajectories (or directions), integer >= 1
     samples: int = 100
+    #: seed of the random numbers, integer >= 0 (None: fresh entropy, not reproducible)
     seed: int | None = 0
+    #: relative tolerance of the integrator, in (0, 1e-3)
     rtol: float = 1e-10
+    #: absolute tolerance of the integrator, finite and >= 0 (model units)
     atol: float = 1e-12
 
     def __post_init__(self) -> None:

@@ -177,26 +177,29 @@ class BVPContinuation(FFOE):
 
     @dataclass
     class Options(FFOE.Options):
-        """FFOE options plus ``cost`` ("linear": lam_f = -z-hat; "quadratic": Tucker Eq. 4),
-        ``smooth`` (regularisation ``sqrt(|G^T lam|^2 + smooth^2)`` of the ball law, ``tanh(s /
-        smooth)`` of the box law; position-space directions give ``lam_v(t_f) = 0``, where the
-        exact law's Jacobian blows up like ``1/(t_f - t)``; 1e-8 changes the cost by far less than
-        the integration tolerance), ``smooth_start`` (first value of the smoothing continuation,
-        large to small, warm-started costates; default None: automatic for a box control set,
-        ``max |G^T lam_0|`` of the first guess, and no continuation for the ball),
-        ``smooth_factor`` (ratio of consecutive smoothing values, in (0, 1)), ``costate_guess``
-        (initial costates ``(samples, n_x)`` to start every direction from, e.g. a result at a
-        nearby horizon or thrust level, as :class:`ocreach.custody.reach_balls.ReachableBalls` does), ``tol``
-        (Newton residual, max-norm of ``lam(t_f) - lam_f``), ``max_newton`` (iterations per
-        corrector) and ``max_halvings`` (continuation step halvings before giving up)."""
+        """FFOE options plus the boundary-value solver's (Tucker et al.)."""
 
+        #: terminal cost: "linear" (lam_f = -z-hat) or "quadratic" (Tucker Eq. 4)
         cost: str = "linear"
+        #: regularisation of the control law, sqrt(|G^T lam|^2 + smooth^2) for a ball, tanh(s /
+        #: smooth) for a box; position directions give lam_v(t_f) = 0, where the exact law's
+        #: Jacobian blows up like 1/(t_f - t); 1e-8 changes the cost by far less than the
+        #: integration tolerance; >= 0
         smooth: float = 1e-8
+        #: first value of the smoothing continuation, large to small with warm-started costates
+        #: (None: automatic for a box control set, max |G^T lam_0| of the first guess; no
+        #: continuation for a ball)
         smooth_start: float | None = None
+        #: ratio of consecutive smoothing values, in (0, 1)
         smooth_factor: float = 0.1
+        #: initial costates (samples, n_x) to start every direction from, e.g. a result at a
+        #: nearby horizon or thrust level (as ocreach.custody.reach_balls.ReachableBalls does)
         costate_guess: Any = None
+        #: Newton residual at which a direction is solved: max-norm of lam(t_f) - lam_f, > 0
         tol: float = 1e-10
+        #: Newton iterations per corrector, >= 1
         max_newton: int = 12
+        #: continuation step halvings before a direction is given up, >= 0
         max_halvings: int = 12
 
         def __post_init__(self) -> None:

@@ -198,22 +198,24 @@ class CUTMoments(Method):
 
     @dataclass
     class Options:
-        """``order``: 4, 6 or 8 (moment order the CUT / Gauss-Hermite rule integrates exactly; the
-        paper uses 8); ``rule``: ``"cut"`` | ``"ut"`` | ``"gh"``; ``control_rule``: rule for the
-        controls (default: same as ``rule``); ``third_moments``: also propagate the third central
-        moment (Appendix Eq. 30; NumPy path, slower); ``sigma_level``: the ellipsoid of ``sets`` is
-        ``sigma_level``-sigma (3); ``reduce``: integrate only over the states the step's increment
-        depends on (exact under the Gaussian closure, see :func:`propagate_moments`; for re-entry
-        the longitude drops out and CUT8 needs 355 instead of 745 points; ``False`` is the paper's
-        full 6-D rule); ``compiled``: run the fused C kernel (:mod:`ocreach.native.cut_kernel`;
-        ``False`` or no C compiler: the NumPy reference, same numbers)."""
+        """Options of the moment propagation (Jain et al.)."""
 
+        #: moment order the CUT / Gauss-Hermite rule integrates exactly: 4, 6 or 8 (the paper: 8)
         order: int = 8
+        #: quadrature rule: "cut" (conjugate unscented), "ut" (unscented) or "gh" (Gauss-Hermite)
         rule: str = "cut"
+        #: rule for the controls (None: the same as rule)
         control_rule: str | None = None
+        #: also propagate the third central moment (Appendix Eq. 30; NumPy path, slower)
         third_moments: bool = False
+        #: the ellipsoids of the result's sets are this many sigma, > 0
         sigma_level: float = 3.0
+        #: integrate only over the states the step's increment depends on (exact under the
+        #: Gaussian closure; on re-entry the longitude drops out and CUT8 needs 355 instead of 745
+        #: points); False: the paper's full rule
         reduce: bool = True
+        #: run the fused C kernel (ocreach.native.cut_kernel); False or no C compiler: the NumPy
+        #: reference, same numbers
         compiled: bool = True
 
         def __post_init__(self) -> None:

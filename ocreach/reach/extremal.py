@@ -99,8 +99,8 @@ class ExtremalODE(Method):
 
     @dataclass
     class Options(SamplingOptions):
-        """:class:`~ocreach.reach.base.SamplingOptions`: ``samples`` (extremals, default 100),
-        ``seed``, ``rtol``, ``atol``."""
+        """:class:`~ocreach.reach.base.SamplingOptions`: ``samples`` is the number of extremals
+        (one per random initial costate)."""
 
     @classmethod
     def applicable(cls, problem: Problem) -> tuple[bool, str]:

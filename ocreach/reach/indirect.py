@@ -257,23 +257,26 @@ class FFOE(Method):
 
     @dataclass
     class Options(SamplingOptions):
-        """Options shared by ffoe, ole and bvp.
+        """Options shared by ffoe, ole and bvp (Patel & Scheeres); ``samples`` is the number of
+        directions z-hat."""
 
-        ``samples``: number of directions z-hat; ``dims``: direction subspace ("position",
-        "velocity", "all" or state indices); ``seed``/``random``: random directions (always random
-        above 3 dims); ``thrust``: thrust level in model units (overrides the problem's ``a_max``
-        / ``T_max``); ``uncertainty_radius``/``uncertainty_dims``/``uncertainty_matrix``: initial
-        ellipsoid (Eq. 21-23); ``dv_max``/``dv_dims``: initial Delta-V (Eq. 24-26);
-        ``rtol``/``atol``: integrator tolerances.
-        """
-
+        #: the subspace of the directions z-hat: "position", "velocity", "all" or state indices
         dims: Any = "position"
+        #: random directions (seeded by seed) instead of an even spread; always random above
+        #: 3 dimensions
         random: bool = False
+        #: thrust level in model units, overriding the problem's a_max / T_max (None: the problem's)
         thrust: float | None = None
+        #: radius d of the initial uncertainty ellipsoid, model units (Eq. 21-23; 0: none, or the
+        #: problem's ellipsoidal initial set)
         uncertainty_radius: float = 0.0
+        #: states the uncertainty ellipsoid spans (None: the position states)
         uncertainty_dims: Any = None
+        #: shape matrix E of the ellipsoid, symmetric positive definite (None: the identity)
         uncertainty_matrix: Any = None
+        #: an initial impulsive Delta-V of at most this size, model velocity units (Eq. 24-26)
         dv_max: float = 0.0
+        #: the velocity states the initial Delta-V acts on (None: all of them)
         dv_dims: Any = None
 
         def __post_init__(self) -> None:
@@ -399,14 +402,16 @@ class OLE(FFOE):
 
     @dataclass
     class Options(FFOE.Options):
-        """FFOE options plus ``tol`` (change of the cost under the plain, undamped update, model
-        units, at which a direction counts as converged: the paper's criterion), ``max_iter`` and
-        ``backtrack`` (halvings of a blended control step when an update lowers the cost; 0 gives
-        the paper's plain iteration).  ``meta["first_order_gap"]`` is the gain the last plain
-        update predicted on its linearisation (zero at a multi-stage PMP extremal)."""
+        """FFOE options plus the iteration's.  ``meta["first_order_gap"]`` is the gain the last
+        plain update predicted on its linearisation (zero at a multi-stage PMP extremal)."""
 
+        #: change of the cost under the plain, undamped update at which a direction counts as
+        #: converged (model units; the paper's criterion), > 0
         tol: float = 1e-9
+        #: most iterations per direction, >= 1
         max_iter: int = 50
+        #: halvings of a blended control step when an update lowers the cost (0: the paper's
+        #: plain iteration)
         backtrack: int = 6
 
         def __post_init__(self) -> None:

@@ -63,16 +63,16 @@ class MonteCarlo(Method):
 
     @dataclass
     class Options(SamplingOptions):
-        """:class:`~ocreach.reach.base.SamplingOptions` (``samples`` default 1000, ``seed``,
-        ``rtol``, ``atol``) plus ``mix``: fractions of the random / constant / bang-bang laws;
-        ``histories`` (stochastic problems): also keep every sample's states on ~200 grid times
-        and its controls on every segment (memory ``samples * (200 n_x + K n_u) * 8`` bytes);
-        by default only the samples at the report times and the final time are kept, with the
-        sample mean and std at every grid time in ``meta``.  Deterministic problems always keep
-        full histories."""
+        """:class:`~ocreach.reach.base.SamplingOptions` with 1000 samples, and the mix of laws."""
 
+        #: number of sampled trajectories, integer >= 1
         samples: int = 1000
+        #: fractions of the random / constant / bang-bang control laws (three numbers >= 0)
         mix: tuple = (0.4, 0.2, 0.4)
+        #: stochastic problems: also keep every sample's states on ~200 grid times and its
+        #: controls on every segment (memory samples * (200 n_x + K n_u) * 8 bytes); by default
+        #: only the report and final times are kept, with the sample mean and std at every grid
+        #: time in meta; deterministic problems always keep full histories
         histories: bool = False
 
         def __post_init__(self) -> None:

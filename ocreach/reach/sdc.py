@@ -184,12 +184,13 @@ class SDCZonotope(Method):
 
     @dataclass
     class Options(ZonotopeOptions):
-        """:class:`~ocreach.reach.taylor.ZonotopeOptions` plus ``base`` (``"center"``: sound, the
-        default; ``"origin"``: the paper's literal base point 0, NOT sound, see the module
-        docstring) and ``dev_order`` (2): zonotope order of the tube used in the matrix-zonotope
-        product of Eq. 24 (its generators multiply pairwise)."""
+        """:class:`~ocreach.reach.taylor.ZonotopeOptions` plus the SDC factorisation's."""
 
+        #: base point of the factorisation: "center" (sound) or "origin" (the paper's literal
+        #: base point 0, NOT sound: see the module docstring)
         base: str = "center"
+        #: zonotope order of the tube in the matrix-zonotope product of Eq. 24 (its generators
+        #: multiply pairwise), >= 1
         dev_order: float = 2.0
 
         def __post_init__(self) -> None:

@@ -410,87 +410,66 @@ class STTReach(Method):
 
     @dataclass
     class Options:
-        """Options (defaults in brackets).
+        """Options of the STT propagation of sparse polynomial zonotopes (Foss et al.,
+        Algorithm 1) and of its extensions (splitting, fused engine, grouped reduction)."""
 
-        ``order`` [2]: STT order n in {1, 2, 3}.
-        ``h_max`` [200]: maximum number of generators (dependent + independent) per part.
-        ``input_set`` [None]: ``"box"`` or ``"ball"``; None = the problem's control set.
-        ``ball_input`` ["auto"]: representation of a ball input: ``"auto"`` (per input
-        dimension :data:`BALL_INPUT_AUTO`: ``"zonotope"`` in 2-D, ``"zonotope-coarse"`` in
-        3-D and 4-D, chosen by measurement; 1-D the interval, 5-D and up ``"pz-compact"``,
-        :data:`BALL_INPUT_AUTO_ND`, not measured on a problem), ``"zonotope"`` (outer
-        zonotope: 8 generators in 2-D and 30 in 3-D, within 3 % of the ball; 24 in 4-D, within
-        9.9 %; 2 n loose random directions beyond; tighter reachable sets after reductions, see
-        docs/stt.md), ``"zonotope-coarse"`` (6 / 10 / 16 generators in 2-D / 3-D / 4-D, within
-        3.5 % / 9.6 % / 14.7 %), ``"pz"`` (Foss Eq. 16 in 2-D, the cube-to-ball polynomial
-        in 3-D to 5-D, the compact PZ beyond) or ``"pz-compact"`` (products of small
-        polynomial balls, :func:`ocreach.sets.ball_pz.compact_ball_pz`, within 3 % in every
-        dimension).
-        ``reduction`` ["pca"]: ``"pca"`` (Kopetzki et al., as Foss) or ``"girard"``.
-        ``split`` [None]: how a part is split where the STT polynomial is not valid over it
-        (:mod:`ocreach.reach.stt_split`): ``"factor"`` (exact, halves the dependent factor with
-the largest order-2 contribution) or ``"box"`` (halves an enclosure: the part's
-        ``split_keep`` largest generators plus the PCA box of the others; more compact parts);
-        None = Algorithm 1 as is.  Before each step the truncation error of
-        every part (the STT polynomial against the true flow on extreme samples, relative to the
-        part's image) is estimated; the parts above ``split_tol`` are split, worst first, while
-        fewer than ``max_parts`` parts exist; each half gets its own reference and STTs.
-        ``max_parts`` [16]: the largest number of parts (>= 1).
-        ``split_tol`` [0.01]: the truncation-error tolerance, a fraction of the part's image.
-        ``split_keep`` [30]: generators a ``"box"`` split keeps before boxing the rest (0 = the
-        PCA parallelotope; more = tighter but less compact parts; chosen on nrho-flyby,
-        docs/validation/stt-flyby.md).
-        ``tube_substeps`` [0]: > 1 computes the reachable tube with that many sub-intervals.
-        ``engine`` ["fused"]: ``"fused"`` (:func:`fused_step`) or ``"library"`` (the set
-        library's ``tensor_map`` + exact sum + ``reduce_pz``); both give the same set up to
-        how the fused engine boxes the order-3 products it prunes (option pruned_box, below).
-        ``lift_independent`` [False]: before each step turn the independent generators left by
-        earlier reductions into dependent generators with fresh factors (exact), so that their
-        products in the tensor maps keep their dependence (``b^2`` in [0, 1], ``b`` and ``b c``
-        tied) instead of becoming new independent generators; False = the paper's plain
-        Cartesian product.
-        ``chunk`` [0]: order-3 products the fused engine forms at once (peak memory about
-        ``chunk (11 n + 2) * 8`` bytes -- a block, and the pruned products of the first eight
-        blocks kept for the second pass -- plus the kept products); 0 = from a 128 MB budget
-        per block
-        (:func:`ocreach.reach.stt_products.default_chunk`).  Changes only round-off.
-        ``pruned_box`` ["bound"]: how the fused engine boxes the order-3 products it prunes
-        (99.7 % of them on vdp): ``"bound"`` never forms them and bounds them per generator
-        pair (time ~ the kept products; a box that still contains every pruned product, 0.05-0.14 %
-        more hull area on vdp), ``"exact"`` forms every one for the exact PCA/Girard box of them
-        (time ~ all ``C(H + 2, 3)`` products, 1.5x the time at h_max 200, 4x at 800: docs/stt.md).
-        It applies to ``engine="fused"`` at ``order=3`` only, and only in steps with more than
-        :data:`ocreach.reach.stt_products.PRUNE_MIN_PRODUCTS` order-3 products (below that
-        nothing is pruned).  ``engine="library"`` prunes nothing (it forms and merges every
-        product), so there the option has no meaning: an explicit ``"exact"`` is refused with a
-        :class:`ProblemError`; the default ``"bound"`` is accepted and has no effect.
-        ``reduce_group`` [None]: how a reduction encloses the dependent monomials it removes:
-        None (Foss, Kochdumper & Althoff) each on its own; ``"parallel"`` the (nearly) parallel
-        ones together by the range of their scalar polynomial
-        (:func:`ocreach.sets.reduce.enclose_removed`; keeps e.g. ``a1 (c0 + c1 a2^2)`` of a
-        compact PZ ball input within its range instead of ``|c0| + |c1|``);
-        ``"parallel-drop"`` also removes whole a group the ranking splits
-        (:func:`ocreach.sets.reduce.regroup_drop`).  Opt-in, measured
-        in docs/validation/stt-tightness.md, "Grouped reduction of parallel monomials".
-        ``rtol``, ``atol``: integrator tolerances of the STT generation.
-        """
-
+        #: STT order n, 1, 2 or 3
         order: int = 2
+        #: most generators (dependent + independent) per part after each step, >= 1
         h_max: int = 200
+        #: "box" or "ball" (None: the problem's control set)
         input_set: str | None = None
+        #: representation of a ball input: "auto" (per input dimension, BALL_INPUT_AUTO:
+        #: "zonotope" in 2-D, "zonotope-coarse" in 3-D and 4-D, chosen by measurement; the
+        #: interval in 1-D, "pz-compact" from 5-D, not measured), "zonotope" (outer zonotope, 8
+        #: generators in 2-D and 30 in 3-D within 3 % of the ball, 24 in 4-D within 9.9 %),
+        #: "zonotope-coarse" (6 / 10 / 16 generators in 2-D / 3-D / 4-D, within 3.5 / 9.6 /
+        #: 14.7 %), "pz" (Foss Eq. 16 in 2-D, the cube-to-ball polynomial in 3-D to 5-D) or
+        #: "pz-compact" (products of small polynomial balls, within 3 % in every dimension);
+        #: docs/stt.md
         ball_input: str = "auto"
+        #: order reduction: "pca" (Kopetzki et al., as Foss) or "girard"
         reduction: str = "pca"
+        #: how a part is split where the STT polynomial is not valid over it
+        #: (ocreach.reach.stt_split): "factor" (exact: halves the dependent factor with the
+        #: largest order-2 contribution), "box" (halves an enclosure: the split_keep largest
+        #: generators plus the PCA box of the rest); None: Algorithm 1 as is.  Before each step
+        #: the truncation error of every part is estimated on extreme samples; parts above
+        #: split_tol are split, worst first, while fewer than max_parts exist
         split: str | None = None
+        #: the largest number of parts, >= 1
         max_parts: int = 16
+        #: the truncation-error tolerance of a part, a fraction of its image
         split_tol: float = 0.01
+        #: generators a "box" split keeps before boxing the rest (0: the PCA parallelotope;
+        #: chosen on nrho-flyby, docs/validation/stt-flyby.md)
         split_keep: int = 30
+        #: > 1 computes the reachable tube with that many sub-intervals per step (0: no tube)
         tube_substeps: int = 0
+        #: "fused" (fused_step) or "library" (the set library's tensor_map + exact sum +
+        #: reduce_pz); the same set up to how the fused engine boxes the products it prunes
         engine: str = "fused"
+        #: before each step turn the independent generators left by earlier reductions into
+        #: dependent ones with fresh factors (exact), so that their products keep their
+        #: dependence; False: the paper's plain Cartesian product
         lift_independent: bool = False
+        #: order-3 products the fused engine forms at once (peak memory about chunk (11 n + 2)
+        #: * 8 bytes plus the kept products); 0: from a 128 MB budget per block; changes only
+        #: round-off
         chunk: int = 0
+        #: how the fused engine boxes the order-3 products it prunes (engine="fused", order=3,
+        #: steps with more than PRUNE_MIN_PRODUCTS products): "bound" bounds them per generator
+        #: pair without forming them (0.05-0.14 % more hull area on vdp), "exact" forms every one
+        #: (1.5x the time at h_max 200, 4x at 800; docs/stt.md)
         pruned_box: str = PRUNED_BOX_DEFAULT
+        #: how a reduction encloses the dependent monomials it removes: None (Foss, Kochdumper &
+        #: Althoff) each on its own; "parallel" the nearly parallel ones together by the range
+        #: of their scalar polynomial (ocreach.sets.reduce.enclose_removed); "parallel-drop"
+        #: also removes a whole group the ranking splits; docs/validation/stt-tightness.md
         reduce_group: str | None = None
+        #: relative tolerance of the integrator of the STT generation
         rtol: float = 1e-10
+        #: absolute tolerance of the integrator of the STT generation
         atol: float = 1e-12
 
         def __post_init__(self) -> None:

@@ -72,41 +72,37 @@ INPUT_SETS = ("auto", "zonotope", "box")
 # ------------------------------------------------------------------------------------------------
 @dataclass
 class ZonotopeOptions:
-    """Options of the zonotope methods (``taylor``, ``sdc``); every value is checked.
+    """Options of the zonotope methods (``taylor``, ``sdc``); every value is checked."""
 
-    * ``order`` (10): zonotope order (generators / n) after each step, >= 1;
-    * ``reduction`` ("girard"): order reduction, ``"girard"`` or ``"pca"``;
-    * ``max_error`` (None): remainder threshold (a number, or one per state) above which a part is
-      split; None = split only when the remainder loop cannot close;
-    * ``split`` (True): allow splitting; ``max_parts`` (64): most parts at one time;
-    * ``substeps`` (1): sub-steps per grid step to start with; ``max_halvings`` (6): how often a
-      failing sub-step may be halved (adaptive steps, e.g. near perilune);
-    * ``input_set`` ("auto"): enclosure of the control set -- ``"zonotope"`` (outer zonotope of the
-      thrust ball with ``input_generators`` generators), ``"box"`` (the box ``[-1, 1]^m``, encloses
-      the ball too), ``"auto"`` (zonotope for a ball, the box for a box);
-    * ``input_generators`` (None): generators of the ball enclosure (default ``3 n_u``, >= n_u);
-    * ``disturbance`` (None): additive disturbance on ``dx/dt``: a number ``w`` (the box ``+-w`` on
-      the velocity rows, the paper's ``W_gen = w I_3``), a sequence of ``n_x`` radii, or an
-      ``Interval``/``Zonotope`` of dimension ``n_x``;
-    * ``max_iter`` (16): iterations of the remainder fixed-point loop;
-    * ``mass_varies`` (False): the model's thrust acceleration ``a_max = T / m0`` is constant; with
-      True the propellant burn is enclosed: the mass stays above ``m_min = m0 - T / (Isp g0) t``
-      (full thrust over the whole horizon), so the thrust acceleration is in ``[0, T / m_min]``
-      and the input set is scaled by ``m0 / m_min`` (:func:`mass_scale`; needs ``thrust_N``,
-      ``mass_kg``, ``isp_s`` in ``problem.extra`` and model units).
-    """
-
+    #: zonotope order (generators / n) after each step, >= 1
     order: float = 10.0
+    #: order reduction: "girard" or "pca"
     reduction: str = "girard"
+    #: remainder threshold (a number, or one per state, model units) above which a part is
+    #: split (None: split only when the remainder loop cannot close)
     max_error: Any = None
+    #: allow splitting a set into parts
     split: bool = True
+    #: most parts at one time, >= 1
     max_parts: int = 64
+    #: sub-steps per grid step to start with, >= 1
     substeps: int = 1
+    #: how often a failing sub-step may be halved (adaptive steps, e.g. near perilune), >= 0
     max_halvings: int = 6
+    #: enclosure of the control set: "zonotope" (outer zonotope of a thrust ball with
+    #: input_generators generators), "box" (the box [-1, 1]^m, encloses a ball too), "auto"
+    #: (the zonotope for a ball, the box for a box)
     input_set: str = "auto"
+    #: generators of the ball's outer zonotope, >= n_u (None: 3 n_u)
     input_generators: int | None = None
+    #: additive disturbance on dx/dt: a number w (the box +-w on the velocity rows, the paper's
+    #: W_gen = w I_3), a sequence of n_x radii, or an Interval / Zonotope of dimension n_x
     disturbance: Any = None
+    #: iterations of the remainder fixed-point loop, >= 1
     max_iter: int = 16
+    #: enclose the propellant burn: the thrust acceleration in [0, T / m_min] with m_min = m0 -
+    #: T / (Isp g0) t (full thrust all the way), the input set scaled by m0 / m_min (needs
+    #: thrust_N, mass_kg, isp_s in problem.extra); False: a_max = T / m0 constant
     mass_varies: bool = False
 
     def __post_init__(self) -> None:
@@ -497,11 +493,12 @@ class TaylorZonotope(Method):
 
     @dataclass
     class Options(ZonotopeOptions):
-        """:class:`ZonotopeOptions` plus ``alg``: ``"ct"`` (continuous time, default) or ``"dt"``
-        (the paper's discrete Eq. 8-15 on the RK4 map, sound for that model only) and
-        ``rk4_substeps`` (4): RK4 sub-steps per grid step of the ``dt`` map."""
+        """:class:`ZonotopeOptions` plus the time discretisation."""
 
+        #: "ct" (continuous time, sound for the flow) or "dt" (the paper's discrete Eq. 8-15 on
+        #: the RK4 map, sound for that map only)
         alg: str = "ct"
+        #: RK4 sub-steps per grid step of the "dt" map, >= 1
         rk4_substeps: int = 4
 
         def __post_init__(self) -> None:
