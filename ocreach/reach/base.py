@@ -73,6 +73,13 @@ class Method:
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
+    #: True if the method, with its default options, returns guaranteed enclosures of the
+    #: continuous-time flow: every admissible trajectory lies in every set (and tube) it returns.
+    #: Read before anything is solved (the soundness harness, ``ocreach.testing``, runs every
+    #: registered method that declares it); each result still says it in ``meta["guaranteed"]``,
+    #: which an option may turn off (``sdc`` with ``base="origin"``) or narrow
+    #: (``meta["guaranteed_for"]``: ``taylor`` with ``alg="dt"``).
+    guaranteed: ClassVar[bool] = False
 
     @dataclasses.dataclass
     class Options:

@@ -179,6 +179,7 @@ class SDCZonotope(Method):
     """Patel & Subbarao Method 2: zonotopes with the SDC matrix expansion (Eq. 17-25)."""
 
     name = "sdc"
+    guaranteed = True
     description = ("guaranteed zonotope enclosure with the state-dependent-coefficient matrix "
                    "expansion and an interval R_err (Patel & Subbarao Method 2)")
 

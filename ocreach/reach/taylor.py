@@ -488,6 +488,7 @@ class TaylorZonotope(Method):
     """Patel & Subbarao Method 1: zonotopes by conservative linearisation with a Lagrange remainder."""
 
     name = "taylor"
+    guaranteed = True
     description = ("guaranteed zonotope enclosure by conservative linearisation + interval Lagrange "
                    "remainder (Patel & Subbarao Method 1; Althoff CDC 2008)")
 

@@ -1,0 +1,129 @@
+"""Containment checks of the soundness harness: is a truth point inside a guaranteed set?
+
+A point escapes a set when it lies outside the set enlarged by the box of radius
+``ABS_TOL (1 + |x|_inf)`` (the truth's own error is ~1e-11 on the harness's horizons, see
+:mod:`ocreach.testing.truth`), decided per set type:
+
+* :class:`Zonotope`, :class:`Interval` and :class:`ZonotopeUnion`: the scaled gauge of the
+  enlarged set (:func:`ocreach.sets.union.union_gauge`: exact membership certificate, else the
+  gauge LP ``min t : x in c + t G``), an escape when it exceeds ``1 + GAUGE_TOL``;
+* :class:`PolyZonotope` and :class:`PZUnion`: outside the zonotope enclosure is an escape; inside
+  it, the three-valued membership on the polynomial itself (:func:`ocreach.sets.pz_exact.membership`):
+  a certificate of exclusion (a direction ``d`` with ``d^T x`` above the rigorous upper support
+  bound) is an escape, a witness is inside, and a point neither proved in nor out is counted as
+  *undecided* (reported, not an escape);
+* any other set: the support test in the ``2 n`` axis directions and the direction from the set's
+  box centre to the point (``d^T x > support(d) + tol`` is an escape, since ``support`` is an upper
+  bound for a set result); weaker, and reported as such (``Verdict.exact = False``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ocreach.sets.interval import Interval
+from ocreach.sets.polyzonotope import PolyZonotope
+from ocreach.sets.pz_union import PZUnion
+from ocreach.sets.union import ZonotopeUnion, union_gauge
+from ocreach.sets.zonotope import Zonotope
+
+#: absolute enlargement of the sets, times (1 + |x|_inf): the truth's error is ~1e-11
+ABS_TOL = 1e-9
+#: relative tolerance of the gauge (as in the per-scenario soundness tests)
+GAUGE_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Per point: ``gauge`` (> 1 + GAUGE_TOL outside; 1.0 for points proved inside without it,
+    inf for certified exclusions of a polynomial zonotope), ``escaped`` and ``undecided`` masks;
+    ``exact``: the check decides membership exactly (zonotopes) or by certificates (PZ)."""
+
+    gauge: np.ndarray
+    escaped: np.ndarray
+    undecided: np.ndarray
+    exact: bool
+
+
+def tolerance(points: np.ndarray) -> float:
+    """The absolute enlargement used for ``points`` (module docstring)."""
+    return ABS_TOL * (1.0 + float(np.max(np.abs(points), initial=0.0)))
+
+
+def _enlarged(Z: Zonotope, eps: float) -> Zonotope:
+    return Zonotope(Z.c, np.hstack([Z.G, eps * np.eye(Z.dim)]))
+
+
+def _zonotope_parts(S) -> list[Zonotope] | None:
+    if isinstance(S, ZonotopeUnion):
+        return list(S.parts)
+    if isinstance(S, Zonotope):
+        return [S]
+    if isinstance(S, Interval):
+        return [S.to_zonotope()]
+    return None
+
+
+def _pz_parts(S) -> list[PolyZonotope] | None:
+    if isinstance(S, PZUnion):
+        return list(S.parts)
+    if isinstance(S, PolyZonotope):
+        return [S]
+    return None
+
+
+def check_points(S, points: np.ndarray) -> Verdict:
+    """The verdict of every row of ``points`` (N, n) against the guaranteed set ``S``."""
+    P = np.atleast_2d(np.asarray(points, dtype=float))
+    N = P.shape[0]
+    eps = tolerance(P)
+    zs = _zonotope_parts(S)
+    if zs is not None:
+        g = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(z, eps) for z in zs]), P))
+        return Verdict(g, g > 1 + GAUGE_TOL, np.zeros(N, bool), True)
+    pzs = _pz_parts(S)
+    if pzs is not None:
+        return _check_pz(pzs, P, eps)
+    return _check_support(S, P, eps)
+
+
+def _check_pz(parts: list[PolyZonotope], P: np.ndarray, eps: float) -> Verdict:
+    from ocreach.sets.pz_exact import membership
+
+    N = P.shape[0]
+    gz = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(p.to_zonotope(), eps) for p in parts]), P))
+    inside = np.zeros(N, bool)
+    out_all = np.ones(N, bool)
+    todo = np.flatnonzero(gz <= 1 + GAUGE_TOL)
+    for part in parts:
+        idx = todo[~inside[todo]]
+        if idx.size == 0:
+            break
+        mem = membership(part, P[idx], tol=eps)
+        inside[idx[mem.inside]] = True
+        out_all[idx[~mem.outside]] = False
+    outside_enclosure = gz > 1 + GAUGE_TOL
+    certified = np.zeros(N, bool)
+    certified[todo] = out_all[todo] & ~inside[todo]
+    gauge = np.where(outside_enclosure, gz, np.minimum(gz, 1.0))
+    gauge[certified] = np.inf
+    undecided = ~outside_enclosure & ~certified & ~inside
+    escaped = outside_enclosure | certified
+    return Verdict(gauge, escaped, undecided, True)
+
+
+def _check_support(S, P: np.ndarray, eps: float) -> Verdict:
+    n = P.shape[1]
+    hull = S.interval_hull()
+    mid = 0.5 * (hull.lo + hull.hi)
+    D = P - mid
+    norm = np.linalg.norm(D, axis=1, keepdims=True)
+    D = np.where(norm > 0, D / np.where(norm > 0, norm, 1.0), 0.0)
+    dirs = np.vstack([np.eye(n), -np.eye(n)])
+    h_axes = np.atleast_1d(S.support(dirs))
+    ex_axes = (P @ dirs.T - h_axes[None] - eps).max(axis=1)
+    h_own = np.atleast_1d(S.support(D))
+    ex_own = np.einsum("ij,ij->i", P, D) - h_own - eps
+    escaped = (ex_axes > 0) | (ex_own > 0)
+    return Verdict(np.where(escaped, np.inf, 1.0), escaped, np.zeros(P.shape[0], bool), False)
