@@ -26,7 +26,8 @@ from hypothesis import HealthCheck, given, settings
 
 from ocreach.errors import ProblemError
 from ocreach.model import Model
-from ocreach.problem import Problem, problem_factories
+from ocreach.problem import Problem
+from ocreach.registry import problem_factories
 from ocreach.reach import base
 from ocreach.reach.base import Method
 from ocreach.reach.result import ReachResult

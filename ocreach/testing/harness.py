@@ -81,7 +81,7 @@ def shortened(problem, steps: int):
 def bundled_cases(steps: int = 2, ids: Sequence[str] | None = None) -> list[Case]:
     """Every bundled problem (or ``ids``) on its first ``steps`` grid steps, with the model's own
     ``f`` as the truth's right-hand side (:func:`ocreach.testing.truth.model_rhs`)."""
-    from ocreach.problem import get_problem, problem_factories
+    from ocreach.registry import get_problem, problem_factories
 
     out = []
     for pid in (sorted(problem_factories()) if ids is None else ids):
