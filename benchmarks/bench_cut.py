@@ -23,6 +23,7 @@ import numpy as np
 import ocreach
 from ocreach.dynamics.stochastic_mc import stochastic_monte_carlo
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 from ocreach.reach.cut import standard_rule
 from ocreach.registry import get_problem
 
@@ -199,7 +200,8 @@ def main(argv=None) -> int:
     text = report(sp, rows, ref)
     print(text)
     if args.write:
-        replace_markdown_section(ROOT / "docs" / "benchmarks.md", "## CUT\n\n" + text)
+        doc = benchmarks_doc(ROOT / "docs" / "benchmarks.md")
+        replace_markdown_section(doc, "## CUT\n\n" + text)
     return 0
 
 

@@ -31,9 +31,10 @@ from scipy.integrate import solve_ivp
 from ocreach.dynamics.flow import propagate, stm, stt
 from ocreach.fileio import replace_markdown_section
 from ocreach.models import cr3bp
+from ocreach.outdir import benchmarks_doc
 
 RTOL, ATOL = 1e-10, 1e-12
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 
 
 def timed(fun, repeat: int) -> tuple[float, object]:

@@ -20,11 +20,12 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 from ocreach.reach.base import reach
 from ocreach.reach.indirect import FFOE
 from ocreach.registry import get_problem
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 RTOL, ATOL = 1e-10, 1e-12
 
 

@@ -29,8 +29,9 @@ from ocreach.fileio import replace_markdown_section
 from ocreach.intervals import evaluator as iv
 from ocreach.models import cr3bp, twobody
 from ocreach.models.reentry import reentry
+from ocreach.outdir import benchmarks_doc
 
-DOCS = ROOT / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(ROOT / "docs" / "benchmarks.md")
 MU = 0.01215058560962404
 
 

@@ -18,8 +18,9 @@ import numpy as np
 
 from ocreach.fileio import replace_markdown_section
 from ocreach.geometry.meb import minimum_enclosing_ball
+from ocreach.outdir import benchmarks_doc
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 
 
 def _median(fn, reps: int) -> tuple[float, object]:

@@ -29,8 +29,9 @@ import ocreach
 from ocreach.control import LQR, MPC, Plant, reference_from_problem
 from ocreach.control.report import PAPER_OFFSET_BOX, PAPER_Q, PAPER_R
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 IPOPT_COMMON = {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": False,
                 "ipopt.tol": 1e-10, "ipopt.acceptable_tol": 1e-7, "ipopt.max_iter": 100,
                 "ipopt.max_cpu_time": 1.0}

@@ -22,9 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 from ocreach.sets import PolyZonotope, Zonotope, new_ids, points_in_zonotope, reduce, tensor_map
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 
 
 def _best(fn, reps: int) -> float:

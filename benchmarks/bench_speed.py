@@ -37,8 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 PY = sys.executable
 
 

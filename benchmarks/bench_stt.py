@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 
 PAPER = {  # Foss et al. Table 1 (VdP) and the totals quoted in Sec. 4 (Julia, their machine)
     "vdp": {"stt_generation": 1.549, "tensor_maps": 3.750, "reductions": 0.478, "total": 5.777},

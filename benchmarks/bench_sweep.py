@@ -30,12 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 from ocreach.sweep import Spec, run_sweep, spec_from_dict
 from ocreach.sweep.executors import ExecutorHandle, single_thread_env
 from ocreach.sweep.store import LOG, Store
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = ROOT / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(ROOT / "docs" / "benchmarks.md")
 
 
 def _records(out: Path) -> list[dict]:

@@ -24,9 +24,10 @@ import numpy as np
 import ocreach
 from ocreach.errors import SolverError
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 from ocreach.registry import get_problem
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+DOCS = benchmarks_doc(Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md")
 PAPER = {200: 3.443, 300: 5.103}
 HOUR = 3600.0 / 375200.0
 

@@ -17,8 +17,9 @@ from pathlib import Path
 
 from ocreach.errors import OcreachError, ProblemError, SolverError, check_count
 from ocreach.interrupt import install as install_interrupt_handler
-from ocreach.interrupt import interrupt_requested, stage
+from ocreach.interrupt import interrupt_requested
 from ocreach.interrupt import restore as restore_interrupt_handler
+from ocreach.outdir import Stages, write_as_unit
 
 #: Modules that add commands: each has ``register(subparsers) -> None``.  One line per module.
 COMMAND_MODULES: list[str] = [
@@ -106,29 +107,7 @@ def _small(obj, limit: int = 16):
     return obj
 
 
-class _Stages:
-    """Marks named stages (:func:`ocreach.interrupt.stage`) and remembers the last one reached."""
-
-    def __init__(self) -> None:
-        self.last = "start"
-
-    def __call__(self, name: str) -> None:
-        self.last = name
-        stage(name)
-
-
-def _interrupted(out, mark: _Stages) -> int:
-    """Message and exit code 130 after Ctrl-C; the message says exactly what was kept."""
-    if out.done == "committed":
-        print(f"interrupted after the run was complete: {out.target} holds the new results",
-              file=sys.stderr)
-        return 130
-    kept = out.keep_partial(f"interrupted (Ctrl-C) at stage {mark.last!r}")
-    print(f"interrupted (Ctrl-C) at stage {mark.last!r}: {out.describe_partial(kept)}", file=sys.stderr)
-    return 130
-
-
-def _write_run(folder: Path, result, problem, method: str, mark: _Stages) -> list[str]:
+def _write_run(folder: Path, result, problem, method: str, mark: Stages) -> list[str]:
     """``result.npz``, one figure per projection plane and ``summary.json`` into ``folder``."""
     from ocreach.fileio import atomic_write_text, json_text, jsonable
     from ocreach.reach.plot import plot_projections_over_time
@@ -211,29 +190,6 @@ def cmd_problem(args: argparse.Namespace) -> int:
     return 0
 
 
-def _as_unit(out, mark: _Stages, work) -> int | None:
-    """Run ``work()`` (writes into ``out.path``; returns None when the run is complete, else an
-    exit code after keeping its partial files) and publish the folder when complete.  Ctrl-C, or
-    an error that a Ctrl-C turned into, ends in :func:`_interrupted`; another error keeps the
-    finished files as partial and propagates."""
-    try:
-        rc = work()
-        if rc is not None:
-            return rc
-        mark("commit")
-        out.commit()
-        mark("done")
-    except KeyboardInterrupt:
-        return _interrupted(out, mark)
-    except Exception:
-        if interrupt_requested():  # a Ctrl-C that native code turned into another error
-            return _interrupted(out, mark)
-        if out.done is None:
-            out.keep_partial("failed")
-        raise
-    return None
-
-
 def cmd_run(args: argparse.Namespace) -> int:
     from ocreach.outdir import OutputDir
 
@@ -241,7 +197,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     problem = _problem(args.problem, prob_raw)
     method = _method(problem, args.method, opt_raw)
     out = OutputDir(args.out or f"out/{problem.id}_{args.method}")
-    mark = _Stages()
+    mark = Stages()
     print(problem.summary())
     done: dict = {}
 
@@ -260,7 +216,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         done.update(result=result, files=_write_run(out.path, result, problem, args.method, mark))
         return None
 
-    rc = _as_unit(out, mark, work)
+    rc = write_as_unit(out, mark, work)
     if rc is not None:
         return rc
     rt = done["result"].meta.get("runtime", {})
@@ -294,7 +250,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     per_method = {m: _method_options(m, per_raw[m]) for m in methods}
     truth = check_count("--truth-samples", parse_literal(args.truth_samples), 1)
     out = OutputDir(args.out or f"out/compare_{problem.id}")
-    mark = _Stages()
+    mark = Stages()
     done: dict = {}
 
     def work() -> int | None:
@@ -314,7 +270,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             return 130
         return None
 
-    rc = _as_unit(out, mark, work)
+    rc = write_as_unit(out, mark, work)
     if rc is not None:
         return rc
     print(f"\nwrote {out.target}: comparison.md, metrics.json, overlay.png and one result per method")
@@ -329,11 +285,11 @@ def cmd_report(args: argparse.Namespace) -> int:
     mod_name, func_name = REPORT_KINDS[args.kind].split(":")
     report_fn = getattr(importlib.import_module(mod_name), func_name)
     from ocreach.options import coerce
-    from ocreach.outdir import check_output_dir
+    from ocreach.outdir import OutputDir, check_output_dir
 
     prob_raw, opt_raw = _split_options(_parse_sets(args.set))
     problem = _problem(args.problem, prob_raw)
-    out = check_output_dir(args.out or f"out/report_{problem.id}")
+    target = check_output_dir(args.out or f"out/report_{problem.id}")
     opts = coerce(opt_raw, report_fn)
     if getattr(args, "controllers", None):
         opts["controllers"] = args.controllers
@@ -345,9 +301,19 @@ def cmd_report(args: argparse.Namespace) -> int:
         opts["reference"] = args.reference
     if args.kind == "station-keeping":
         opts.setdefault("progress", True)
-    metrics = report_fn(problem, out, **opts)
-    print(json.dumps(metrics, indent=2, default=str))
-    print(f"wrote {out}/report.md, report.html, metrics.json and figures")
+    out = OutputDir(target)
+    mark = Stages()
+    done: dict = {}
+
+    def work() -> None:
+        mark("report")
+        done["metrics"] = report_fn(problem, out.path, **opts)
+
+    rc = write_as_unit(out, mark, work)
+    if rc is not None:
+        return rc
+    print(json.dumps(done["metrics"], indent=2, default=str))
+    print(f"wrote {out.target}: report.md, report.html, metrics.json and figures")
     return 0
 
 
@@ -367,11 +333,30 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 raise ProblemError(f"benchmark {s.stem} compares against {pip_name}, which is not "
                                    f"installed: pip install {pip_name}  (or pip install "
                                    f"'ocreach[bench]')")
+    if not args.write:
+        return _run_benchmarks(scripts, [])
+    import os
+
+    from ocreach.outdir import BENCH_DOC_ENV, StagedFiles
+
+    doc = bench_dir.parent / "docs" / "benchmarks.md"
+    with StagedFiles(doc.parent, "docs folder") as staged:  # checked before any benchmark runs
+        env = {**os.environ, BENCH_DOC_ENV: str(staged.path(doc.name, seed=True))}
+        rc = _run_benchmarks(scripts, ["--write"], env)
+        if rc != 0:
+            print(f"{doc} left unchanged: a benchmark failed (exit {rc}); nothing was written",
+                  file=sys.stderr)
+            return rc
+        staged.commit()
+    print(f"wrote {doc}: the sections of {len(scripts)} benchmark(s)")
+    return 0
+
+
+def _run_benchmarks(scripts: list[Path], extra: list[str], env: dict | None = None) -> int:
     rc = 0
     for s in scripts:
         print(f"== {s.name}")
-        cmd = [sys.executable, str(s)] + (["--write"] if args.write else [])
-        rc |= subprocess.call(cmd)
+        rc |= subprocess.call([sys.executable, str(s)] + extra, env=env)
     return rc
 
 

@@ -11,18 +11,32 @@ everything there.  Then exactly one of:
   finished so far (if any) become ``DIR.partial`` with a ``MANIFEST.json`` saying they are a
   partial run (``"complete": false``, the reason and the file list); with nothing finished the
   temporary folder is removed.
+
+:class:`StagedFiles` is the same idea for files that join an existing folder (``ocreach sweep
+collect`` writes its tables into the sweep's folder, ``ocreach bench --write`` the benchmark
+sections into ``docs/benchmarks.md``): every file is finished in a temporary folder inside the
+target folder first, and only then renamed into place, each rename atomic; a failure or Ctrl-C
+before that leaves the target folder as it was.
+
+:func:`write_as_unit` is the path every command that writes a folder takes (``run``, ``compare``,
+``report``, ``custody``): it runs the command's work in the temporary folder and commits it, or
+keeps the partial files on Ctrl-C or an error.  Inputs are checked before the folder exists
+(:func:`check_output_dir` first); an error of the work itself leaves ``DIR`` untouched and no
+temporary folder behind when nothing was finished.
 """
 from __future__ import annotations
 
 import json
 import os
 import shutil
+import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from ocreach.errors import ProblemError
-from ocreach.interrupt import deferred
+from ocreach.interrupt import deferred, interrupt_requested, stage
 
 
 def check_output_dir(target: str | Path, option: str = "--out") -> Path:
@@ -112,3 +126,99 @@ class OutputDir:
     @staticmethod
     def files_in(folder: Path) -> list[str]:
         return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+
+
+class Stages:
+    """Marks named stages (:func:`ocreach.interrupt.stage`) and remembers the last one reached."""
+
+    def __init__(self) -> None:
+        self.last = "start"
+
+    def __call__(self, name: str) -> None:
+        self.last = name
+        stage(name)
+
+
+def interrupted(out: OutputDir, mark: Stages) -> int:
+    """Message and exit code 130 after Ctrl-C; the message says exactly what was kept."""
+    if out.done == "committed":
+        print(f"interrupted after the run was complete: {out.target} holds the new results",
+              file=sys.stderr)
+        return 130
+    kept = out.keep_partial(f"interrupted (Ctrl-C) at stage {mark.last!r}")
+    print(f"interrupted (Ctrl-C) at stage {mark.last!r}: {out.describe_partial(kept)}", file=sys.stderr)
+    return 130
+
+
+def write_as_unit(out: OutputDir, mark: Stages, work: Callable[[], int | None]) -> int | None:
+    """Run ``work()`` (writes into ``out.path``; returns None when the run is complete, else an
+    exit code after keeping its partial files) and publish the folder when complete.  Ctrl-C, or
+    an error that a Ctrl-C turned into, ends in :func:`interrupted`; another error keeps the
+    finished files as partial (none finished: the temporary folder is removed) and propagates."""
+    try:
+        rc = work()
+        if rc is not None:
+            return rc
+        mark("commit")
+        out.commit()
+        mark("done")
+    except KeyboardInterrupt:
+        return interrupted(out, mark)
+    except Exception:
+        if interrupt_requested():  # a Ctrl-C that native code turned into another error
+            return interrupted(out, mark)
+        if out.done is None:
+            out.keep_partial("failed")
+        raise
+    return None
+
+
+class StagedFiles:
+    """Files finished in a temporary folder inside ``folder`` and renamed into it on
+    :meth:`commit` (module docstring); as a context manager the staging folder is removed on
+    exit, committed or not."""
+
+    def __init__(self, folder: str | Path, option: str = "folder") -> None:
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise ProblemError(f"{option} {str(self.folder)!r} is not a folder")
+        if not os.access(self.folder, os.W_OK | os.X_OK):
+            raise ProblemError(f"{option} {str(self.folder)!r} is not writable")
+        self.stage = Path(tempfile.mkdtemp(prefix=".staged.tmp-", dir=self.folder))
+        self.names: list[str] = []
+
+    def path(self, name: str, seed: bool = False) -> Path:
+        """The staged path of ``folder/name``; ``seed``: start from a copy of the current file."""
+        if name not in self.names:
+            self.names.append(name)
+            if seed and (self.folder / name).is_file():
+                shutil.copy2(self.folder / name, self.stage / name)
+        return self.stage / name
+
+    def commit(self) -> list[Path]:
+        """Rename every staged file that exists into ``folder`` (Ctrl-C held back meanwhile)."""
+        done = []
+        with deferred():
+            for name in self.names:
+                if (self.stage / name).exists():
+                    os.replace(self.stage / name, self.folder / name)
+                    done.append(self.folder / name)
+        return done
+
+    def __enter__(self) -> StagedFiles:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        shutil.rmtree(self.stage, ignore_errors=True)
+
+
+#: set by ``ocreach bench --write``: the staged copy of ``docs/benchmarks.md`` the scripts update
+BENCH_DOC_ENV = "OCREACH_BENCH_DOC"
+
+
+def benchmarks_doc(default: str | Path) -> Path:
+    """Where a benchmark's ``--write`` goes: the staged copy that ``ocreach bench --write``
+    publishes when every script succeeded (``$OCREACH_BENCH_DOC``), else ``default`` (a script
+    run on its own updates its section of ``docs/benchmarks.md`` directly, atomically)."""
+    staged = os.environ.get(BENCH_DOC_ENV)
+    return Path(staged) if staged else Path(default)

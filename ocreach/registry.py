@@ -18,6 +18,9 @@ from typing import Any
 from ocreach.errors import ProblemError, UnknownNameError
 from ocreach.problem import Problem
 
+#: module-name prefix of a user's problem file loaded by path
+USER_MODULE_PREFIX = "ocreach_user_"
+
 
 def _registry() -> dict[str, Callable[..., Problem]]:
     import ocreach.problems as pkg
@@ -43,11 +46,14 @@ def list_problems() -> dict[str, str]:
     return out
 
 
-def _call_factory(pid: str, factory: Callable[..., Problem], overrides: dict[str, Any]) -> Problem:
+def _call_factory(pid: str, factory: Callable[..., Problem], overrides: dict[str, Any],
+                  source: Path | None = None) -> Problem:
+    """``factory(**overrides)`` checked; ``source``: the user's problem file it came from, whose
+    name and line then prefix whatever the factory raises."""
     overrides = dict(overrides)
     coordinates = overrides.pop("coordinates", None)   # every problem takes it (Problem.coordinates)
     if coordinates is not None:
-        prob = _call_factory(pid, factory, overrides)
+        prob = _call_factory(pid, factory, overrides, source)
         prob.coordinates = coordinates
         return prob.validate()
     sig = inspect.signature(factory)
@@ -61,24 +67,71 @@ def _call_factory(pid: str, factory: Callable[..., Problem], overrides: dict[str
     overrides = strict_bools(factory, overrides, "problem option ")
     overrides = {k: typed_number(k, v, sig.parameters[k].annotation) if k in sig.parameters else v
                  for k, v in overrides.items()}
-    prob = factory(**overrides)
+    if source is None:
+        prob = factory(**overrides)
+    else:  # a user's factory: whatever it raises is reported with the file and the line
+        try:
+            prob = factory(**overrides)
+        except Exception as exc:
+            raise ProblemError(_located(source, exc, f"factory {pid!r} raised")) from exc
     if not isinstance(prob, Problem):
-        raise ProblemError(f"factory for {pid!r} must return a Problem; got {type(prob).__name__}")
+        where = f"{source}: line {_first_line(factory)}: " if source is not None else ""
+        raise ProblemError(f"{where}factory for {pid!r} must return an ocreach.Problem; got "
+                           f"{type(prob).__name__}")
     return prob
+
+
+def _first_line(factory: Callable[..., Problem]) -> int | str:
+    code = getattr(factory, "__code__", None)
+    return code.co_firstlineno if code is not None else "?"
+
+
+def _located(path: Path, exc: BaseException, what: str = "") -> str:
+    """``FILE.py: line N: WHAT: Type: message`` with the last line of ``path`` in the traceback
+    (or the line of a syntax error); the type is left out for a ProblemError."""
+    line = getattr(exc, "lineno", None) if isinstance(exc, SyntaxError) else None
+    target = str(path.resolve())
+    tb = exc.__traceback__
+    while tb is not None:
+        if str(Path(tb.tb_frame.f_code.co_filename).resolve()) == target:
+            line = tb.tb_lineno
+        tb = tb.tb_next
+    msg = exc.msg if isinstance(exc, SyntaxError) else str(exc)
+    kind = "" if isinstance(exc, ProblemError) else f"{type(exc).__name__}: "
+    return f"{path}: " + (f"line {line}: " if line else "") + (f"{what}: " if what else "") + kind + msg
 
 
 def _file_table(path: Path) -> dict[str, Callable[..., Problem]]:
     if not path.is_file():
         raise ProblemError(f"problem file {str(path)!r} does not exist")
-    spec = importlib.util.spec_from_file_location(f"ocreach_user_{path.stem}", path)
+    spec = importlib.util.spec_from_file_location(f"{USER_MODULE_PREFIX}{path.stem}", path)
+    if spec is None or spec.loader is None:
+        raise ProblemError(f"problem file {str(path)!r} is not a Python file (FILE.py)")
     mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    table: dict[str, Callable[..., Problem]] = dict(getattr(mod, "PROBLEMS", {}))
-    if not table and hasattr(mod, "problem"):
+    try:
+        spec.loader.exec_module(mod)
+    except SyntaxError as exc:
+        raise ProblemError(_located(path, exc)) from None
+    except Exception as exc:
+        raise ProblemError(_located(path, exc, "error while importing the problem file")) from exc
+    table = getattr(mod, "PROBLEMS", None)
+    if table is None and hasattr(mod, "problem"):
         table = {path.stem: mod.problem}
-    if not table:
+    if table is None:
         raise ProblemError(f"{path} defines neither PROBLEMS = {{id: factory}} nor problem()")
-    return table
+    if not isinstance(table, dict) or not table:
+        raise ProblemError(f"{path}: PROBLEMS must be a non-empty dict {{id: factory}}; got "
+                           f"{type(table).__name__} {_short(table)}")
+    bad = {k: v for k, v in table.items() if not isinstance(k, str) or not callable(v)}
+    if bad:
+        raise ProblemError(f"{path}: PROBLEMS must map problem ids (str) to factories (callables "
+                           f"returning an ocreach.Problem); got {_short(bad)}")
+    return dict(table)
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def split_file_id(spec: str) -> tuple[Path, str | None] | None:
@@ -115,11 +168,11 @@ def problem_factory(pid: str) -> tuple[str, Callable[..., Problem]]:
 
 def load_problem_file(path: str | Path, pid: str | None = None, **overrides: Any) -> Problem:
     """Load a user problem from a Python file defining ``PROBLEMS`` or a ``problem()`` function."""
-    sub, factory = problem_factory(str(path) + (f":{pid}" if pid is not None else ""))
-    return _call_factory(sub, factory, overrides)
+    return get_problem(str(path) + (f":{pid}" if pid is not None else ""), **overrides)
 
 
 def get_problem(pid: str, **overrides: Any) -> Problem:
     """Return the bundled problem ``pid`` (or a file ``f.py`` / ``f.py:ID``) with keyword overrides."""
     sub, factory = problem_factory(str(pid))
-    return _call_factory(sub, factory, overrides)
+    file_spec = split_file_id(str(pid))
+    return _call_factory(sub, factory, overrides, file_spec[0] if file_spec else None)

@@ -40,6 +40,7 @@ def _cli_cases(tmp: Path) -> list[tuple]:
     two.write_text("from ocreach.problems.foss import vdp\nPROBLEMS = {'a': vdp, 'b': vdp}\n")
     none = tmp / "none.py"
     none.write_text("x = 1\n")
+    files = _problem_files(tmp)
     C = []
     add = C.append
     # -- command structure
@@ -72,6 +73,20 @@ def _cli_cases(tmp: Path) -> list[tuple]:
                         (("report", "nope"), "report"), (("methods", "nope"), "method"),
                         (("problem", "nope"), "problem"), (("bench", "--only", "nothing"), "--only"),
                         (("list", "--bogus"), "--bogus")]:
+        add((cli(*argv), param))
+    # -- users' problem files: the file and the line, exit 2
+    for name, param in (("syntax.py", "syntax.py: line 2: SyntaxError"),
+                        ("import_raises.py", "import_raises.py: line 3: error while importing"),
+                        ("factory_raises.py", "factory_raises.py: line 5: factory 'boom' raised: "
+                                              "IndexError"),
+                        ("not_a_problem.py", "not_a_problem.py: line 1: factory for 'not_a_problem' "
+                                             "must return an ocreach.Problem"),
+                        ("problems_list.py", "PROBLEMS must be a non-empty dict"),
+                        ("problems_values.py", "PROBLEMS must map problem ids")):
+        add((cli("run", str(files[name]), "-m", "mc"), param))
+    # -- folders written as a unit: refused before any output folder exists
+    for argv, param in (*LEAVE_NO_FOLDER, (("custody", "custody-l1", "--fov", "1", "--p", "2",
+                                            "--out", "c1"), "probability")):
         add((cli(*argv), param))
     # -- method options, typed by their declared types
     opts = {
@@ -119,7 +134,11 @@ def _api_cases(tmp: Path) -> list[tuple]:
     from ocreach.reach.result import ReachResult
     from ocreach.sets import Ellipsoid, Interval, MatrixZonotope, PolyZonotope, Zonotope
 
+    from ocreach.control.stationkeeping.runs import run_station_keeping
+    from ocreach.models.ephemeris import ephemeris_inertial
+
     vdp = ocreach.get_problem("vdp")
+    nrho = ocreach.get_problem("nrho-9-2")
     model = vdp.model
     r = ReachResult.from_trajectories(vdp.grid, np.zeros((3, vdp.grid.size, 2)), meta={"method": "mc"})
     text = tmp / "text.npz"
@@ -176,9 +195,70 @@ def _api_cases(tmp: Path) -> list[tuple]:
             ("get_problem('vdp', t_final=3.05)", lambda: ocreach.get_problem("vdp", t_final=3.05), "t_final"),
             ("get_problem('l2-halo', thrust=1e6)", lambda: ocreach.get_problem("l2-halo", thrust=1e6), "thrust"),
             ("save(set of unknown type)", lambda: ReachResult(times=[0, 1], sets=[object(), object()]).save(tmp / "u.npz"), "cannot save a set"),
+            ("run_station_keeping(nrho-9-2, plant/reference='ephemeris', controllers=('lqr',), initial='nonsense')",
+             lambda: run_station_keeping(nrho, plant="ephemeris", reference="ephemeris",
+                                         controllers=("lqr",), initial="nonsense"), "initial"),
+            ("run_station_keeping(nrho-9-2, plant/reference='ephemeris', controllers=('lqr', 'mpc'), initial=[1e-4] * 6)",
+             lambda: run_station_keeping(nrho, plant="ephemeris", reference="ephemeris",
+                                         controllers=("lqr", "mpc"), initial=[1e-4] * 6), "initial"),
+            ("ephemeris_inertial(..., window=('a', 1))",
+             lambda: ephemeris_inertial(["earth", "moon"], "earth", "2025-01-01", 2.0, 0.1, 3000.0,
+                                        1000.0, window=("a", 1)), "window[0]"),
+            ("ephemeris_inertial(..., window=(1,))",
+             lambda: ephemeris_inertial(["earth", "moon"], "earth", "2025-01-01", 2.0, 0.1, 3000.0,
+                                        1000.0, window=(1,)), "window"),
     ):
         add((api(text_, fn), param))
     return C
+
+
+#: bad inputs of commands that write an output folder: exit 2 and no folder (nor a temporary or
+#: partial one) left behind (:func:`test_bad_inputs_leave_no_folder_behind`)
+LEAVE_NO_FOLDER = [
+    (("report", "station-keeping", "--problem", "nrho-9-2", "--revolutions", "0", "--out", "r1"),
+     "revolutions"),
+    (("report", "station-keeping", "--problem", "nrho-9-2", "--controllers", "nonsense", "--out",
+      "r2"), "controllers"),
+    (("report", "station-keeping", "--problem", "nrho-9-2", "--plant", "ephemeris", "--reference",
+      "ephemeris", "--controllers", "lqr", "--set", "initial=nonsense", "--out", "r3"), "initial"),
+    (("report", "lqr-vs-mpc", "--problem", "l2-halo", "--set", "bogus=1", "--out", "r4"), "bogus"),
+]
+
+
+def _problem_files(tmp: Path) -> dict[str, Path]:
+    """Users' problem files that are broken in the ways a user breaks them."""
+    texts = {
+        "syntax.py": "import numpy as np\ndef problem(:\n",
+        "import_raises.py": "import numpy as np\n\nraise RuntimeError('no data file here')\n",
+        "factory_raises.py": ("import numpy as np\n\n\ndef boom():\n    return np.zeros(2)[5]\n\n\n"
+                              "PROBLEMS = {'boom': boom}\n"),
+        "not_a_problem.py": "def problem():\n    return 42\n",
+        "problems_list.py": "PROBLEMS = [1, 2]\n",
+        "problems_values.py": "PROBLEMS = {'a': 3}\n",
+    }
+    out = {}
+    for name, text in texts.items():
+        out[name] = tmp / name
+        out[name].write_text(text)
+    return out
+
+
+def test_bad_inputs_leave_no_folder_behind(tmp_path, monkeypatch):
+    """The output-folder commands refuse these inputs with exit 2 and create nothing: no
+    ``--out`` folder, no temporary ``.NAME.tmp-*`` folder, no ``NAME.partial``."""
+    monkeypatch.chdir(tmp_path)
+    files = _problem_files(tmp_path)
+    cases = list(LEAVE_NO_FOLDER)
+    cases += [(("run", str(files[name]), "-m", "mc", "--out", "u1"), "line")
+              for name in ("syntax.py", "factory_raises.py")]
+    cases += [(("custody", "custody-l1", "--fov", "1", "--p", "2", "--out", "c1"), "probability"),
+              (("compare", "vdp", "--methods", "mc", "--set", "mc.samples=0", "--out", "m1"),
+               "samples")]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for argv, param in cases:
+        msg = _message(("cli", " ".join(argv), argv))
+        assert param in msg
+        assert sorted(p.name for p in tmp_path.iterdir()) == before, (argv, msg)
 
 
 def _message(case) -> str:

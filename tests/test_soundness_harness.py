@@ -27,15 +27,25 @@ from hypothesis import HealthCheck, given, settings
 from ocreach.errors import ProblemError
 from ocreach.model import Model
 from ocreach.problem import Problem
-from ocreach.registry import problem_factories
 from ocreach.reach import base
 from ocreach.reach.base import Method
 from ocreach.reach.result import ReachResult
+from ocreach.registry import problem_factories
 from ocreach.sets.polyzonotope import PolyZonotope
 from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope
-from ocreach.testing import (GENERAL, REMAINDER_DOMINATED, Case, bundled_cases, generated_case,
-                             guaranteed_methods, run_all, run_method, seeded_system, systems)
+from ocreach.testing import (
+    GENERAL,
+    REMAINDER_DOMINATED,
+    Case,
+    bundled_cases,
+    generated_case,
+    guaranteed_methods,
+    run_all,
+    run_method,
+    seeded_system,
+    systems,
+)
 from ocreach.testing.containment import check_points
 from ocreach.testing.mutants import scaled_remainder_taylor
 from ocreach.testing.truth import integrate, model_rhs, samples

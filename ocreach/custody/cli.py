@@ -19,7 +19,8 @@ def _floats(text: str, name: str) -> list[float]:
 
 
 def cmd_custody(args: argparse.Namespace) -> int:
-    from ocreach.custody.report import CUSTODY_PROBLEMS, analyse, write_outputs
+    from ocreach.custody.report import CUSTODY_PROBLEMS, analyse, markdown_table, write_outputs
+    from ocreach.outdir import OutputDir, Stages, check_output_dir, write_as_unit
 
     problems = list(CUSTODY_PROBLEMS) if args.problem == "all" else \
         [p.strip() for p in args.problem.split(",") if p.strip()]
@@ -27,16 +28,28 @@ def cmd_custody(args: argparse.Namespace) -> int:
     horizons = _floats(args.horizons, "--horizons") if args.horizons else None
     controls = ["box", "ball"] if args.control_set == "both" else [args.control_set]
     observers = [o.strip() for o in args.observer.split(";") if o.strip()]
-    cases, per_problem = analyse(problems, observers, fovs, fov_shape=args.fov_shape, p_required=args.p,
-                                 horizons=horizons, control_sets=controls, tol_days=args.tol,
-                                 step_days=args.step, samples=args.samples, epoch=args.epoch,
-                                 mc_samples=args.mc, progress=lambda s: print(s, file=sys.stderr))
-    out = args.out or f"out/custody_{'all' if args.problem == 'all' else problems[0]}"
-    paths = write_outputs(cases, per_problem, out, figures=not args.no_figures, p_required=args.p)
-    from ocreach.custody.report import markdown_table
+    target = check_output_dir(args.out or f"out/custody_{'all' if args.problem == 'all' else problems[0]}")
+    out = OutputDir(target)
+    mark = Stages()
+    done: dict = {}
 
-    print(markdown_table(cases))
-    print(f"wrote {paths['json']}, {paths['md']} and {len(paths['figures'])} figure(s)")
+    def work() -> None:
+        mark("analyse")
+        cases, per_problem = analyse(problems, observers, fovs, fov_shape=args.fov_shape,
+                                     p_required=args.p, horizons=horizons, control_sets=controls,
+                                     tol_days=args.tol, step_days=args.step, samples=args.samples,
+                                     epoch=args.epoch, mc_samples=args.mc,
+                                     progress=lambda s: print(s, file=sys.stderr))
+        mark("write")
+        paths = write_outputs(cases, per_problem, out.path, figures=not args.no_figures,
+                              p_required=args.p)
+        done.update(cases=cases, figures=len(paths["figures"]))
+
+    rc = write_as_unit(out, mark, work)
+    if rc is not None:
+        return rc
+    print(markdown_table(done["cases"]))
+    print(f"wrote {out.target}: custody.json, custody.md and {done['figures']} figure(s)")
     return 0
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import replace
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -31,7 +32,7 @@ from ocreach.ephemeris import (
     ephemeris_fit,
     gm,
 )
-from ocreach.errors import ProblemError, check_positive
+from ocreach.errors import ProblemError, check_positive, check_real
 from ocreach.model import Model
 from ocreach.units import EARTH_MOON_FOSS, G0, Units
 
@@ -81,6 +82,20 @@ def _gm_of(eph):
 
 def _second_derivative(expr: ca.SX, t: ca.SX) -> ca.SX:
     return ca.jacobian(ca.jacobian(expr, t), t)
+
+
+def _check_window_tu(window: Any) -> tuple[float, float]:
+    """``window = (lo, hi)`` in TU after the epoch as floats; :class:`ProblemError` unless it is
+    a pair of finite numbers with ``lo < hi``."""
+    try:
+        lo, hi = window
+    except (TypeError, ValueError):
+        raise ProblemError(f"window must be a pair (lo, hi) of model times (TU after the epoch) "
+                           f"with lo < hi; got {window!r}") from None
+    lo, hi = check_real("window[0] (TU)", lo), check_real("window[1] (TU)", hi)
+    if not lo < hi:
+        raise ProblemError(f"window must be (lo, hi) with lo < hi (TU after the epoch); got {window!r}")
+    return lo, hi
 
 
 def ephemeris_inertial(
@@ -157,7 +172,8 @@ def ephemeris_inertial(
 
     t = ca.SX.sym("t")
     ts = tu * t
-    win = None if window is None else (tu * float(window[0]), tu * float(window[1]))
+    window = None if window is None else _check_window_tu(window)
+    win = None if window is None else (tu * window[0], tu * window[1])
     r = ca.SX.sym("r", 3)
     v = ca.SX.sym("v", 3)
     n = ca.SX.sym("n")

@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ocreach.fileio import atomic_write_bytes, atomic_write_text
+from ocreach.fileio import atomic_write_bytes
 from ocreach.sweep.errors import SweepError
 from ocreach.sweep.store import LOG, read_log, read_meta
 
@@ -87,7 +87,13 @@ def collect_table(out: str | Path) -> tuple[list[str], list[dict[str, Any]]]:
 
 
 def write_table(out: str | Path, formats: str | list[str] = "csv") -> list[Path]:
-    """Write ``DIR/table.csv`` (and ``table.parquet`` when asked and pyarrow is installed)."""
+    """Write ``DIR/table.csv`` (and ``table.parquet`` when asked and pyarrow is installed).
+
+    Every table is built in memory and written into a staging folder inside ``DIR`` before any of
+    them replaces the old one (:class:`ocreach.outdir.StagedFiles`): a failure leaves the old
+    tables, never a new ``table.csv`` beside an old ``table.parquet``."""
+    from ocreach.outdir import StagedFiles
+
     fmts = [f.strip() for f in (formats.split(",") if isinstance(formats, str) else formats) if f.strip()]
     bad = [f for f in fmts if f not in FORMATS]
     if bad or not fmts:
@@ -99,14 +105,14 @@ def write_table(out: str | Path, formats: str | list[str] = "csv") -> list[Path]
             raise SweepError("--format parquet needs pyarrow, which is not installed: "
                              "pip install 'ocreach[parquet]' (csv needs nothing extra)") from None
     columns, rows = collect_table(out)
-    paths = []
+    data: dict[str, bytes] = {}
     if "csv" in fmts:
         buf = io.StringIO()
         w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
         w.writeheader()
         for row in rows:
             w.writerow({c: ("" if row.get(c) is None else row.get(c)) for c in columns})
-        paths.append(atomic_write_text(Path(out) / "table.csv", buf.getvalue()))
+        data["table.csv"] = buf.getvalue().encode()
     if "parquet" in fmts:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -120,5 +126,8 @@ def write_table(out: str | Path, formats: str | list[str] = "csv") -> list[Path]
             cols[c] = vals
         sink = pa.BufferOutputStream()
         pq.write_table(pa.table(cols), sink)
-        paths.append(atomic_write_bytes(Path(out) / "table.parquet", sink.getvalue().to_pybytes()))
-    return paths
+        data["table.parquet"] = sink.getvalue().to_pybytes()
+    with StagedFiles(out, "sweep folder") as staged:
+        for name, blob in data.items():
+            atomic_write_bytes(staged.path(name), blob)
+        return staged.commit()

@@ -203,7 +203,7 @@ def run_method(method: str | type[Method], case: Case, *, n_samples: int = 60, s
     out = Outcome(method=name, case=case.label, kind=case.kind, status="complete")
     try:
         result, out.status, out.reason = _solve(method, case.problem, dict(options or {}))
-    except Exception as exc:  # noqa: BLE001 -- a crash is a harness failure, reported as such
+    except Exception as exc:
         out.status, out.reason = "crashed", f"{type(exc).__name__}: {exc}"
         out.seconds = time.perf_counter() - t0
         return out

@@ -122,6 +122,33 @@ def _check_reference_kind(reference: str, plant: str, controllers) -> None:
                                f"plant='ephemeris'; got plant={plant!r}")
 
 
+def _check_initial(problem, initial: Any, reference: str, controllers) -> None:
+    """``initial`` of :func:`run_station_keeping`: ``"paper"`` or finite generators of the tubes'
+    initial deviation set (a scalar, the diagonal or an ``n_x x q`` matrix).  With
+    ``reference="ephemeris"`` and no tube controller no tube is computed, so a value other than
+    the default ``"paper"`` would have no effect: refused."""
+    n = problem.model.n_x
+    if isinstance(initial, str):
+        if initial != "paper":
+            raise ProblemError(f"initial must be 'paper' or generators (a scalar, {n} diagonal "
+                               f"entries or an n_x x q matrix, n_x = {n}); got {initial!r}")
+    else:
+        try:
+            G = np.asarray(initial, dtype=float)
+        except (TypeError, ValueError):
+            G = None
+        if G is None or not (G.ndim == 0 or (G.ndim == 1 and G.size == n)
+                             or (G.ndim == 2 and G.shape[0] == n)) or not np.all(np.isfinite(G)):
+            raise ProblemError(f"initial must be 'paper' or finite generators (a scalar, {n} "
+                               f"diagonal entries or an n_x x q matrix, n_x = {n}); got {initial!r}")
+    tubes = [c for c in controllers if c in TUBE_CONTROLLERS]
+    if reference == "ephemeris" and not tubes and not isinstance(initial, str):
+        raise ProblemError(f"initial (the tubes' initial deviation set) has no effect with "
+                           f"reference='ephemeris' and controllers {list(controllers)}: no tube is "
+                           f"computed (only {list(TUBE_CONTROLLERS)} use one); leave initial "
+                           f"'paper' or add a tube controller; got initial={initial!r}")
+
+
 @dataclass
 class StationKeepingRun:
     """Results of :func:`run_station_keeping`: per controller the :class:`SimResult`, metrics and
@@ -212,6 +239,7 @@ def run_station_keeping(problem, *, controllers: tuple[str, ...] = CONTROLLERS,
     if plant not in PLANTS:
         raise ProblemError(f"plant must be one of {list(PLANTS)}; got {plant!r}")
     _check_reference_kind(reference, plant, controllers)
+    _check_initial(problem, initial, reference, controllers)
     if isinstance(ephemeris_bodies, str):
         ephemeris_bodies = tuple(b.strip() for b in ephemeris_bodies.split(",") if b.strip())
     n_p = check_count("n_p (prediction horizon)", n_p, 1)
