@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -360,3 +361,67 @@ def test_output_dir_partial_and_nothing(tmp_path):
     assert kept == tmp_path / "d.partial" and not (tmp_path / "d").exists()
     assert "not created; the finished files are kept in" in out.describe_partial(kept)
     assert json.loads((kept / "MANIFEST.json").read_text())["files"] == ["a.npz"]
+
+
+def test_staged_files_replace_all_or_nothing(tmp_path):
+    """``StagedFiles``: nothing in the folder changes until commit; an error before it leaves the
+    old files and no staging folder."""
+    from ocreach.outdir import StagedFiles
+
+    (tmp_path / "a.csv").write_text("old a")
+    (tmp_path / "b.md").write_text("old b")
+    with pytest.raises(RuntimeError), StagedFiles(tmp_path) as st:
+        st.path("a.csv").write_text("new a")
+        assert (tmp_path / "a.csv").read_text() == "old a"
+        raise RuntimeError("the second table failed")
+    assert (tmp_path / "a.csv").read_text() == "old a"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.md"]
+    with StagedFiles(tmp_path) as st:
+        st.path("a.csv").write_text("new a")
+        seeded = st.path("b.md", seed=True)
+        assert seeded.read_text() == "old b"
+        seeded.write_text(seeded.read_text() + " + section")
+        assert st.commit() == [tmp_path / "a.csv", tmp_path / "b.md"]
+    assert (tmp_path / "a.csv").read_text() == "new a"
+    assert (tmp_path / "b.md").read_text() == "old b + section"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.md"]
+    with pytest.raises(ProblemError, match="not a folder"):
+        StagedFiles(tmp_path / "a.csv")
+
+
+def test_bench_write_publishes_the_staged_document_only_if_every_script_succeeds(tmp_path,
+                                                                                monkeypatch):
+    """``ocreach bench --write``: the scripts write their sections into a staged copy of
+    ``docs/benchmarks.md`` (``benchmarks_doc``); a failing script leaves the document as it was."""
+    import subprocess
+
+    from ocreach import cli
+    from ocreach.fileio import replace_markdown_section
+    from ocreach.outdir import BENCH_DOC_ENV, benchmarks_doc
+
+    docs = tmp_path / "docs"
+    bench = tmp_path / "benchmarks"
+    docs.mkdir()
+    bench.mkdir()
+    (docs / "benchmarks.md").write_text("# Benchmarks\n\n## A\n\nold\n")
+    for name in ("bench_a.py", "bench_b.py"):
+        (bench / name).write_text("")
+    monkeypatch.setattr(cli, "__file__", str(tmp_path / "ocreach" / "cli.py"))
+
+    def fake_call(cmd, env=None):  # a benchmark: its section into benchmarks_doc(...)
+        monkeypatch.setenv(BENCH_DOC_ENV, env[BENCH_DOC_ENV])
+        name = Path(cmd[1]).stem
+        replace_markdown_section(benchmarks_doc(docs / "benchmarks.md"), f"## {name}\n\nnew\n")
+        return 1 if state["fail"] and name == "bench_b" else 0
+
+    monkeypatch.setattr(subprocess, "call", fake_call)
+    state = {}
+    for fail in (True, False):
+        state["fail"] = fail
+        rc = cli.main(["bench", "--write"])
+        text = (docs / "benchmarks.md").read_text()
+        if fail:
+            assert rc == 1 and text == "# Benchmarks\n\n## A\n\nold\n"
+        else:
+            assert rc == 0 and "## bench_a\n\nnew" in text and "## bench_b\n\nnew" in text
+        assert sorted(p.name for p in docs.iterdir()) == ["benchmarks.md"]
