@@ -13,7 +13,8 @@ The CI profile of the same harness is ``tests/test_soundness_harness.py``; the h
 * the harness's power: a copy of ``taylor`` with its remainder bound halved
   (``ocreach.testing.mutants``) on the same generated systems -- on how many it is caught.
 
-    nice python examples/soundness_harness.py [--workers 2] [--quick] [--out docs/validation/soundness.md]
+    nice python examples/soundness_harness.py [--workers 2] [--quick]
+        [--out docs/validation/soundness.md]
 
 ``--quick``: 12 + 6 systems, 2 bundled steps with 500 samples (a smoke run, about 2 minutes).
 """
@@ -44,7 +45,24 @@ from ocreach.testing.mutants import scaled_remainder_taylor
 
 INNER = (0.25, 0.5, 0.75)
 POPULATIONS = {"GENERAL": GENERAL, "REMAINDER_DOMINATED": REMAINDER_DOMINATED}
-MUTANT = "taylor with the remainder bound x 0.5"
+INTRO = """# Soundness of the guaranteed methods: one harness for all
+
+Every registered method whose class declares `guaranteed = True` (today: {methods}) is run, with
+its default options, on generated systems and on every bundled problem, and checked against an
+independent truth: SciPy's DOP853 at `rtol = 1e-12`, `atol = 1e-14` on a numpy coding of each
+generated system (and on the model's `f` through a plain `casadi.Function` for a bundled
+problem), from vertices, the centre and the inside of the initial set, under constant-vertex,
+bang-bang, random and directed (extremal inputs of the linearised dynamics) piecewise-constant
+inputs.  Every set at a grid time must contain every truth state at that time, and every
+time-interval tube the states at both ends of its step and at a quarter, half and three quarters
+of it; membership is the exact scaled gauge on zonotopes and their unions (sets enlarged by
+`1e-9 (1 + |x|)`, gauge tolerance `1e-9`; a max gauge of 1 means every point was certified
+inside).  A method that refuses a problem with `ProblemError` has refused it cleanly; one that
+stops with `SolverError` has its partial sets checked; any other exception, or a result not
+marked guaranteed, is a failure.  The harness is `ocreach.testing`; the CI profile is
+`tests/test_soundness_harness.py`; this page is written by `examples/soundness_harness.py`
+({run}).
+"""
 
 
 def system_task(args: tuple[str, int, int]):
@@ -61,7 +79,8 @@ def system_task(args: tuple[str, int, int]):
 def bundled_task(args: tuple[str, int, int]):
     pid, steps, n_samples = args
     (case,) = bundled_cases(steps=steps, ids=[pid])
-    outs = [run_method(m, case, n_samples=n_samples, inner=INNER, seed=1) for m in guaranteed_methods()]
+    outs = [run_method(m, case, n_samples=n_samples, inner=INNER, seed=1)
+            for m in guaranteed_methods()]
     return pid, case.description, outs
 
 
@@ -114,27 +133,13 @@ def main() -> None:
                                   for pid in sorted(problem_factories())], a.workers)
     t_all = time.perf_counter() - t_start
 
-    L = ["# Soundness of the guaranteed methods: one harness for all", "",
-         "Every registered method whose class declares `guaranteed = True` (today: "
-         + ", ".join(f"`{m}`" for m in methods) + ") is run, with its default options, on generated "
-         "systems and on every bundled problem, and checked against an independent truth: SciPy's "
-         "DOP853 at `rtol = 1e-12`, `atol = 1e-14` on a numpy coding of each generated system (and "
-         "on the model's `f` through a plain `casadi.Function` for a bundled problem), from vertices, "
-         "the centre and the inside of the initial set, under constant-vertex, bang-bang, random and "
-         "directed (extremal inputs of the linearised dynamics) piecewise-constant inputs.  Every set at "
-         "a grid time must contain every truth state at that time, and every time-interval tube the "
-         "states at both ends of its step and at a quarter, half and three quarters of it; membership "
-         "is the exact scaled gauge on zonotopes and their unions (sets enlarged by `1e-9 (1 + |x|)`, "
-         "gauge tolerance `1e-9`).  A method that refuses a problem with `ProblemError` has refused "
-         "it cleanly; one that stops with `SolverError` has its partial sets checked; any other "
-         "exception, or a result not marked guaranteed, is a failure.  The harness is "
-         "`ocreach.testing`; the CI profile is `tests/test_soundness_harness.py`; this page is written "
-         "by `examples/soundness_harness.py` (" + ("`--quick`, " if a.quick else "")
-         + f"{a.systems} + {a.dominated} systems, {a.samples} samples each; bundled problems on "
-         f"{a.bundled_steps} grid steps with {a.bundled_samples:,} samples).", "",
-         f"Run {datetime.date.today().isoformat()} on {platform.machine()} ({os.cpu_count()} cores, "
-         f"shared), {a.workers} worker(s): {t_all / 60:.1f} min in total ({t_gen / 60:.1f} min for "
-         "the generated systems).", ""]
+    run = (f"{'`--quick`, ' if a.quick else ''}{a.systems} + {a.dominated} systems, {a.samples} "
+           f"samples each; bundled problems on {a.bundled_steps} grid steps with "
+           f"{a.bundled_samples:,} samples")
+    L = [INTRO.format(methods=", ".join(f"`{m}`" for m in methods), run=run),
+         f"Run {datetime.date.today().isoformat()} on {platform.machine()} ({os.cpu_count()} "
+         f"cores, shared), {a.workers} worker(s): {t_all / 60:.1f} min in total "
+         f"({t_gen / 60:.1f} min for the generated systems).", ""]
     for pop in POPULATIONS:
         rows = [d for d in done if d[0] == pop]
         if not rows:
@@ -147,9 +152,10 @@ def main() -> None:
     L += ["## Power of the harness: a halved remainder bound", "",
           "The same systems, run with a copy of `taylor` whose Lagrange remainder bound is "
           "multiplied by 0.5 (`ocreach.testing.mutants.scaled_remainder_taylor(0.5)`).  Where the "
-          "interval bound of the remainder over the tube's box is loose by more than a factor 2 the "
-          "halved copy can still contain every trajectory; the REMAINDER_DOMINATED population is built "
-          "so that it is not, and the CI mutation check runs on its seeds 0-7.", "",
+          "interval bound of the remainder over the tube's box is loose by more than a factor 2 "
+          "the halved copy can still contain every trajectory; the REMAINDER_DOMINATED "
+          "population is built so that it is not, and the CI mutation check runs on its seeds "
+          "0-7.", "",
           "| population | systems the copy ran on | caught (>= 1 escape) | median max gauge of the "
           "caught |", "|---|---|---|---|"]
     for pop in POPULATIONS:
@@ -171,8 +177,9 @@ def main() -> None:
             note = o.reason.split(";")[0][:140].replace("|", "/") if o.reason else ""
             if o.truth_failure:
                 note += f" truth: {o.truth_failure[:80]}"
-            L.append(f"| `{pid}` | `{o.method}` | {o.status} | {o.sets_checked} | {o.tubes_checked} "
-                     f"| {o.points_checked:,} | **{o.escapes}** | {o.max_gauge:.6g} | {note} |")
+            L.append(f"| `{pid}` | `{o.method}` | {o.status} | {o.sets_checked} | "
+                     f"{o.tubes_checked} | {o.points_checked:,} | **{o.escapes}** | "
+                     f"{o.max_gauge:.6g} | {note} |")
     L += ["", "Failures:", ""] + _failures(b_outs) + [""]
     all_outs = [o for d in done for o in d[3]] + b_outs
     total = sum(o.escapes for o in all_outs)

@@ -98,7 +98,8 @@ def _located(path: Path, exc: BaseException, what: str = "") -> str:
         tb = tb.tb_next
     msg = exc.msg if isinstance(exc, SyntaxError) else str(exc)
     kind = "" if isinstance(exc, ProblemError) else f"{type(exc).__name__}: "
-    return f"{path}: " + (f"line {line}: " if line else "") + (f"{what}: " if what else "") + kind + msg
+    where = f"line {line}: " if line else ""
+    return f"{path}: {where}" + (f"{what}: " if what else "") + kind + msg
 
 
 def _file_table(path: Path) -> dict[str, Callable[..., Problem]]:

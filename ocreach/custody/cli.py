@@ -28,7 +28,8 @@ def cmd_custody(args: argparse.Namespace) -> int:
     horizons = _floats(args.horizons, "--horizons") if args.horizons else None
     controls = ["box", "ball"] if args.control_set == "both" else [args.control_set]
     observers = [o.strip() for o in args.observer.split(";") if o.strip()]
-    target = check_output_dir(args.out or f"out/custody_{'all' if args.problem == 'all' else problems[0]}")
+    name = "all" if args.problem == "all" else problems[0]
+    target = check_output_dir(args.out or f"out/custody_{name}")
     out = OutputDir(target)
     mark = Stages()
     done: dict = {}

@@ -94,7 +94,8 @@ def _check_window_tu(window: Any) -> tuple[float, float]:
                            f"with lo < hi; got {window!r}") from None
     lo, hi = check_real("window[0] (TU)", lo), check_real("window[1] (TU)", hi)
     if not lo < hi:
-        raise ProblemError(f"window must be (lo, hi) with lo < hi (TU after the epoch); got {window!r}")
+        raise ProblemError(f"window must be (lo, hi) with lo < hi (TU after the epoch); "
+                           f"got {window!r}")
     return lo, hi
 
 

@@ -14,25 +14,25 @@ A layer above :mod:`ocreach.reach` (it runs methods on problems); nothing in the
 it.  ``hypothesis`` is needed only for :func:`ocreach.testing.strategies.systems`.
 """
 from ocreach.testing.harness import (
-                                     Case,
-                                     Outcome,
-                                     bundled_cases,
-                                     generated_case,
-                                     guaranteed_methods,
-                                     run_all,
-                                     run_method,
-                                     summary,
+    Case,
+    Outcome,
+    bundled_cases,
+    generated_case,
+    guaranteed_methods,
+    run_all,
+    run_method,
+    summary,
 )
 from ocreach.testing.strategies import (
-                                     GENERAL,
-                                     REMAINDER_DOMINATED,
-                                     GeneratedSystem,
-                                     Ranges,
-                                     generate,
-                                     seeded_system,
-                                     systems,
+    GENERAL,
+    REMAINDER_DOMINATED,
+    GeneratedSystem,
+    Ranges,
+    generate,
+    seeded_system,
+    systems,
 )
 
-__all__ = ["GENERAL", "REMAINDER_DOMINATED", "Case", "GeneratedSystem", "Outcome", "Ranges", "bundled_cases", "generate",
-           "generated_case", "guaranteed_methods", "run_all", "run_method", "seeded_system",
-           "summary", "systems"]
+__all__ = ["GENERAL", "REMAINDER_DOMINATED", "Case", "GeneratedSystem", "Outcome", "Ranges",
+           "bundled_cases", "generate", "generated_case", "guaranteed_methods", "run_all",
+           "run_method", "seeded_system", "summary", "systems"]

@@ -8,7 +8,8 @@ A point escapes a set when it lies outside the set enlarged by the box of radius
   enlarged set (:func:`ocreach.sets.union.union_gauge`: exact membership certificate, else the
   gauge LP ``min t : x in c + t G``), an escape when it exceeds ``1 + GAUGE_TOL``;
 * :class:`PolyZonotope` and :class:`PZUnion`: outside the zonotope enclosure is an escape; inside
-  it, the three-valued membership on the polynomial itself (:func:`ocreach.sets.pz_exact.membership`):
+  it, the three-valued membership on the polynomial itself
+  (:func:`ocreach.sets.pz_exact.membership`):
   a certificate of exclusion (a direction ``d`` with ``d^T x`` above the rigorous upper support
   bound) is an escape, a witness is inside, and a point neither proved in nor out is counted as
   *undecided* (reported, not an escape);
@@ -92,7 +93,8 @@ def _check_pz(parts: list[PolyZonotope], P: np.ndarray, eps: float) -> Verdict:
     from ocreach.sets.pz_exact import membership
 
     N = P.shape[0]
-    gz = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(p.to_zonotope(), eps) for p in parts]), P))
+    enclosure = ZonotopeUnion([_enlarged(p.to_zonotope(), eps) for p in parts])
+    gz = np.atleast_1d(union_gauge(enclosure, P))
     inside = np.zeros(N, bool)
     out_all = np.ones(N, bool)
     todo = np.flatnonzero(gz <= 1 + GAUGE_TOL)

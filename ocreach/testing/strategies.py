@@ -108,11 +108,12 @@ class Ranges:
 #: box or zonotope initial sets, box or ball inputs, some fields depending on t
 GENERAL = Ranges()
 #: a population whose sets are shaped by the second-order remainder: 2-3 states, one quadratic
-#: monomial per row (a constant Hessian, which the interval Hessian bounds exactly), a weak linear
-#: part, x0 = 0 (little drift inside a step, so the tube's box is close to the set's), box initial
-#: sets of radius 0.1-0.2, weak inputs and 3-6 steps (the remainder accumulates).  There a remainder bound that is too small shows as an escape (the
-#: mutation check of ``tests/test_soundness_harness.py``); in GENERAL, where the interval bound
-#: over the tube's box is loose by more than a factor 2, it often does not.
+#: monomial per row (a constant Hessian, which the interval Hessian bounds exactly), a weak
+#: linear part, x0 = 0 (little drift inside a step, so the tube's box is close to the set's),
+#: box initial sets of radius 0.1-0.2, weak inputs and 3-6 steps (the remainder accumulates).
+#: There a remainder bound that is too small shows as an escape (the mutation check of
+#: ``tests/test_soundness_harness.py``); in GENERAL, where the interval bound over the tube's
+#: box is loose by more than a factor 2, it often does not.
 REMAINDER_DOMINATED = Ranges(n=(2, 3), linear=0.1, terms=(1, 1), degree=(2, 2), coef=3.0,
                              rational=0.0, time_term=0.0, x0=0.0, radius=(0.1, 0.2),
                              initial=("box",), input_gain=0.2, steps=(3, 6))

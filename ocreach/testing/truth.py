@@ -215,8 +215,8 @@ def integrate(rhs: Rhs, grid: np.ndarray, smp: Samples, inner: Sequence[float] =
             ta, tb = t0 + a * (t1 - t0), t0 + b * (t1 - t0)
             t_eval = [t for _, t in want if t != tb] + [tb]
             try:
-                sol = solve_ivp(lambda t, y, Us=Us: rhs(t, y.reshape(N, n), Us).ravel(), (ta, tb), X.ravel(),
-                                method="DOP853", rtol=rtol, atol=atol, t_eval=t_eval)
+                sol = solve_ivp(lambda t, y, Us=Us: rhs(t, y.reshape(N, n), Us).ravel(), (ta, tb),
+                                X.ravel(), method="DOP853", rtol=rtol, atol=atol, t_eval=t_eval)
                 ok = sol.success and np.all(np.isfinite(sol.y))
                 reason = sol.message
             except (FloatingPointError, OverflowError, ValueError) as exc:

@@ -140,7 +140,8 @@ def _check_initial(problem, initial: Any, reference: str, controllers) -> None:
         if G is None or not (G.ndim == 0 or (G.ndim == 1 and G.size == n)
                              or (G.ndim == 2 and G.shape[0] == n)) or not np.all(np.isfinite(G)):
             raise ProblemError(f"initial must be 'paper' or finite generators (a scalar, {n} "
-                               f"diagonal entries or an n_x x q matrix, n_x = {n}); got {initial!r}")
+                               f"diagonal entries or an n_x x q matrix, n_x = {n}); "
+                               f"got {initial!r}")
     tubes = [c for c in controllers if c in TUBE_CONTROLLERS]
     if reference == "ephemeris" and not tubes and not isinstance(initial, str):
         raise ProblemError(f"initial (the tubes' initial deviation set) has no effect with "
