@@ -425,7 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _interrupted_elsewhere(command: str | None) -> str:
-    if command in ("run", "compare"):
+    if command in ("run", "compare", "report", "custody"):
         return "interrupted (Ctrl-C) before the output folder was created; nothing kept"
     return f"interrupted (Ctrl-C){f' during {command!r}' if command else ''}"
 
