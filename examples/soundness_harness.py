@@ -45,6 +45,18 @@ from ocreach.testing.mutants import scaled_remainder_taylor
 
 INNER = (0.25, 0.5, 0.75)
 POPULATIONS = {"GENERAL": GENERAL, "REMAINDER_DOMINATED": REMAINDER_DOMINATED}
+TRAILER = """## A new guaranteed method
+
+Set the class attribute `guaranteed = True` on the method (`ocreach.reach.base.Method.guaranteed`:
+read before anything is solved) and register it in `METHOD_PATHS`; the CI profile and this long
+profile then run it on every generated system and bundled problem, with its default options,
+and its results must say `meta["guaranteed"] = True`.  A hybrid automaton (a problem with an
+`automaton`) is reported `no-truth` -- a failure -- until a truth through the automaton's
+transitions joins `ocreach.testing.truth`; a result without sets on the time grid is reported
+`no-sets`.  A set type other than zonotopes, boxes, their unions and polynomial zonotopes is
+checked by its support function only (weaker; the table would say so).
+"""
+
 INTRO = """# Soundness of the guaranteed methods: one harness for all
 
 Every registered method whose class declares `guaranteed = True` (today: {methods}) is run, with
@@ -94,11 +106,13 @@ def _map(fn, tasks, workers: int):
 def _method_table(outcomes) -> list[str]:
     rows = ["| method | systems | complete | partial (SolverError, partial sets checked) | refused "
             "(ProblemError) | failures | sets checked | tubes checked | points checked | escapes "
-            "| max gauge | time [s] |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+            "| undecided (PZ) | support-only cases | max gauge | time [s] |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for m, r in summary(outcomes).items():
         rows.append(f"| `{m}` | {r['cases']} | {r['complete']} | {r['partial']} | {r['refused']} | "
                     f"{r['failed']} | {r['sets']:,} | {r['tubes']:,} | {r['points']:,} | "
-                    f"**{r['escapes']}** | {r['max_gauge']:.6g} | {r['seconds']:.0f} |")
+                    f"**{r['escapes']}** | {r['undecided']} | {r['support_only']} | "
+                    f"{r['max_gauge']:.6g} | {r['seconds']:.0f} |")
     return rows
 
 
@@ -185,7 +199,7 @@ def main() -> None:
     total = sum(o.escapes for o in all_outs)
     L += ["## Summary", "",
           f"{total} escapes in {sum(o.points_checked for o in all_outs):,} checked truth points; "
-          f"{sum(not o.ok for o in all_outs)} failed runs.", ""]
+          f"{sum(not o.ok for o in all_outs)} failed runs.", "", TRAILER]
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, "\n".join(L))

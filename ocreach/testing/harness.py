@@ -253,13 +253,14 @@ def run_all(cases: Sequence[Case], methods: Sequence[str | type[Method]] | None 
 
 
 def summary(outcomes: Sequence[Outcome]) -> dict[str, dict[str, Any]]:
-    """Per method: cases by status, sets / tubes / points checked, escapes, undecided, max gauge."""
+    """Per method: cases by status, sets / tubes / points checked, escapes, undecided points,
+    cases checked by support functions only (a set type without an exact test), max gauge."""
     table: dict[str, dict[str, Any]] = {}
     for o in outcomes:
         row = table.setdefault(o.method, {"cases": 0, "complete": 0, "partial": 0, "refused": 0,
                                           "failed": 0, "sets": 0, "tubes": 0, "points": 0,
-                                          "escapes": 0, "undecided": 0, "max_gauge": 0.0,
-                                          "seconds": 0.0})
+                                          "escapes": 0, "undecided": 0, "support_only": 0,
+                                          "max_gauge": 0.0, "seconds": 0.0})
         row["cases"] += 1
         row[o.status if o.status in PASSING else "failed"] += 1
         row["sets"] += o.sets_checked
@@ -267,6 +268,7 @@ def summary(outcomes: Sequence[Outcome]) -> dict[str, dict[str, Any]]:
         row["points"] += o.points_checked
         row["escapes"] += o.escapes
         row["undecided"] += o.undecided
+        row["support_only"] += not o.exact
         row["max_gauge"] = max(row["max_gauge"], o.max_gauge)
         row["seconds"] += o.seconds
     return table
