@@ -8,7 +8,8 @@ The CI profile of the same harness is ``tests/test_soundness_harness.py``; the h
   of the REMAINDER_DOMINATED population, each with ``--samples`` (90) truth trajectories, the
   tubes checked at a quarter, half and three quarters of every step and at both ends;
 * every bundled problem on its first ``--bundled-steps`` (4) grid steps with
-  ``--bundled-samples`` (10,000) trajectories, where some guaranteed method returns sets
+  ``--bundled-samples`` (10,000) trajectories at the grid times and ``--tube-samples`` (2,000 of
+  them, evenly spread over every kind) in the tubes, where some guaranteed method returns sets
   (a problem that every method refuses is listed with the reasons, no truth is integrated);
 * the harness's power: a copy of ``taylor`` with its remainder bound halved
   (``ocreach.testing.mutants``) on the same generated systems -- on how many it is caught.
@@ -16,7 +17,8 @@ The CI profile of the same harness is ``tests/test_soundness_harness.py``; the h
     nice python examples/soundness_harness.py [--workers 2] [--quick]
         [--out docs/validation/soundness.md]
 
-``--quick``: 12 + 6 systems, 2 bundled steps with 500 samples (a smoke run, about 2 minutes).
+``--quick``: 12 + 6 systems, 2 bundled steps with 500 samples (a smoke run, about 5 minutes).
+Progress (one line per finished system or problem) goes to stderr.
 """
 from __future__ import annotations
 
@@ -25,7 +27,8 @@ import datetime
 import os
 import platform
 import time
-from concurrent.futures import ProcessPoolExecutor
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +60,11 @@ transitions joins `ocreach.testing.truth`; a result without sets on the time gri
 checked by its support function only (weaker; the table would say so).
 """
 
-INTRO = """# Soundness of the guaranteed methods: one harness for all
+INTRO = """# Validation: soundness of the guaranteed methods
+
+Part of the [validation record](README.md).
+
+## One harness for every guaranteed method
 
 Every registered method whose class declares `guaranteed = True` (today: {methods}) is run, with
 its default options, on generated systems and on every bundled problem, and checked against an
@@ -88,19 +95,35 @@ def system_task(args: tuple[str, int, int]):
     return population, seed, system.describe(), outs, mutant
 
 
-def bundled_task(args: tuple[str, int, int]):
-    pid, steps, n_samples = args
+def bundled_task(args: tuple[str, int, int, int]):
+    pid, steps, n_samples, tube_samples = args
     (case,) = bundled_cases(steps=steps, ids=[pid])
-    outs = [run_method(m, case, n_samples=n_samples, inner=INNER, seed=1)
-            for m in guaranteed_methods()]
+    outs = [run_method(m, case, n_samples=n_samples, inner=INNER, seed=1,
+                       tube_samples=tube_samples) for m in guaranteed_methods()]
     return pid, case.description, outs
 
 
 def _map(fn, tasks, workers: int):
+    """``[fn(t) for t in tasks]`` on ``workers`` processes, a progress line per finished task."""
+    t0 = time.perf_counter()
+
+    def note(i: int, res) -> None:
+        print(f"[{time.perf_counter() - t0:7.0f} s] {i + 1}/{len(tasks)} {res[0]} {res[1]}",
+              file=sys.stderr, flush=True)
+
     if workers <= 1:
-        return [fn(t) for t in tasks]
+        out = []
+        for i, t in enumerate(tasks):
+            out.append(fn(t))
+            note(i, out[-1])
+        return out
     with ProcessPoolExecutor(workers) as pool:
-        return list(pool.map(fn, tasks, chunksize=1))
+        futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
+        out = [None] * len(tasks)
+        for fut in as_completed(futures):
+            out[futures[fut]] = fut.result()
+            note(futures[fut], out[futures[fut]])
+        return out
 
 
 def _method_table(outcomes) -> list[str]:
@@ -128,13 +151,15 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=90)
     ap.add_argument("--bundled-steps", type=int, default=4)
     ap.add_argument("--bundled-samples", type=int, default=10_000)
+    ap.add_argument("--tube-samples", type=int, default=2_000)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "docs" / "validation"
                                          / "soundness.md"))
     a = ap.parse_args()
     if a.quick:
-        a.systems, a.dominated, a.bundled_steps, a.bundled_samples = 12, 6, 2, 500
+        a.systems, a.dominated, a.bundled_steps = 12, 6, 2
+        a.bundled_samples = a.tube_samples = 500
     t_start = time.perf_counter()
     methods = guaranteed_methods()
     from ocreach.registry import problem_factories
@@ -143,13 +168,14 @@ def main() -> None:
              + [("REMAINDER_DOMINATED", s, a.samples) for s in range(a.dominated)])
     done = _map(system_task, tasks, a.workers)
     t_gen = time.perf_counter() - t_start
-    bundled = _map(bundled_task, [(pid, a.bundled_steps, a.bundled_samples)
+    bundled = _map(bundled_task, [(pid, a.bundled_steps, a.bundled_samples, a.tube_samples)
                                   for pid in sorted(problem_factories())], a.workers)
     t_all = time.perf_counter() - t_start
 
     run = (f"{'`--quick`, ' if a.quick else ''}{a.systems} + {a.dominated} systems, {a.samples} "
            f"samples each; bundled problems on {a.bundled_steps} grid steps with "
-           f"{a.bundled_samples:,} samples")
+           f"{a.bundled_samples:,} samples, {min(a.tube_samples, a.bundled_samples):,} of them in "
+           "the tubes")
     L = [INTRO.format(methods=", ".join(f"`{m}`" for m in methods), run=run),
          f"Run {datetime.date.today().isoformat()} on {platform.machine()} ({os.cpu_count()} "
          f"cores, shared), {a.workers} worker(s): {t_all / 60:.1f} min in total "
@@ -181,7 +207,8 @@ def main() -> None:
         L.append(f"| {pop} | {len(ms)} | {len(caught)} ({100 * len(caught) / len(ms):.0f} %) | "
                  f"{med:.4g} |")
     L += ["", f"## Bundled problems (first {a.bundled_steps} grid steps, "
-          f"{a.bundled_samples:,} truth samples)", "",
+          f"{a.bundled_samples:,} truth samples, {min(a.tube_samples, a.bundled_samples):,} in the "
+          "tubes)", "",
           "| problem | method | status | sets | tubes | points | escapes | max gauge | note |",
           "|---|---|---|---|---|---|---|---|---|"]
     b_outs = []

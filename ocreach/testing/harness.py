@@ -183,8 +183,10 @@ def _record(out: Outcome, verdict: Verdict, where: str, index: int, fraction: fl
                                       points[i].tolist()))
 
 
-def check_result(result, truth: Truth, out: Outcome) -> None:
-    """Check the sets and tubes of ``result`` against ``truth`` into ``out``."""
+def check_result(result, truth: Truth, out: Outcome, tube_samples: int | None = None) -> None:
+    """Check the sets and tubes of ``result`` against ``truth`` into ``out``; the tubes against
+    ``tube_samples`` of the samples (evenly spread over them, so every kind is among them; None:
+    all)."""
     sets = list(result.sets or [])
     K_ok = min(len(sets) - 1, truth.steps)
     labels = truth.labels
@@ -193,20 +195,24 @@ def check_result(result, truth: Truth, out: Outcome) -> None:
                 truth.states[:, k])
         out.sets_checked += 1
     tubes = list(result.tubes or [])
+    N = truth.states.shape[0]
+    sub = (np.arange(N) if tube_samples is None or tube_samples >= N
+           else np.unique(np.linspace(0, N - 1, tube_samples).round().astype(int)))
+    sub_labels = [labels[i] for i in sub]
     for k in range(min(len(tubes), K_ok)):
-        pts = [(0.0, truth.states[:, k])] + [(f, truth.interior[:, k, j])
-                                             for j, f in enumerate(truth.inner)]
-        pts.append((1.0, truth.states[:, k + 1]))
+        pts = [(0.0, truth.states[sub, k])] + [(f, truth.interior[sub, k, j])
+                                               for j, f in enumerate(truth.inner)]
+        pts.append((1.0, truth.states[sub, k + 1]))
         for frac, P in pts:
-            _record(out, check_points(tubes[k], P), "tube", k, frac, labels, P)
+            _record(out, check_points(tubes[k], P), "tube", k, frac, sub_labels, P)
         out.tubes_checked += 1
 
 
 def run_method(method: str | type[Method], case: Case, *, n_samples: int = 60, seed: int = 0,
-               inner: Sequence[float] = (0.5,), pieces: int = 2,
+               inner: Sequence[float] = (0.5,), pieces: int = 2, tube_samples: int | None = None,
                options: dict[str, Any] | None = None) -> Outcome:
     """Run ``method`` (a registered name or a :class:`Method` class) on ``case`` and check it
-    against the case's truth (module docstring)."""
+    against the case's truth (module docstring); ``tube_samples``: see :func:`check_result`."""
     name = method if isinstance(method, str) else method.name
     t0 = time.perf_counter()
     out = Outcome(method=name, case=case.label, kind=case.kind, status="complete")
@@ -240,7 +246,7 @@ def run_method(method: str | type[Method], case: Case, *, n_samples: int = 60, s
         elif len(result.sets or []) > 0:
             truth = case.truth(n_samples, seed, tuple(inner), pieces)
             out.truth_failure = truth.failure
-            check_result(result, truth, out)
+            check_result(result, truth, out, tube_samples)
     out.seconds = time.perf_counter() - t0
     return out
 

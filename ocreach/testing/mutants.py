@@ -9,7 +9,8 @@ copy is not in the method registry unless a test puts it there.
 from __future__ import annotations
 
 from ocreach.reach.result import ReachResult
-from ocreach.reach.taylor import TaylorError, TaylorZonotope, ZonotopeReach, check_smooth
+from ocreach.reach.taylor import TaylorZonotope, ZonotopeReach, check_smooth
+from ocreach.reach.taylor_step import TaylorError
 from ocreach.sets.zonotope import Zonotope
 
 
