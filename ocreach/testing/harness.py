@@ -11,8 +11,8 @@ generated systems (:func:`generated_case`, :mod:`ocreach.testing.strategies`) an
 problem cut to its first grid steps (:func:`bundled_cases`).
 
 What is checked (:func:`run_method`): truth trajectories (:mod:`ocreach.testing.truth`) from
-vertices, the centre and the inside of the initial set under constant, bang-bang and random
-piecewise-constant inputs; every set at a grid time must contain every truth state at that time,
+vertices, the centre and the inside of the initial set under constant, bang-bang, random and
+directed (extremal for a direction) piecewise-constant inputs; every set at a grid time must contain every truth state at that time,
 and every time-interval tube over ``[t_k, t_k+1]`` the states at the interior times of the step
 (the midpoint by default) and at both ends (:mod:`ocreach.testing.containment`).  A method that
 refuses a problem with :class:`ProblemError` has refused it cleanly (not an escape); one that stops
