@@ -451,6 +451,11 @@ def main(argv: list[str] | None = None) -> int:
             return 130
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `ocreach methods | head`: the reader left; no traceback at exit
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     finally:
         restore_interrupt_handler(previous)
 

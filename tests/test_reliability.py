@@ -425,3 +425,23 @@ def test_bench_write_publishes_the_staged_document_only_if_every_script_succeeds
         else:
             assert rc == 0 and "## bench_a\n\nnew" in text and "## bench_b\n\nnew" in text
         assert sorted(p.name for p in docs.iterdir()) == ["benchmarks.md"]
+
+
+def test_listing_into_a_closed_pipe_ends_quietly():
+    """``ocreach methods | head -1``: the reader closes the pipe; no traceback, exit 0.  The pipe
+    holds one page (Linux F_SETPIPE_SZ), so the listing (17 kB) cannot fit before it closes."""
+    import fcntl
+    import os
+    import subprocess
+    import sys
+
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, getattr(fcntl, "F_SETPIPE_SZ", 1031), 4096)
+    proc = subprocess.Popen([sys.executable, "-m", "ocreach.cli", "methods"], stdout=write_end,
+                            stderr=subprocess.PIPE)
+    os.close(write_end)
+    with os.fdopen(read_end, "rb") as reader:
+        first = reader.readline()
+    err = proc.stderr.read().decode()
+    assert first.startswith(b"mc:") and proc.wait(timeout=120) == 0, err
+    assert "Traceback" not in err and "BrokenPipe" not in err, err
