@@ -40,6 +40,7 @@ METHOD_PATHS: dict[str, str] = {
     "stt": "ocreach.reach.stt:STTReach",
     "taylor": "ocreach.reach.taylor:TaylorZonotope",
     "sdc": "ocreach.reach.sdc:SDCZonotope",
+    "poly": "ocreach.reach.poly:PolyReachMethod",
     "cut": "ocreach.reach.cut:CUTMoments",
 }
 

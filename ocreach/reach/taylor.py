@@ -313,6 +313,36 @@ class ZonotopeReach:
     def _reduce(self, Z: Zonotope) -> Zonotope:
         return Z.reduce(self.opts.order, self.opts.reduction)
 
+    # hooks of the set representation (``poly`` propagates polynomial zonotopes through them)
+    def step(self, Z, t: float, h: float, L: np.ndarray | None):
+        """One sub-step of one part: :class:`StepOK` or :class:`StepFail`."""
+        return ct_step(self.ctx, Z, t, h, L)
+
+    def reduce_point(self, S):
+        return self._reduce(S)
+
+    def reduce_tube(self, S):
+        return self._reduce(S)
+
+    def initial_set(self):
+        return initial_zonotope(self.problem)
+
+    def can_split_set(self, S) -> bool:
+        return S.n_generators > 0
+
+    def split_part(self, part: Part) -> tuple[Part, Part]:
+        """The two halves of a failing part, split along the generator with the largest
+        contribution to the remainder."""
+        j = int(np.argmax(self.err.split_scores(part.Z)))
+        a, b = part.Z.split(j)
+        return Part(Z=a, L=None, level=part.level), Part(Z=b, L=None, level=part.level)
+
+    def as_set(self, parts: list):
+        return _as_set(parts)
+
+    def as_tube(self, tubes: list):
+        return _as_set(tubes)
+
     def _advance(self, part: Part, t0: float, t1: float, stats: dict) -> tuple[Part, list, StepFail | None]:
         """Carry ``part`` from ``t0`` to ``t1`` with sub-steps, halving failing ones."""
         opts = self.opts
@@ -322,7 +352,7 @@ class ZonotopeReach:
         base = (t1 - t0) / opts.substeps
         while t < t1 - 1e-12 * abs(t1 - t0):
             h = min(base / 2**level, t1 - t)
-            res = ct_step(self.ctx, Z, t, h, L)
+            res = self.step(Z, t, h, L)
             if isinstance(res, StepFail):
                 if level < opts.max_halvings:
                     level += 1
@@ -335,8 +365,8 @@ class ZonotopeReach:
             if self.max_error is not None and np.any(res.err_mag > self.max_error) and self._can_split(stats):
                 return part, [], StepFail(f"remainder {np.array2string(res.err_mag, precision=3)} "
                                           f"exceeds max_error", res.err_mag)
-            tubes.append(self._reduce(res.tube))
-            Z = self._reduce(res.point)
+            tubes.append(self.reduce_tube(res.tube))
+            Z = self.reduce_point(res.point)
             L = res.L
             t = t + h
         return Part(Z=Z, L=L, level=max(level - 1, 0)), tubes, None
@@ -351,9 +381,9 @@ class ZonotopeReach:
             raise ProblemError(f"problem {prob.id!r} has a backward grid; taylor/sdc propagate "
                                "forward in time only")
         t_start = time.perf_counter()
-        R0 = initial_zonotope(prob)
+        R0 = self.initial_set()
         parts = [Part(Z=R0)]
-        sets: list[Any] = [R0]
+        sets: list[Any] = [self.as_set([R0])]
         tubes: list[Any] = []
         meta_steps: dict[str, list] = {"remainder": [], "iterations": [], "splits": [], "substeps": [],
                                        "parts": []}
@@ -371,18 +401,15 @@ class ZonotopeReach:
                     done.append(new)
                     step_tubes.extend(tb)
                     continue
-                if self._can_split(stats) and part.Z.n_generators > 0:
-                    scores = self.err.split_scores(part.Z)
-                    j = int(np.argmax(scores))
-                    a, b = part.Z.split(j)
-                    queue += [Part(Z=a, L=None, level=part.level), Part(Z=b, L=None, level=part.level)]
+                if self._can_split(stats) and self.can_split_set(part.Z):
+                    queue += list(self.split_part(part))
                     stats["n_parts"] += 1
                     stats["splits"] += 1
                     continue
                 self._fail(k, t0, t1, fail, stats, sets, tubes, meta_steps, t_start)
             parts = done
-            sets.append(_as_set([p.Z for p in parts]))
-            tubes.append(_as_set(step_tubes))
+            sets.append(self.as_set([p.Z for p in parts]))
+            tubes.append(self.as_tube(step_tubes))
             meta_steps["remainder"].append(stats["err"].tolist())
             meta_steps["iterations"].append(stats["iterations"])
             meta_steps["splits"].append(stats["splits"])

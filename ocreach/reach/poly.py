@@ -1,0 +1,425 @@
+"""``poly``: guaranteed reachable sets by conservative polynomialization (Althoff, "Reachability
+analysis of nonlinear systems using conservative polynomialization and non-convex sets", HSCC
+2013; CORA ``nonlinearSys`` with ``alg = 'poly'``, ``tensorOrder = 3``).
+
+The sets are sparse polynomial zonotopes (:class:`ocreach.sets.PolyZonotope`); the time-interval
+tubes are zonotopes.  On a step ``[t, t + h]`` from the set ``R`` (local time ``tau`` in ``[0, h]``,
+``d = x - x*``):
+
+1. expansion point ``z* = (x*, v*)``: ``x* = c + h/2 f(c, u_c)`` (``c`` the centre of ``R``'s
+   zonotope enclosure), ``v* = u_c`` (and ``t* = t + h/2`` when ``f`` depends on time, ``v = (u,
+   t)``); ``f0``, ``A = df/dx``, ``B = df/dv`` and the Hessian ``H`` at ``z*`` from the one CasADi
+   model (:func:`ocreach.reach.taylor.hessian_interval` gives their interval enclosures at the
+   point, which bound the rounding of the float values);
+2. third-order expansion (Althoff 2013, Eq. 6): ``f(z) = f0 + A d + B dv + 1/2 d^T H_xx d + rho``
+   where ``rho`` holds the second-order terms in ``v`` (``d^T H_xv dv + 1/2 dv^T H_vv dv``, zero for
+   control-affine models with a constant input matrix) and the Lagrange remainder
+   ``1/6 T(zeta)[dz, dz, dz]``, ``T`` the third-derivative tensor bounded over the tube's box by the
+   interval evaluator (:mod:`ocreach.intervals`);
+3. the **static error** ``V_stat = f0 + 1/2 d0^T H_xx d0`` on the step's initial set ``D0 = R - x*``
+   is computed exactly as a polynomial zonotope (the quadratic map keeps the dependence on ``R``'s
+   factors; Althoff 2013 Sec. 4.1) and enters the linear system as a constant input, so
+   ``R(t + h) = x* + Phi D0 + Gamma V_stat`` is again a polynomial in the same factors -- the
+   curvature of the flow is carried, not boxed;
+4. the **dynamic error** ``1/2 [d(tau)^T H_xx d(tau) - d0^T H_xx d0]`` (the set moves during the
+   step; Althoff 2013 Sec. 4.2) is bounded by ``1/2 |d(tau) - d0|^T |H_i| (|d(tau)| + |d0|)`` with
+   ``d(tau) - d0`` in the box of ``lambda (P - D0) + F D0 + F~ V_stat + R_W`` (``P`` the linear
+   image, ``lambda = tau / h``), added to ``rho``: the time-varying error box ``[-Lbar, Lbar]``;
+5. the linear system ``d' = A d + V_stat + B dv(tau) + w(tau)``, ``w in [-Lbar, Lbar] (+ W)`` is
+   stepped as in :mod:`ocreach.reach.linsys` (the exponential-matrix remainder ``E``, the
+   curvature matrices ``F``, ``F~``; the input solution ``R_W`` of ``B dv`` and ``w``).  The
+   input's solution ``R_W`` of the thrust is a zonotope whose generators become new dependent
+   factors of the set (``input_factors=True``), so later steps map the thrust's contribution
+   through the quadratic term as well;
+6. ``Lbar`` depends on the tube, which depends on ``Lbar``: the fixed-point loop of ``taylor``
+   (guess, bound on the inflated box of the tube, enlarge until the bound lies in the guess; the
+   continuity argument of :mod:`ocreach.reach.taylor` then shows every trajectory stays in the
+   tube), and the final sets are recomputed with the bound found.
+
+Failing steps are halved (``max_halvings``) and failing parts split in two along the factor with
+the largest contribution to the remainder (:func:`ocreach.sets.pz_rounded.split`, exact up to
+rounding); ``max_error`` splits proactively.  Every set operation is rounded outward
+(:mod:`ocreach.sets.pz_rounded`, :mod:`ocreach.sets.rounding`), so the sets are enclosures of
+the continuous-time flow for every admissible (measurable) control, not only for the sampled ones.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import factorial
+
+import casadi as ca
+import numpy as np
+
+from ocreach.errors import OcreachError, ProblemError, SolverError, check_count, check_real
+from ocreach.problem import Problem
+from ocreach.reach.base import Method
+from ocreach.reach.linsys import (
+    all_finite,
+    diag_columns,
+    expm_terms,
+    input_generators,
+    weighted_sum,
+)
+from ocreach.reach.result import ReachResult
+from ocreach.reach.taylor import (
+    GROWTH,
+    Context,
+    Part,
+    StepFail,
+    ZonotopeOptions,
+    ZonotopeReach,
+    check_smooth,
+    eval_error,
+    hessian_interval,
+    inflate_box,
+    initial_zonotope,
+    unflatten_hessian,
+    z_symbol,
+)
+from ocreach.sets import pz_sound as spz
+from ocreach.sets.pz_sound import FactorIds, SoundPZ
+from ocreach.sets.pz_union import PZUnion
+from ocreach.sets.rounding import rounding_radius, up
+from ocreach.sets.union import ZonotopeUnion
+from ocreach.sets.zonotope import Zonotope
+
+OUTPUTS = ("pz", "zonotope")
+
+
+# ------------------------------------------------------------------------------------------------
+# the model functions (built once, cached on the model)
+# ------------------------------------------------------------------------------------------------
+def third_interval(model):
+    """Interval extension of ``T = d^3 f_i / dz_a dz_b dz_c`` over ``z = (x, u[, t])`` (flat
+    ``(n_x n_z^2, n_z)``): the Lagrange remainder of the third-order expansion over the tube."""
+    from ocreach.intervals import interval_function
+
+    def build():
+        z = z_symbol(model)
+        J = ca.jacobian(model.f, z)
+        H = ca.jacobian(ca.reshape(J.T, -1, 1), z)
+        T = ca.jacobian(ca.reshape(H.T, -1, 1), z)
+        return ca.Function("poly_third", [model.x, model.u, model.t, model.p], [T])
+
+    fun = model.cached(("poly", "third_fun"), build)
+    return interval_function(fun, model=model, key=("poly", "third"), native=True)
+
+
+def unflatten_third(a: np.ndarray, n_x: int, n_z: int) -> np.ndarray:
+    """Column-major flat ``(n_x n_z^2, n_z)`` of one box -> ``T[i, a, b, c]`` (n_x, n_z, n_z, n_z)."""
+    return a.reshape(n_z, n_x, n_z, n_z).transpose(1, 2, 3, 0)
+
+
+# ------------------------------------------------------------------------------------------------
+# options
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class PolyOptions(ZonotopeOptions):
+    """Options of ``poly``: those of ``taylor`` (:class:`ZonotopeOptions`; ``order`` here counts
+    every generator of the polynomial zonotope, dependent and independent) plus
+
+    * ``order`` (20): generators per state of a time-point set after each step (``order * n_x``
+      in all, of them ``independent_order * n_x`` independent), >= 1;
+    * ``independent_order`` (2): independent generators per state (the boxed part, reduced like a
+      zonotope), >= 1 and <= ``order``;
+    * ``max_degree`` (3): highest total degree of a monomial kept dependent (higher ones are
+      enclosed by independent generators), 2..6;
+    * ``tube_order`` (10): zonotope order of the time-interval tubes, >= 1;
+    * ``input_factors`` (True): the thrust's input solution of every step becomes new dependent
+      factors (later steps then map its curvature); False: independent generators;
+    * ``input_order`` (1): zonotope order of one step's input solution before it joins the set, >= 1;
+    * ``output`` ("pz"): the time-point sets as polynomial zonotopes (``"pz"``) or as their
+      zonotope enclosures (``"zonotope"``, for consumers that need zonotopes, e.g. drift tubes).
+    """
+
+    order: float = 20.0
+    independent_order: float = 2.0
+    max_degree: int = 3
+    tube_order: float = 10.0
+    input_factors: bool = True
+    input_order: float = 1.0
+    output: str = "pz"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("tube_order", "input_order", "independent_order"):
+            v = check_real(name, getattr(self, name))
+            if v < 1:
+                raise ProblemError(f"{name} must be >= 1; got {getattr(self, name)!r}")
+            setattr(self, name, v)
+        if self.independent_order > self.order:
+            raise ProblemError(f"independent_order must be <= order = {self.order:g}; got "
+                               f"{self.independent_order!r}")
+        self.max_degree = check_count("max_degree", self.max_degree, 2)
+        if self.max_degree > spz.MAX_DEGREE:
+            raise ProblemError(f"max_degree must be an integer in 2..{spz.MAX_DEGREE}; got "
+                               f"{self.max_degree!r}")
+        if not isinstance(self.input_factors, (bool, np.bool_)):
+            raise ProblemError(f"input_factors must be True or False; got {self.input_factors!r}")
+        if self.output not in OUTPUTS:
+            raise ProblemError(f"output must be one of {OUTPUTS}; got {self.output!r}")
+
+
+# ------------------------------------------------------------------------------------------------
+# one step
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class PolyStepOK:
+    point: SoundPZ
+    tube: Zonotope
+    L: np.ndarray          # radius of the applied error box (warm start of the next step)
+    err_mag: np.ndarray    # the same, reported per state
+    iterations: int
+
+
+class PolyContext(Context):
+    """:class:`ocreach.reach.taylor.Context` plus the interval functions of the expansion, the
+    factor numbering and the reduction sizes."""
+
+    def __init__(self, problem: Problem, opts: PolyOptions, V: Zonotope, W: Zonotope | None):
+        super().__init__(problem, opts, None, V, W)
+        m = self.model
+        self.n = m.n_x
+        self.n_z = m.n_x + m.n_u + (1 if self.td else 0)
+        self.point_iv = hessian_interval(m)
+        self.third_iv = third_interval(m)
+        self.fid = FactorIds(opts.max_degree)
+        self.bits = self.fid.bits
+        self.d = opts.max_degree
+        self.h_ind = max(int(np.floor(opts.independent_order * self.n)), self.n)
+        self.h_dep = max(int(np.floor(opts.order * self.n)) - self.h_ind, 0)
+        #: per-state sensitivity of the last remainder bound to the set's extent (for splitting)
+        self.weights: np.ndarray | None = None
+
+
+def _lo_hi_pad(lo: np.ndarray, hi: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``[lo, hi]`` widened by the rounding of the sums that produced them (``k`` terms)."""
+    r = rounding_radius(np.maximum(np.abs(lo), np.abs(hi)), k)
+    return lo - r, hi + r
+
+
+def gamma_matrices(et, k_max: int = 2) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
+    """For ``k = 0..k_max``: ``Gamma_k = int_0^h e^{A (h - s)} (s / h)^k ds = h sum_i w_ik T_i``,
+    ``w_ik = i! k! / (i + k + 1)!`` (the solution at ``h`` of the input ``(tau / h)^k g``;
+    ``Gamma_0`` is ``linsys``' ``Gamma``), one elementwise radius valid for all of them (the series
+    tail ``E h``, as every ``w_ik <= 1``, plus the rounding of the weighted sums), and the bounds
+    ``C_k >= |y_k(tau) - (tau / h) y_k(h)|`` (elementwise, times ``|g|``) of the solution
+    ``y_k(tau) = h sum_i w_ik (tau / h)^(i + k + 1) T_i g`` off its chord: ``lambda^j - lambda`` lies
+    in ``[q_j, 0]`` on [0, 1] (the curvature constants of :mod:`ocreach.reach.linsys`), so
+    ``C_k = h sum_i |q_(i+k+1)| w_ik |T_i| + E h``."""
+    from ocreach.reach.linsys import _Q
+
+    n = et.T.shape[1]
+    i = np.arange(et.eta + 1)
+    Tflat = et.T.reshape(et.eta + 1, n * n)
+    absT = np.abs(Tflat)
+    out, chord = [], []
+    for k in range(k_max + 1):
+        w = np.array([factorial(int(j)) * factorial(k) / factorial(int(j) + k + 1) for j in i])
+        out.append(weighted_sum(et.h * w, Tflat, n))
+        q = np.abs(_Q[i + k + 1]) * (1 + 1e-12)
+        chord.append(up(weighted_sum(et.h * w * q, absT, n) + et.E * et.h, et.eta + 4))
+    rad = et.E * et.h + rounding_radius(et.h * et.M, et.eta + 4)
+    return out, rad, chord
+
+
+def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
+              L_guess: np.ndarray | None) -> PolyStepOK | StepFail:
+    """One step of conservative polynomialization (module docstring, items 1-6)."""
+    n, nz, bits, d = ctx.n, ctx.n_z, ctx.bits, ctx.d
+    nv = nz - n
+    p = ctx.p
+    uc = ctx.V.c
+    c = spz.to_zonotope(R).c
+    f_c = ctx.lin(c, uc, t0, p)[0].ravel()
+    xs = c + 0.5 * h * f_c
+    ts = t0 + 0.5 * h
+    f0, A, Bv = ctx.lin(xs, uc, ts, p)
+    f0 = f0.ravel()
+    if not (np.all(np.isfinite(f0)) and np.all(np.isfinite(A)) and np.all(np.isfinite(Bv))):
+        return StepFail(f"f or its Jacobian is not finite at the expansion point {xs}")
+    vs = np.concatenate([uc, [ts]]) if ctx.td else uc
+    # interval enclosures of f, A, B, H at the point z*: they bound the float values' rounding
+    tp = np.array([ts])
+    try:
+        pt = ctx.point_iv([xs, uc, tp, p], [xs, uc, tp, p], check=False)
+    except OcreachError as exc:
+        return StepFail(f"the expansion at z* failed: {str(exc)[:300]}")
+    Hlo = unflatten_hessian(pt[3][0], n, nz)[0]
+    Hhi = unflatten_hessian(pt[3][1], n, nz)[0]
+    Hs = 0.5 * (Hlo + Hhi)
+    Hs = 0.5 * (Hs + Hs.transpose(0, 2, 1))          # exactly symmetric
+    eH = up(np.maximum(Hhi - Hs, Hs - Hlo), 2)        # |H(z*) - Hs| elementwise
+    Hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))
+    Hxx = Hs[:, :n, :n]
+    absHxx = np.abs(Hxx)
+    try:
+        et = expm_terms(A, h)
+    except SolverError as exc:
+        return StepFail(str(exc))
+    (G0, G1, G2), G_rad, (_, C1, C2) = gamma_matrices(et)
+    # ---- the polynomial part (independent of the error box)
+    D0 = spz.translate(R, -xs)
+    Vstat = spz.translate(spz.quadratic(0.5 * Hxx, D0, bits), f0)   # f0 + 1/2 d0^T H d0
+    P = spz.add(spz.linear_map(et.Phi, D0, et.E), spz.linear_map(G0, Vstat, G_rad), bits)
+    Dd = spz.add(P, spz.scale(-1.0, D0), bits)                  # P - D0 = D(alpha) + boxes
+    # the quadratic term along the segment d0 + lambda D: 1/2 Q(d0) + lambda g1 + lambda^2 g2
+    Dr = spz.reduce(Dd, ctx.h_dep, ctx.h_ind, ctx.opts.reduction)
+    g1 = spz.bilinear(Hxx, D0, Dr, bits)                        # d0^T H D
+    g2 = spz.quadratic(0.5 * Hxx, Dr, bits)                     # 1/2 D^T H D
+    Pend = spz.add(P, spz.add(spz.linear_map(G1, g1, G_rad), spz.linear_map(G2, g2, G_rad), bits), bits)
+    # the tube's polynomial part: CH(D0, P_end) with common factors
+    lam = int(ctx.fid.new(1)[0])
+    Dend = spz.add(Pend, spz.scale(-1.0, D0), bits)
+    seg = spz.add(spz.add(spz.scale(0.5, D0), spz.scale(0.5, Pend), bits),
+                  spz.times_new_factor(spz.scale(0.5, Dend), lam, bits), bits)
+    seg_lo, seg_hi = spz.box(seg)
+    magD0, magV = spz.magnitude(D0), spz.magnitude(Vstat)
+    r_F = up((np.abs(et.F_mid) + et.F_rad) @ magD0 + (np.abs(et.Ft_mid) + et.Ft_rad) @ magV, n + 2)
+    r_g = up(C1 @ spz.magnitude(g1) + C2 @ spz.magnitude(g2), n + 2)   # y_k off the chord
+    # ---- the uncertain input B (V - v_c) [x (t - t*)] (+ W): its input solution R_W
+    Gv = ctx.V.G
+    if ctx.td:
+        Gv = np.zeros((ctx.V.dim + 1, ctx.V.n_generators + 1))
+        Gv[:-1, :-1] = ctx.V.G
+        Gv[-1, -1] = 0.5 * h
+    Gu = Bv @ Gv
+    r_Gu = rounding_radius(np.abs(Bv) @ np.abs(Gv).sum(axis=1), Gv.shape[0])
+    r_wc = np.zeros(n)
+    if ctx.W is not None:
+        Gu = np.hstack([Gu, ctx.W.G])
+        r_wc = up((np.abs(G0) + G_rad) @ np.abs(ctx.W.c), n + 2)   # Gamma w_c, boxed
+    Gu = np.hstack([Gu, diag_columns(r_Gu)])
+    RWG = input_generators(Gu, et)
+    r_RW = rounding_radius(h * et.M @ np.abs(Gu).sum(axis=1), n + et.eta + 4)
+    RWz = Zonotope.trusted(np.zeros(n), np.hstack([RWG, diag_columns(up(r_RW + r_wc, 2))]))
+    r_RWz = up(np.abs(RWz.G).sum(axis=1), RWz.n_generators + 1)
+    # box response of the error box [-L, L]: |R_W(box(L))| <= S_L L
+    S_L = weighted_sum(h / np.arange(1, et.eta + 2), np.abs(et.T).reshape(et.eta + 1, n * n), n) + et.E * h
+    S_L = up(S_L, et.eta + 3)
+    # ---- boxes that do not depend on the error box: the tube's and the residual rho's
+    r_rho0 = up(r_F + r_g + r_RWz, 3)
+    base_lo, base_hi = _lo_hi_pad(xs + seg_lo - r_rho0, xs + seg_hi + r_rho0, 3)
+    ulo, uhi = ctx.Ubox
+    vlo = np.concatenate([ulo, [t0]]) if ctx.td else ulo
+    vhi = np.concatenate([uhi, [t0 + h]]) if ctx.td else uhi
+    dv = up(np.maximum(np.abs(vlo - vs), np.abs(vhi - vs)), 1)
+    t_lo, t_hi = np.array([t0]), np.array([t0 + h if ctx.td else t0])
+    # ---- the fixed-point loop on the error box
+    Lbar = np.zeros(n) if L_guess is None else np.asarray(L_guess, dtype=float) * GROWTH
+    need = None
+    for it in range(1, ctx.opts.max_iter + 1):
+        rL = up(S_L @ Lbar, n + 1)
+        xlo, xhi = inflate_box(np.minimum(base_lo - rL, xs), np.maximum(base_hi + rL, xs))
+        if not (np.all(np.isfinite(xlo)) and np.all(np.isfinite(xhi))):
+            return StepFail("the tube is not finite", need)
+        gx = up(np.maximum(np.abs(xlo - xs), np.abs(xhi - xs)), 1)
+        r_rho = up((r_rho0 + rL) * (1 + 1e-9) + 1e-300, 2)   # inflated like the box
+        try:
+            T = ctx.third_iv([xlo, ulo, t_lo, p], [xhi, uhi, t_hi, p], check=False)[0]
+        except OcreachError as exc:
+            msg = str(exc)
+            msg = msg if len(msg) < 300 else msg[:300] + " ..."
+            if it > 1:
+                msg = (f"the remainder loop diverged (iteration {it}, last bound "
+                       f"{np.array2string(need, precision=3)}) until: {msg}")
+            return StepFail("remainder bound failed: " + msg, need)
+        Tmag = np.maximum(np.abs(unflatten_third(T[0][:, 0], n, nz)),
+                          np.abs(unflatten_third(T[1][:, 0], n, nz)))
+        dz = np.concatenate([gx, dv])
+        e3 = np.einsum("iabc,a,b,c->i", Tmag, dz, dz, dz) / 6.0
+        eq = np.einsum("a,iab,b->i", r_rho, absHxx, gx)
+        emix = (np.einsum("a,iab,b->i", gx, Hmag[:, :n, n:], dv)
+                + 0.5 * np.einsum("a,iab,b->i", dv, Hmag[:, n:, n:], dv)) if nv else 0.0
+        eh = 0.5 * np.einsum("a,iab,b->i", dz, eH, dz)
+        elin = eval_error(pt[:3], (f0, A, Bv), gx, dv)
+        need = up(e3 + eq + emix + eh + elin, nz * nz * nz + 8)
+        if not np.all(np.isfinite(need)):
+            return StepFail("the remainder bound is not finite", need)
+        if np.all(need <= Lbar):
+            break
+        Lbar = np.maximum(Lbar, need) * GROWTH + 1e-300
+    else:
+        return StepFail(f"the remainder loop did not close in {ctx.opts.max_iter} iterations "
+                        f"(last bound {np.array2string(need, precision=3)})", need)
+    ctx.last_terms = {"e3": e3, "eq": eq, "emix": emix, "eh": eh, "elin": elin, "r_F": r_F, "r_g": r_g,
+                      "r_RW": r_RWz, "gx": gx, "r_rho": r_rho}
+    # sensitivity of the bound to the extent of the set in each state (for splitting)
+    ctx.weights = (np.einsum("iabc,b,c->a", Tmag[:, :n], dz, dz) / 2.0
+                   + np.einsum("iab,b->a", absHxx, r_rho))
+    # ---- final sets with the bound found (every trajectory stays in the tube)
+    rN = up(S_L @ need, n + 1)
+    if ctx.opts.input_factors:
+        Zin = RWz.reduce(ctx.opts.input_order, "girard")
+        inp = spz.from_generators(np.asarray(Zin.G), ctx.fid, d)
+    else:
+        inp = SoundPZ(np.zeros(n), np.zeros((n, 0)), np.zeros((0, d), dtype=np.int64), RWz.G)
+    point = spz.pad(spz.translate(spz.add(Pend, inp, bits), xs), rN)
+    tube_r = up(r_F + r_g + rN, 3) + rounding_radius(np.abs(seg_lo) + np.abs(seg_hi) + np.abs(xs), 2)
+    segz = spz.to_zonotope(seg)
+    tube = Zonotope.trusted(segz.c + xs, np.hstack([segz.G, RWz.G, diag_columns(tube_r)]))
+    if not all_finite(tube) or not (np.all(np.isfinite(point.c)) and np.all(np.isfinite(point.G))
+                                    and np.all(np.isfinite(point.GI))):
+        return StepFail("the step's sets are not finite", need)
+    return PolyStepOK(point=point, tube=tube, L=need, err_mag=need, iterations=it)
+
+
+# ------------------------------------------------------------------------------------------------
+# the driver (taylor's, with polynomial zonotopes)
+# ------------------------------------------------------------------------------------------------
+class PolyReach(ZonotopeReach):
+    """:class:`ZonotopeReach` with polynomial-zonotope parts and :func:`poly_step`."""
+
+    def __init__(self, method: Method, problem: Problem, opts: PolyOptions):
+        super().__init__(method, problem, opts, None, {"scheme": "conservative polynomialization "
+                                                      "(Althoff 2013), third-order remainder"})
+        self.ctx = PolyContext(problem, opts, self.ctx.V, self.ctx.W)
+
+    def step(self, Z, t, h, L):
+        return poly_step(self.ctx, Z, t, h, L)
+
+    def reduce_point(self, S: SoundPZ) -> SoundPZ:
+        return spz.reduce(S, self.ctx.h_dep, self.ctx.h_ind, self.opts.reduction)
+
+    def reduce_tube(self, S: Zonotope) -> Zonotope:
+        return S.reduce(self.opts.tube_order, self.opts.reduction)
+
+    def initial_set(self) -> SoundPZ:
+        return spz.from_zonotope(initial_zonotope(self.problem), self.ctx.fid, self.ctx.d)
+
+    def can_split_set(self, S: SoundPZ) -> bool:
+        return S.n_dependent > 0
+
+    def split_part(self, part: Part) -> tuple[Part, Part]:
+        """Split along the factor whose monomials weigh most in the remainder bound (the weights
+        of the last failing bound, else the generator norms)."""
+        S = part.Z
+        w = self.ctx.weights if self.ctx.weights is not None else np.ones(S.dim)
+        col = w @ np.abs(S.G)
+        f = S.factors()
+        score = np.array([col[np.any(S.I == k, axis=1)].sum() for k in f])
+        a, b = spz.split(S, int(f[int(np.argmax(score))]), self.ctx.bits)
+        return Part(Z=a, L=None, level=part.level), Part(Z=b, L=None, level=part.level)
+
+    def as_set(self, parts: list):
+        if self.opts.output == "zonotope":
+            zs = [spz.to_zonotope(p) for p in parts]
+            return zs[0] if len(zs) == 1 else ZonotopeUnion(zs)
+        pzs = [spz.to_polyzonotope(p, self.ctx.fid) for p in parts]
+        return pzs[0] if len(pzs) == 1 else PZUnion(pzs)
+
+
+class PolyReachMethod(Method):
+    """Conservative polynomialization on sparse polynomial zonotopes (Althoff 2013)."""
+
+    name = "poly"
+    description = ("guaranteed polynomial-zonotope enclosure by conservative polynomialization: "
+                   "quadratic static error kept as a polynomial zonotope, third-order remainder by "
+                   "interval arithmetic (Althoff HSCC 2013; CORA 'poly')")
+
+    Options = PolyOptions
+
+    def solve(self, problem: Problem) -> ReachResult:
+        check_smooth(problem.model)
+        initial_zonotope(problem)  # wrong dimension -> clear error before any work
+        return PolyReach(self, problem, self.options).run()
