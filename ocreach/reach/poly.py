@@ -105,6 +105,19 @@ def third_interval(model):
     return interval_function(fun, model=model, key=("poly", "third"), native=True)
 
 
+def third_dependence(model) -> np.ndarray:
+    """The states ``x_a`` that some third derivative of ``f`` depends on (structural sparsity of
+    ``d T / d x``): where sub-boxes of the remainder's box can tighten its bound."""
+    def build():
+        fun = model.cached(("poly", "third_fun"), lambda: None)
+        T = fun(model.x, model.u, model.t, model.p)
+        dep = [a for a in range(model.n_x) if ca.depends_on(T, model.x[a])]
+        return np.asarray(dep, dtype=np.int64)
+
+    third_interval(model)   # builds the third-derivative Function
+    return model.cached(("poly", "third_dependence"), build)
+
+
 def unflatten_third(a: np.ndarray, n_x: int, n_z: int) -> np.ndarray:
     """Column-major flat ``(n_x n_z^2, n_z)`` of one box -> ``T[i, a, b, c]`` (n_x, n_z, n_z, n_z)."""
     return a.reshape(n_z, n_x, n_z, n_z).transpose(1, 2, 3, 0)
@@ -118,12 +131,22 @@ class PolyOptions(ZonotopeOptions):
     """Options of ``poly``: those of ``taylor`` (:class:`ZonotopeOptions`; ``order`` here counts
     every generator of the polynomial zonotope, dependent and independent) plus
 
-    * ``order`` (20): generators per state of a time-point set after each step (``order * n_x``
-      in all, of them ``independent_order * n_x`` independent), >= 1;
-    * ``independent_order`` (2): independent generators per state (the boxed part, reduced like a
-      zonotope), >= 1 and <= ``order``;
+    * ``order`` (6): zonotope order of the linear part of a time-point set after each step (the
+      linear monomials of factors that occur nowhere else, with the independent generators:
+      ``order * n_x`` generators, reduced like a zonotope), >= 1;
+    * ``poly_order`` (10): monomials of degree >= 2 kept per state (``poly_order * n_x``; the
+      smallest others are enclosed by the linear part), >= 0;
+    * ``error_order`` (10): zonotope order of the set the quadratic maps are evaluated on (its
+      ``error_order * n_x`` largest monomials kept with their factors, the rest boxed; CORA's
+      ``errorOrder``), >= 1;
     * ``max_degree`` (3): highest total degree of a monomial kept dependent (higher ones are
       enclosed by independent generators), 2..6;
+    * ``refactor`` (True): after each step the independent generators (the boxed part) become
+      dependent generators with fresh factors (Kochdumper & Althoff's restructuring in its simplest
+      form), so the next steps map their curvature too and a split can halve them;
+    * ``remainder_splits`` (2): the remainder's interval derivatives are bounded as the maximum
+      over ``remainder_splits^3`` sub-boxes of the tube's box in the first three states (tighter
+      than one box: less dependency in the interval evaluation), 1..4;
     * ``tube_order`` (10): zonotope order of the time-interval tubes, >= 1;
     * ``input_factors`` (True): the thrust's input solution of every step becomes new dependent
       factors (later steps then map its curvature); False: independent generators;
@@ -132,9 +155,12 @@ class PolyOptions(ZonotopeOptions):
       zonotope enclosures (``"zonotope"``, for consumers that need zonotopes, e.g. drift tubes).
     """
 
-    order: float = 20.0
-    independent_order: float = 2.0
+    order: float = 6.0
+    poly_order: float = 10.0
+    error_order: float = 10.0
     max_degree: int = 3
+    refactor: bool = True
+    remainder_splits: int = 2
     tube_order: float = 10.0
     input_factors: bool = True
     input_order: float = 1.0
@@ -142,20 +168,25 @@ class PolyOptions(ZonotopeOptions):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("tube_order", "input_order", "independent_order"):
+        for name in ("tube_order", "input_order", "error_order"):
             v = check_real(name, getattr(self, name))
             if v < 1:
                 raise ProblemError(f"{name} must be >= 1; got {getattr(self, name)!r}")
             setattr(self, name, v)
-        if self.independent_order > self.order:
-            raise ProblemError(f"independent_order must be <= order = {self.order:g}; got "
-                               f"{self.independent_order!r}")
+        self.poly_order = check_real("poly_order", self.poly_order)
+        if self.poly_order < 0:
+            raise ProblemError(f"poly_order must be >= 0; got {self.poly_order!r}")
         self.max_degree = check_count("max_degree", self.max_degree, 2)
         if self.max_degree > spz.MAX_DEGREE:
             raise ProblemError(f"max_degree must be an integer in 2..{spz.MAX_DEGREE}; got "
                                f"{self.max_degree!r}")
-        if not isinstance(self.input_factors, (bool, np.bool_)):
-            raise ProblemError(f"input_factors must be True or False; got {self.input_factors!r}")
+        for name in ("input_factors", "refactor"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ProblemError(f"{name} must be True or False; got {getattr(self, name)!r}")
+        self.remainder_splits = check_count("remainder_splits", self.remainder_splits, 1)
+        if self.remainder_splits > 4:
+            raise ProblemError(f"remainder_splits must be an integer in 1..4; got "
+                               f"{self.remainder_splits!r}")
         if self.output not in OUTPUTS:
             raise ProblemError(f"output must be one of {OUTPUTS}; got {self.output!r}")
 
@@ -183,11 +214,14 @@ class PolyContext(Context):
         self.n_z = m.n_x + m.n_u + (1 if self.td else 0)
         self.point_iv = hessian_interval(m)
         self.third_iv = third_interval(m)
+        #: states the third derivatives depend on (structurally): the candidates for sub-boxes
+        self.split_dims = third_dependence(m)
         self.fid = FactorIds(opts.max_degree)
         self.bits = self.fid.bits
         self.d = opts.max_degree
-        self.h_ind = max(int(np.floor(opts.independent_order * self.n)), self.n)
-        self.h_dep = max(int(np.floor(opts.order * self.n)) - self.h_ind, 0)
+        self.h_lin = max(int(np.floor(opts.order * self.n)), self.n)
+        self.h_poly = int(np.floor(opts.poly_order * self.n))
+        self.h_err = max(int(np.floor(opts.error_order * self.n)), self.n)
         #: per-state sensitivity of the last remainder bound to the set's extent (for splitting)
         self.weights: np.ndarray | None = None
 
@@ -223,6 +257,39 @@ def gamma_matrices(et, k_max: int = 2) -> tuple[list[np.ndarray], np.ndarray, li
     return out, rad, chord
 
 
+def derivative_bounds(ctx: PolyContext, xlo: np.ndarray, xhi: np.ndarray, t_lo: np.ndarray,
+                      t_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Interval bounds over the box ``[xlo, xhi] x U (x [t_lo, t_hi])`` of the third-derivative
+    magnitudes ``|T_iabc|`` and of the Hessian ``[Hlo, Hhi]`` (n_x, n_z, n_z): the maximum (hull)
+    over ``k^d`` sub-boxes, ``k = remainder_splits``, cut along the ``d <= 3`` widest states the
+    derivatives depend on (``PolyContext.split_dims``).  The sub-boxes share their cut points
+    exactly, so they cover the box, and the hull of sound bounds on a cover is a sound bound on
+    the box; splitting only removes part of the interval evaluator's dependency overestimation."""
+    n, nz, p = ctx.n, ctx.n_z, ctx.p
+    k = ctx.opts.remainder_splits
+    dims = ctx.split_dims
+    if k > 1 and dims.size:
+        dims = dims[np.argsort(-(xhi[dims] - xlo[dims]), kind="stable")[:3]]
+        cuts = [np.linspace(xlo[j], xhi[j], k + 1) for j in dims]
+        cuts = [np.concatenate([[xlo[j]], c[1:-1], [xhi[j]]]) for j, c in zip(dims, cuts)]
+        grid = np.stack(np.meshgrid(*[np.arange(k)] * dims.size, indexing="ij"), -1).reshape(-1, dims.size)
+        B = grid.shape[0]
+        lo = np.repeat(xlo[:, None], B, axis=1)
+        hi = np.repeat(xhi[:, None], B, axis=1)
+        for a, j in enumerate(dims):
+            lo[j] = cuts[a][grid[:, a]]
+            hi[j] = cuts[a][grid[:, a] + 1]
+    else:
+        lo, hi, B = xlo[:, None], xhi[:, None], 1
+    ulo, uhi = ctx.Ubox
+    T = ctx.third_iv([lo, ulo, t_lo, p], [hi, uhi, t_hi, p], check=False)[0]
+    H = ctx.point_iv([lo, ulo, t_lo, p], [hi, uhi, t_hi, p], check=False)[3]
+    Tmag = np.maximum(np.abs(T[0]), np.abs(T[1])).max(axis=1)
+    Hlo = unflatten_hessian(H[0], n, nz).min(axis=0)
+    Hhi = unflatten_hessian(H[1], n, nz).max(axis=0)
+    return unflatten_third(Tmag, n, nz), Hlo, Hhi
+
+
 def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
               L_guess: np.ndarray | None) -> PolyStepOK | StepFail:
     """One step of conservative polynomialization (module docstring, items 1-6)."""
@@ -253,6 +320,8 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
     Hmag = np.maximum(np.abs(Hlo), np.abs(Hhi))
     Hxx = Hs[:, :n, :n]
     absHxx = np.abs(Hxx)
+    Hs0 = np.zeros_like(Hs)
+    Hs0[:, :n, :n] = Hxx
     try:
         et = expm_terms(A, h)
     except SolverError as exc:
@@ -260,12 +329,13 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
     (G0, G1, G2), G_rad, (_, C1, C2) = gamma_matrices(et)
     # ---- the polynomial part (independent of the error box)
     D0 = spz.translate(R, -xs)
-    Vstat = spz.translate(spz.quadratic(0.5 * Hxx, D0, bits), f0)   # f0 + 1/2 d0^T H d0
+    D0m = spz.reduce_for_map(D0, ctx.h_err)
+    Vstat = spz.translate(spz.quadratic(0.5 * Hxx, D0m, bits), f0)   # f0 + 1/2 d0^T H d0
     P = spz.add(spz.linear_map(et.Phi, D0, et.E), spz.linear_map(G0, Vstat, G_rad), bits)
     Dd = spz.add(P, spz.scale(-1.0, D0), bits)                  # P - D0 = D(alpha) + boxes
     # the quadratic term along the segment d0 + lambda D: 1/2 Q(d0) + lambda g1 + lambda^2 g2
-    Dr = spz.reduce(Dd, ctx.h_dep, ctx.h_ind, ctx.opts.reduction)
-    g1 = spz.bilinear(Hxx, D0, Dr, bits)                        # d0^T H D
+    Dr = spz.reduce_for_map(Dd, ctx.h_err)
+    g1 = spz.bilinear(Hxx, D0m, Dr, bits)                       # d0^T H D
     g2 = spz.quadratic(0.5 * Hxx, Dr, bits)                     # 1/2 D^T H D
     Pend = spz.add(P, spz.add(spz.linear_map(G1, g1, G_rad), spz.linear_map(G2, g2, G_rad), bits), bits)
     # the tube's polynomial part: CH(D0, P_end) with common factors
@@ -316,7 +386,7 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         gx = up(np.maximum(np.abs(xlo - xs), np.abs(xhi - xs)), 1)
         r_rho = up((r_rho0 + rL) * (1 + 1e-9) + 1e-300, 2)   # inflated like the box
         try:
-            T = ctx.third_iv([xlo, ulo, t_lo, p], [xhi, uhi, t_hi, p], check=False)[0]
+            Tmag, Hblo, Hbhi = derivative_bounds(ctx, xlo, xhi, t_lo, t_hi)
         except OcreachError as exc:
             msg = str(exc)
             msg = msg if len(msg) < 300 else msg[:300] + " ..."
@@ -324,16 +394,18 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
                 msg = (f"the remainder loop diverged (iteration {it}, last bound "
                        f"{np.array2string(need, precision=3)}) until: {msg}")
             return StepFail("remainder bound failed: " + msg, need)
-        Tmag = np.maximum(np.abs(unflatten_third(T[0][:, 0], n, nz)),
-                          np.abs(unflatten_third(T[1][:, 0], n, nz)))
         dz = np.concatenate([gx, dv])
         e3 = np.einsum("iabc,a,b,c->i", Tmag, dz, dz, dz) / 6.0
-        eq = np.einsum("a,iab,b->i", r_rho, absHxx, gx)
         emix = (np.einsum("a,iab,b->i", gx, Hmag[:, :n, n:], dv)
                 + 0.5 * np.einsum("a,iab,b->i", dv, Hmag[:, n:, n:], dv)) if nv else 0.0
         eh = 0.5 * np.einsum("a,iab,b->i", dz, eH, dz)
+        # the same terms from the Hessian's variation over the box (second-order Lagrange form)
+        ealt = 0.5 * np.einsum("a,iab,b->i", dz, np.maximum(Hbhi - Hs0, Hs0 - Hblo), dz)
+        eq = np.einsum("a,iab,b->i", r_rho, absHxx, gx)
+        emix = (np.einsum("a,iab,b->i", gx, Hmag[:, :n, n:], dv)
+                + 0.5 * np.einsum("a,iab,b->i", dv, Hmag[:, n:, n:], dv)) if nv else 0.0
         elin = eval_error(pt[:3], (f0, A, Bv), gx, dv)
-        need = up(e3 + eq + emix + eh + elin, nz * nz * nz + 8)
+        need = up(np.minimum(e3 + emix + eh, ealt) + eq + elin, nz * nz * nz + 8)
         if not np.all(np.isfinite(need)):
             return StepFail("the remainder bound is not finite", need)
         if np.all(need <= Lbar):
@@ -342,7 +414,7 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
     else:
         return StepFail(f"the remainder loop did not close in {ctx.opts.max_iter} iterations "
                         f"(last bound {np.array2string(need, precision=3)})", need)
-    ctx.last_terms = {"e3": e3, "eq": eq, "emix": emix, "eh": eh, "elin": elin, "r_F": r_F, "r_g": r_g,
+    ctx.last_terms = {"e3": e3, "ealt": ealt, "eq": eq, "emix": emix, "eh": eh, "elin": elin, "r_F": r_F, "r_g": r_g,
                       "r_RW": r_RWz, "gx": gx, "r_rho": r_rho}
     # sensitivity of the bound to the extent of the set in each state (for splitting)
     ctx.weights = (np.einsum("iabc,b,c->a", Tmag[:, :n], dz, dz) / 2.0
@@ -353,7 +425,8 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         Zin = RWz.reduce(ctx.opts.input_order, "girard")
         inp = spz.from_generators(np.asarray(Zin.G), ctx.fid, d)
     else:
-        inp = SoundPZ(np.zeros(n), np.zeros((n, 0)), np.zeros((0, d), dtype=np.int64), RWz.G)
+        inp = SoundPZ(np.zeros(n), np.zeros((n, 0)), np.zeros((0, d), dtype=np.int64),
+                      np.zeros(0, dtype=np.int64), np.asarray(RWz.G), np.zeros(n))
     point = spz.pad(spz.translate(spz.add(Pend, inp, bits), xs), rN)
     tube_r = up(r_F + r_g + rN, 3) + rounding_radius(np.abs(seg_lo) + np.abs(seg_hi) + np.abs(xs), 2)
     segz = spz.to_zonotope(seg)
@@ -379,7 +452,8 @@ class PolyReach(ZonotopeReach):
         return poly_step(self.ctx, Z, t, h, L)
 
     def reduce_point(self, S: SoundPZ) -> SoundPZ:
-        return spz.reduce(S, self.ctx.h_dep, self.ctx.h_ind, self.opts.reduction)
+        return spz.reduce(S, self.ctx.h_lin, self.ctx.h_poly, self.opts.reduction,
+                          self.ctx.fid if self.opts.refactor else None)
 
     def reduce_tube(self, S: Zonotope) -> Zonotope:
         return S.reduce(self.opts.tube_order, self.opts.reduction)
@@ -413,6 +487,8 @@ class PolyReachMethod(Method):
     """Conservative polynomialization on sparse polynomial zonotopes (Althoff 2013)."""
 
     name = "poly"
+    #: guaranteed enclosures with the default options (read by the soundness harness)
+    guaranteed = True
     description = ("guaranteed polynomial-zonotope enclosure by conservative polynomialization: "
                    "quadratic static error kept as a polynomial zonotope, third-order remainder by "
                    "interval arithmetic (Althoff HSCC 2013; CORA 'poly')")

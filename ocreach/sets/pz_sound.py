@@ -29,7 +29,7 @@ import numpy as np
 
 from ocreach.errors import SetError
 from ocreach.sets._base import new_ids
-from ocreach.sets.rounding import rounding_radius, up
+from ocreach.sets.rounding import TINY, rounding_radius, up
 from ocreach.sets.zonotope import Zonotope
 
 #: largest supported degree cap (the packed keys need 63 // max_degree bits per factor index)
@@ -39,13 +39,17 @@ MAX_DEGREE = 6
 @dataclass(frozen=True)
 class SoundPZ:
     """``c`` (n,), ``G`` (n, h), ``I`` (h, d) sorted (descending) factor indices of each monomial
-    (0 = none; a row of zeros would be the constant monomial, which is kept in ``c``), ``GI``
-    (n, q).  Internal: arrays are owned, not copied or validated."""
+    (0 = none; the constant monomial is kept in ``c``), ``K`` (h,) their packed keys, strictly
+    increasing (so the monomials are distinct), ``GI`` (n, q) independent generators and ``r``
+    (n,) the radii of a box (the rounding bounds, kept apart from ``GI`` so that they cost no
+    generators).  Internal: arrays are owned, not copied; build with :func:`make`."""
 
     c: np.ndarray
     G: np.ndarray
     I: np.ndarray
+    K: np.ndarray
     GI: np.ndarray
+    r: np.ndarray
 
     @property
     def dim(self) -> int:
@@ -61,7 +65,7 @@ class SoundPZ:
 
     @property
     def n_independent(self) -> int:
-        return int(self.GI.shape[1])
+        return int(self.GI.shape[1]) + int(np.count_nonzero(self.r))
 
     @property
     def n_generators(self) -> int:
@@ -71,6 +75,42 @@ class SoundPZ:
         """Sorted local indices of the factors that occur."""
         f = np.unique(self.I)
         return f[f > 0]
+
+    def with_box(self, r: np.ndarray) -> SoundPZ:
+        """The same set plus the box of radii ``r >= 0`` (added to :attr:`r`, rounded up)."""
+        return SoundPZ(self.c, self.G, self.I, self.K, self.GI, up(self.r + r, 1))
+
+
+def make(c: np.ndarray, G: np.ndarray, I: np.ndarray, GI: np.ndarray, r: np.ndarray | None,
+         bits: int) -> SoundPZ:
+    """A :class:`SoundPZ` from generators with any (repeated) monomials: equal monomials are
+    summed, the constant one is folded into the centre and zero generators dropped, with the
+    rounding of the sums added to the box."""
+    n = c.shape[0]
+    r = np.zeros(n) if r is None else r
+    h = G.shape[1]
+    if h == 0:
+        return SoundPZ(c, G, I, np.zeros(0, dtype=np.int64), GI, r)
+    K = keys(I, bits)
+    order = np.argsort(K, kind="stable")
+    Ks = K[order]
+    new = np.ones(h, dtype=bool)
+    new[1:] = Ks[1:] != Ks[:-1]
+    if new.all() and Ks[0] != 0:
+        G, I, K = G[:, order], I[order], Ks
+    else:
+        starts = np.flatnonzero(new)
+        big = int(np.diff(np.r_[starts, h]).max())
+        r = up(r + rounding_radius(np.abs(c) + np.abs(G).sum(axis=1), big + 1), 1)
+        G = np.add.reduceat(G[:, order], starts, axis=1)
+        I, K = I[order[starts]], Ks[starts]
+        if K[0] == 0:                        # the constant monomial
+            c = c + G[:, 0]
+            G, I, K = G[:, 1:], I[1:], K[1:]
+    nz = np.any(G != 0, axis=0)
+    if not nz.all():
+        G, I, K = G[:, nz], I[nz], K[nz]
+    return SoundPZ(c, G, I, K, GI, r)
 
 
 class FactorIds:
@@ -149,7 +189,10 @@ def from_zonotope(Z: Zonotope, fid: FactorIds, d: int) -> SoundPZ:
     h = Z.n_generators
     I = np.zeros((h, d), dtype=np.int64)
     I[:, 0] = fid.new(h)
-    return SoundPZ(np.array(Z.c, dtype=float), np.array(Z.G, dtype=float), I, np.zeros((Z.dim, 0)))
+    G = np.array(Z.G, dtype=float)
+    nz = np.any(G != 0, axis=0)
+    return SoundPZ(np.array(Z.c, dtype=float), G[:, nz], I[nz], keys(I[nz], fid.bits),
+                   np.zeros((Z.dim, 0)), np.zeros(Z.dim))
 
 
 def from_generators(G: np.ndarray, fid: FactorIds, d: int) -> SoundPZ:
@@ -159,7 +202,7 @@ def from_generators(G: np.ndarray, fid: FactorIds, d: int) -> SoundPZ:
 
 def to_polyzonotope(S: SoundPZ, fid: FactorIds):
     """The same set as a :class:`ocreach.sets.PolyZonotope` (exact: exponents are the factor
-    multiplicities; identifiers the factors' global ones)."""
+    multiplicities, identifiers the factors' global ones, the box ``r`` independent generators)."""
     from ocreach.sets.polyzonotope import PolyZonotope
 
     f = S.factors()
@@ -168,110 +211,85 @@ def to_polyzonotope(S: SoundPZ, fid: FactorIds):
     cols = np.broadcast_to(np.arange(S.n_dependent)[:, None], S.I.shape)
     nz = S.I > 0
     np.add.at(E, (row[nz], cols[nz]), 1)
-    return PolyZonotope._own(S.c.copy(), S.G.copy(), S.GI.copy(), E, fid.global_ids(f))
-
-
-def from_polyzonotope(P, fid: FactorIds, d: int) -> SoundPZ:
-    """A :class:`PolyZonotope` as a :class:`SoundPZ`; monomials above the degree cap are enclosed
-    by independent generators (exact otherwise)."""
-    E = np.asarray(P.E, dtype=np.int64)
-    loc = fid.local_of(P.id)
-    deg = E.sum(axis=0) if E.size else np.zeros(P.n_dependent, dtype=np.int64)
-    keep = deg <= d
-    h = int(keep.sum())
-    I = np.zeros((h, d), dtype=np.int64)
-    for j, col in enumerate(np.flatnonzero(keep)):
-        idx = np.repeat(loc, E[:, col])
-        I[j, : idx.size] = np.sort(idx)[::-1]
-    over = P.G[:, ~keep]
-    S = SoundPZ(np.array(P.c, dtype=float), np.array(P.G[:, keep], dtype=float), I,
-                np.hstack([np.array(P.GI, dtype=float), over]))
-    return merge(S, fid.bits)
+    GI = np.hstack([S.GI, np.diag(S.r)[:, S.r > 0]])
+    return PolyZonotope._own(S.c.copy(), S.G.copy(), GI, E, fid.global_ids(f))
 
 
 # ------------------------------------------------------------------------------------------------
 # rounded operations
 # ------------------------------------------------------------------------------------------------
 def magnitude(S: SoundPZ) -> np.ndarray:
-    """``|c| + sum_j |g_j| + sum_j |gI_j|``: the largest magnitude of each coordinate over ``S``."""
-    return np.abs(S.c) + np.abs(S.G).sum(axis=1) + np.abs(S.GI).sum(axis=1)
+    """``|c| + sum_j |g_j| + sum_j |gI_j| + r``: the largest magnitude of each coordinate over
+    ``S`` (computed in floating point: callers round it up or use it inside a rounding bound)."""
+    return np.abs(S.c) + np.abs(S.G).sum(axis=1) + np.abs(S.GI).sum(axis=1) + S.r
 
 
 def pad(S: SoundPZ, r: np.ndarray) -> SoundPZ:
-    """``S`` plus the box of radii ``r >= 0`` (as independent generators)."""
+    """``S`` plus the box of radii ``r >= 0`` as independent generators (zero radii add none)."""
     r = np.asarray(r, dtype=float)
     keep = r > 0
     if not keep.any():
         return S
-    return SoundPZ(S.c, S.G, S.I, np.hstack([S.GI, np.diag(r)[:, keep]]))
+    return SoundPZ(S.c, S.G, S.I, S.K, np.hstack([S.GI, np.diag(r)[:, keep]]), S.r)
 
 
 def translate(S: SoundPZ, v: np.ndarray) -> SoundPZ:
     v = np.asarray(v, dtype=float)
-    return pad(SoundPZ(S.c + v, S.G, S.I, S.GI), rounding_radius(np.abs(S.c) + np.abs(v), 1))
+    out = SoundPZ(S.c + v, S.G, S.I, S.K, S.GI, S.r)
+    return out.with_box(rounding_radius(np.abs(S.c) + np.abs(v), 1))
 
 
 def scale(s: float, S: SoundPZ) -> SoundPZ:
     """``s S``; exact for ``s = +-2^k`` (no underflow), else one rounding per entry."""
-    out = SoundPZ(s * S.c, s * S.G, S.I, s * S.GI)
-    if s != 0 and np.frexp(abs(s))[0] == 0.5:
-        return out
-    return pad(out, rounding_radius(abs(s) * magnitude(S), 1))
+    out = SoundPZ(s * S.c, s * S.G, S.I, S.K, s * S.GI, abs(s) * S.r)
+    if s != 0 and np.frexp(abs(s))[0] == 0.5:      # exact up to underflow
+        return out.with_box(np.full(S.dim, TINY))
+    return out.with_box(rounding_radius(abs(s) * magnitude(S), 1))
 
 
 def linear_map(M: np.ndarray, S: SoundPZ, M_rad: np.ndarray | None = None) -> SoundPZ:
-    """Enclosure of ``{M' x : x in S, |M' - M| <= M_rad}``: ``M S`` in floating point plus
-    ``M_rad |S| + gamma_n |M| |S|``."""
+    """Enclosure of ``{M' x : x in S, |M' - M| <= M_rad}``: ``M S`` in floating point (the box
+    ``r`` mapped to the box ``|M| r``) plus ``M_rad |S| + gamma_n |M| |S|``."""
     mag = magnitude(S)
-    r = rounding_radius(np.abs(M) @ mag, S.dim)
+    absM = np.abs(M)
+    r = absM @ S.r + rounding_radius(absM @ mag, S.dim + 1)
     if M_rad is not None:
-        r = up(r + M_rad @ mag, S.dim + 1)
-    return pad(SoundPZ(M @ S.c, M @ S.G, S.I, M @ S.GI), r)
+        r = r + M_rad @ mag
+    return SoundPZ(M @ S.c, M @ S.G, S.I, S.K, M @ S.GI, up(r, S.dim + 3))
 
 
 def project(S: SoundPZ, rows) -> SoundPZ:
     rows = np.asarray(rows)
-    return SoundPZ(S.c[rows], S.G[rows], S.I, S.GI[rows])
-
-
-def merge(S: SoundPZ, bits: int) -> SoundPZ:
-    """Sum the generators of equal monomials, fold the constant monomial into the centre, drop
-    zero generators (plus the rounding of the sums)."""
-    h = S.n_dependent
-    if h == 0:
-        return S
-    k = keys(S.I, bits)
-    order = np.argsort(k, kind="stable")
-    ks = k[order]
-    new = np.ones(h, dtype=bool)
-    new[1:] = ks[1:] != ks[:-1]
-    starts = np.flatnonzero(new)
-    c = S.c
-    if starts.size == h and ks[0] != 0:
-        G, I = S.G, S.I
-        r = None
-    else:
-        G = np.add.reduceat(S.G[:, order], starts, axis=1)
-        I = S.I[order[starts]]
-        big = int(np.diff(np.r_[starts, h]).max())
-        r = rounding_radius(np.abs(S.c) + np.abs(S.G).sum(axis=1), big + 1)
-        if ks[0] == 0:                        # the constant monomial
-            c = c + G[:, 0]
-            G, I = G[:, 1:], I[1:]
-    nz = np.any(G != 0, axis=0)
-    if not nz.all():
-        G, I = G[:, nz], I[nz]
-    out = SoundPZ(c, G, I, S.GI)
-    return out if r is None else pad(out, r)
+    return SoundPZ(S.c[rows], S.G[rows], S.I, S.K, S.GI[rows], S.r[rows])
 
 
 def add(S: SoundPZ, T: SoundPZ, bits: int) -> SoundPZ:
     """Exact Minkowski sum with shared factors (equal monomials merge) plus rounding."""
     if S.dim != T.dim or S.degree_cap != T.degree_cap:
         raise SetError("add: dimensions or degree caps differ")
-    out = merge(SoundPZ(S.c + T.c, np.hstack([S.G, T.G]), np.vstack([S.I, T.I]),
-                        np.hstack([S.GI, T.GI])), bits)
-    return pad(out, rounding_radius(np.abs(S.c) + np.abs(T.c), 1))
+    c = S.c + T.c
+    r = up(S.r + T.r + rounding_radius(np.abs(S.c) + np.abs(T.c), 1), 2)
+    GI = np.hstack([S.GI, T.GI]) if T.GI.shape[1] else S.GI
+    if T.n_dependent == 0:
+        return SoundPZ(c, S.G, S.I, S.K, GI, r)
+    if S.n_dependent == 0:
+        return SoundPZ(c, T.G, T.I, T.K, GI, r)
+    if S.K.size == T.K.size and np.array_equal(S.K, T.K):     # the same monomials
+        r = up(r + rounding_radius(np.abs(S.G).sum(axis=1) + np.abs(T.G).sum(axis=1), 2), 1)
+        return SoundPZ(c, S.G + T.G, S.I, S.K, GI, r)
+    K = np.concatenate([S.K, T.K])
+    order = np.argsort(K, kind="stable")
+    Ks = K[order]
+    G = np.hstack([S.G, T.G])[:, order]
+    I = np.vstack([S.I, T.I])[order]
+    dup = np.flatnonzero(Ks[1:] == Ks[:-1])          # each key occurs at most twice
+    if dup.size:
+        G[:, dup] += G[:, dup + 1]
+        keep = np.ones(Ks.size, dtype=bool)
+        keep[dup + 1] = False
+        r = up(r + rounding_radius(np.abs(G[:, dup]).sum(axis=1), 1), 1)
+        G, I, Ks = G[:, keep], I[keep], Ks[keep]
+    return SoundPZ(c, G, I, Ks, GI, r)
 
 
 def _aug(S: SoundPZ) -> tuple[np.ndarray, np.ndarray]:
@@ -284,20 +302,28 @@ def _aug(S: SoundPZ) -> tuple[np.ndarray, np.ndarray]:
 def _poly_products(coef: np.ndarray, Ia: np.ndarray, Ib: np.ndarray, n_out: int, d: int,
                    bits: int) -> SoundPZ:
     """The set ``sum_p coef[:, p] m_a(p) m_b(p)`` (monomials of the pairs' factor tuples); the
-    products above the degree cap are enclosed by one box (each lies in [-1, 1])."""
+    products above the degree cap are enclosed by independent generators (each lies in
+    [-1, 1]), boxed."""
     J, over = products(Ia, Ib, d)
-    box = np.abs(coef[:, over]).sum(axis=1)
     keep = ~over
-    S = merge(SoundPZ(np.zeros(n_out), coef[:, keep], J[keep], np.zeros((n_out, 0))), bits)
-    return pad(S, up(box, int(over.sum()) + 1))
+    S = make(np.zeros(n_out), coef[:, keep], J[keep], np.zeros((n_out, 0)), None, bits)
+    if over.any():
+        S = pad(S, up(np.abs(coef[:, over]).sum(axis=1), int(over.sum()) + 1))
+    return S
+
+
+def _independent(S: SoundPZ) -> np.ndarray:
+    """The independent generators with the box ``r`` as columns."""
+    return np.hstack([S.GI, np.diag(S.r)[:, S.r > 0]]) if np.any(S.r) else S.GI
 
 
 def quadratic(H: np.ndarray, S: SoundPZ, bits: int) -> SoundPZ:
     """Enclosure of ``{(x^T H_i x)_i : x in S}`` for ``H`` (m, n, n), exactly symmetric
     (Kochdumper & Althoff's quadratic map; the static error of Althoff 2013, Eq. 9): the
     polynomial part ``y = c + G m`` is multiplied out (pairs ``j <= k`` with multiplicity
-    ``2 - delta_jk``), the terms with the independent part ``z = GI b`` are ``2 y_c^T H z`` kept as
-    independent generators and the rest (``2 (G m)^T H z + z^T H z``) boxed; plus the rounding."""
+    ``2 - delta_jk``), the terms with the independent part ``z`` (``GI b`` and the box) are
+    ``2 c^T H z``, kept as independent generators, and the rest (``2 (G m)^T H z + z^T H z``)
+    boxed; plus the rounding, ``gamma_k s^T |H_i| s`` with ``s`` = :func:`magnitude`."""
     d = S.degree_cap
     m = H.shape[0]
     Ga, Ia = _aug(S)
@@ -307,25 +333,25 @@ def quadratic(H: np.ndarray, S: SoundPZ, bits: int) -> SoundPZ:
     ju, ku = np.triu_indices(Hn)
     coef = Bm[:, ju, ku] * np.where(ju == ku, 1.0, 2.0)
     out = _poly_products(coef, Ia[ju], Ia[ku], m, d, bits)
-    GI = S.GI
+    Z = _independent(S)
     extra = np.zeros(m)
     newGI = np.zeros((m, 0))
-    if GI.shape[1]:
-        AI = np.einsum("iab,bl->ial", H, GI)          # (m, n, q)
+    if Z.shape[1]:
+        AI = np.einsum("iab,bl->ial", H, Z)           # (m, n, q)
         newGI = 2.0 * np.einsum("a,ial->il", S.c, AI)
         extra = (2.0 * np.abs(np.einsum("aj,ial->ijl", S.G, AI)).sum(axis=(1, 2))
-                 + np.abs(np.einsum("ak,ial->ikl", GI, AI)).sum(axis=(1, 2)))
+                 + np.abs(np.einsum("ak,ial->ikl", Z, AI)).sum(axis=(1, 2)))
     s = magnitude(S)
     absq = np.einsum("iab,a,b->i", np.abs(H), s, s)
     k = 2 * S.dim + 6 + 2 * Hn * Hn
-    r = up(extra, GI.shape[1] * (Hn + GI.shape[1]) + 2) + rounding_radius(absq, k)
-    return pad(SoundPZ(out.c, out.G, out.I, np.hstack([out.GI, newGI])), r)
+    r = up(extra, Z.shape[1] * (Hn + Z.shape[1]) + 2) + rounding_radius(absq, k)
+    return SoundPZ(out.c, out.G, out.I, out.K, np.hstack([out.GI, newGI]), up(out.r + r, 1))
 
 
 def bilinear(H: np.ndarray, S: SoundPZ, T: SoundPZ, bits: int) -> SoundPZ:
     """Enclosure of ``{(x^T H_i y)_i : x in S, y in T}`` with shared factors (``S`` and ``T`` are
     functions of the same factors): all pairs of the polynomial parts multiplied out, the terms
-    with either independent part boxed except ``c_S^T H_i GI_T`` and ``GI_S^T H_i c_T`` (kept as
+    with either independent part boxed except ``c_S^T H_i z_T`` and ``z_S^T H_i c_T`` (kept as
     independent generators); plus the rounding."""
     d = S.degree_cap
     m = H.shape[0]
@@ -336,33 +362,35 @@ def bilinear(H: np.ndarray, S: SoundPZ, T: SoundPZ, bits: int) -> SoundPZ:
     Ha, Hb = Ga.shape[1], Gb.shape[1]
     ja, kb = np.divmod(np.arange(Ha * Hb), Hb)
     out = _poly_products(Bm.reshape(m, -1), Ia[ja], Ib[kb], m, d, bits)
+    ZS, ZT = _independent(S), _independent(T)
     extra = np.zeros(m)
     newGI = [np.zeros((m, 0))]
-    if T.GI.shape[1]:
-        AI = np.einsum("iab,bl->ial", H, T.GI)
+    if ZT.shape[1]:
+        AI = np.einsum("iab,bl->ial", H, ZT)
         newGI.append(np.einsum("a,ial->il", S.c, AI))
-        extra = extra + np.abs(np.einsum("aj,ial->ijl", np.hstack([S.G, S.GI]), AI)).sum(axis=(1, 2))
-    if S.GI.shape[1]:
-        AI = np.einsum("iab,al->ibl", H, S.GI)           # (m, n, q_S): GI_S^T H
+        extra = extra + np.abs(np.einsum("aj,ial->ijl", np.hstack([S.G, ZS]), AI)).sum(axis=(1, 2))
+    if ZS.shape[1]:
+        AI = np.einsum("iab,al->ibl", H, ZS)           # (m, n, q_S): z_S^T H
         newGI.append(np.einsum("b,ibl->il", T.c, AI))
         extra = extra + np.abs(np.einsum("bk,ibl->ikl", T.G, AI)).sum(axis=(1, 2))
     sS, sT = magnitude(S), magnitude(T)
     absq = np.einsum("iab,a,b->i", np.abs(H), sS, sT)
     k = 2 * S.dim + 6 + 2 * Ha * Hb
     r = up(extra, (S.n_generators + 1) * (T.n_generators + 1) + 2) + rounding_radius(absq, k)
-    return pad(SoundPZ(out.c, out.G, out.I, np.hstack([out.GI] + newGI)), r)
+    return SoundPZ(out.c, out.G, out.I, out.K, np.hstack([out.GI] + newGI), up(out.r + r, 1))
 
 
 def times_new_factor(S: SoundPZ, lam: int, bits: int) -> SoundPZ:
-    """``lambda S`` for the factor ``lam`` in [-1, 1]: the centre becomes the generator of
+    """``lambda S`` for the fresh factor ``lam`` in [-1, 1]: the centre becomes the generator of
     ``lambda``, every monomial gains the factor (above the cap: boxed); independent generators
-    stay as they are (``lambda b`` ranges over [-1, 1] like ``b``).  Exact."""
+    and the box stay as they are (``lambda b`` ranges over [-1, 1] like ``b``).  Exact."""
     d = S.degree_cap
     Ga, Ia = _aug(S)
     J, over = products(Ia, np.full((Ia.shape[0], 1), lam, dtype=np.int64), d)
-    box = np.abs(Ga[:, over]).sum(axis=1)
-    out = SoundPZ(np.zeros(S.dim), Ga[:, ~over], J[~over], S.GI)
-    return pad(out, up(box, int(over.sum()) + 1))
+    out = make(np.zeros(S.dim), Ga[:, ~over], J[~over], S.GI, S.r, bits)
+    if over.any():
+        out = pad(out, up(np.abs(Ga[:, over]).sum(axis=1), int(over.sum()) + 1))
+    return out
 
 
 def to_zonotope(S: SoundPZ) -> Zonotope:
@@ -370,7 +398,8 @@ def to_zonotope(S: SoundPZ) -> Zonotope:
     the centre), the others over [-1, 1]; plus the rounding of the centre sum."""
     ev = all_even(S.I)
     c = S.c + 0.5 * S.G[:, ev].sum(axis=1)
-    r = rounding_radius(np.abs(S.c) + np.abs(S.G[:, ev]).sum(axis=1), int(ev.sum()) + 2)
+    r = S.r + rounding_radius(np.abs(S.c) + np.abs(S.G[:, ev]).sum(axis=1), int(ev.sum()) + 2)
+    r = up(r, 1)
     G = np.hstack([0.5 * S.G[:, ev], S.G[:, ~ev], S.GI, np.diag(r)[:, r > 0]])
     return Zonotope.trusted(c, G)
 
@@ -384,34 +413,126 @@ def box(S: SoundPZ) -> tuple[np.ndarray, np.ndarray]:
     return lo - e, hi + e
 
 
-def reduce(S: SoundPZ, h_dep: int, h_ind: int, method: str = "girard",
-           weights: np.ndarray | None = None) -> SoundPZ:
-    """Sound order reduction to at most ``h_dep`` dependent and ``h_ind`` (>= n) independent
-    generators (Kochdumper & Althoff; Foss et al. Sec. 2.4): the dependent generators of largest
-    (weighted 2-) norm are kept, the others enclosed like :func:`to_zonotope` and joined to the
-    independent ones, which are reduced as a zonotope (:func:`ocreach.sets.reduce.reduce_zonotope`:
-    Girard or PCA, rigorous boxes)."""
-    from ocreach.sets.reduce import reduce_zonotope
+def _enclose_removed(c: np.ndarray, G: np.ndarray, I: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre, independent generators and rounding box enclosing ``c + sum_j G_j m_j``
+    (all-even monomials over [0, 1], others over [-1, 1])."""
+    ev = all_even(I)
+    c2 = c + 0.5 * G[:, ev].sum(axis=1)
+    r = rounding_radius(np.abs(c) + np.abs(G[:, ev]).sum(axis=1), int(ev.sum()) + 2)
+    return c2, np.hstack([0.5 * G[:, ev], G[:, ~ev]]), r
+
+
+def _largest(norms: np.ndarray, k: int) -> np.ndarray:
+    keep = np.zeros(norms.size, dtype=bool)
+    if k >= norms.size:
+        keep[:] = True
+    elif k > 0:
+        keep[np.argpartition(-norms, k - 1)[:k]] = True
+    return keep
+
+
+def _box_reduce(Z: np.ndarray, h: int, n: int, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """Keep mask of the ``h - n`` largest columns of ``Z`` (Girard's ``||g||_1 - ||g||_inf`` or
+    the 2-norm for PCA) and the rigorous box (:func:`ocreach.sets.reduce.box_generators`) of the
+    others."""
+    from ocreach.sets.reduce import box_generators
+
+    absZ = np.abs(Z)
+    metric = (absZ.sum(axis=0) - absZ.max(axis=0, initial=0.0) if method == "girard"
+              else np.einsum("ij,ij->j", Z, Z))
+    keep = _largest(metric, max(h - n, 0))
+    B = box_generators(absZ[:, ~keep] if method == "girard" else Z[:, ~keep], method,
+                       abs_G=absZ[:, ~keep])
+    return keep, B
+
+
+def reduce(S: SoundPZ, h_lin: int, h_poly: int, method: str = "girard",
+           fid: FactorIds | None = None) -> SoundPZ:
+    """Sound order reduction in three parts (Kochdumper & Althoff's reduction of sparse polynomial
+    zonotopes, with the linear part reduced like a zonotope):
+
+    1. of the monomials of degree >= 2 the ``h_poly`` of largest 2-norm are kept, the others are
+       enclosed (all-even monomials over [0, 1], the rest over [-1, 1]) by independent generators;
+    2. linear monomials of factors that still occur in a kept monomial stay as they are (their
+       dependence is needed);
+    3. the other linear monomials -- factors that occur nowhere else, so their sum is a zonotope
+       independent of the rest of the set -- the independent generators and the box form one
+       zonotope, reduced to ``h_lin >= n`` generators: Girard (keep the ``h_lin - n`` largest by
+       ``||g||_1 - ||g||_inf``, box the rest) or PCA (the box in the principal frame), the boxes
+       rigorous (:func:`ocreach.sets.reduce.box_generators`).  Kept linear monomials keep their
+       factor; with ``fid`` the other generators of the part (independent ones, the box) become
+       dependent on fresh factors (exact), else they stay independent.
+    """
+    n = S.dim
+    c, r = S.c, S.r
+    lin = S.I[:, 1] == 0 if S.degree_cap > 1 else np.ones(S.n_dependent, dtype=bool)
+    hi = ~lin
+    Ghi, Ihi, Khi = S.G[:, hi], S.I[hi], S.K[hi]
+    keep_hi = _largest(np.einsum("ij,ij->j", Ghi, Ghi), h_poly)
+    extra = [S.GI]
+    if not keep_hi.all():
+        c, box_, rr = _enclose_removed(c, Ghi[:, ~keep_hi], Ihi[~keep_hi])
+        extra.append(box_)
+        r = up(r + rr, 1)
+        Ghi, Ihi, Khi = Ghi[:, keep_hi], Ihi[keep_hi], Khi[keep_hi]
+    Glin, Ilin, Klin = S.G[:, lin], S.I[lin], S.K[lin]
+    needed = np.isin(Ilin[:, 0], Ihi) if Ihi.size else np.zeros(Ilin.shape[0], dtype=bool)
+    free = ~needed
+    if np.any(r):
+        extra.append(np.diag(r)[:, r > 0])
+    Z = np.hstack([Glin[:, free]] + extra)
+    nf = int(free.sum())
+    rest = Z[:, nf:]
+    kf = np.ones(nf, dtype=bool)
+    if Z.shape[1] > h_lin:
+        keep, B = _box_reduce(Z, h_lin, n, method)
+        kf = keep[:nf]
+        rest = np.hstack([Z[:, nf:][:, keep[nf:]], B])
+    lin_keep = needed | np.isin(np.arange(lin.sum()), np.flatnonzero(free)[kf])
+    G = np.hstack([Ghi, Glin[:, lin_keep]])
+    I = np.vstack([Ihi, Ilin[lin_keep]])
+    K = np.concatenate([Khi, Klin[lin_keep]])
+    order = np.argsort(K, kind="stable")
+    out = SoundPZ(c, G[:, order], I[order], K[order], rest, np.zeros(n))
+    return refactor(out, fid) if fid is not None else out
+
+
+def reduce_for_map(S: SoundPZ, h: int) -> SoundPZ:
+    """An enclosure of ``S`` with at most ``h - n`` dependent generators (the largest in 2-norm;
+    their factors kept) and a box of the rest, for the input of a quadratic or bilinear map
+    (CORA's ``errorOrder``): the map's cost falls with the square of the generators, and the
+    small ones contribute products of small terms.  Sound as a function of the factors: every
+    point of ``S`` for factors ``a`` lies in the result for the same ``a`` and some ``b``."""
+    from ocreach.sets.reduce import box_generators
 
     n = S.dim
-    c, G, I, GI = S.c, S.G, S.I, S.GI
-    r = None
-    if S.n_dependent > h_dep:
-        W = G if weights is None else G * weights[:, None]
-        norms = np.einsum("ij,ij->j", W, W)
-        keep = np.zeros(S.n_dependent, dtype=bool)
-        if h_dep > 0:
-            keep[np.argpartition(-norms, h_dep - 1)[:h_dep]] = True
-        Grem, Irem = G[:, ~keep], I[~keep]
-        ev = all_even(Irem)
-        c = c + 0.5 * Grem[:, ev].sum(axis=1)
-        r = rounding_radius(np.abs(S.c) + np.abs(Grem[:, ev]).sum(axis=1), int(ev.sum()) + 2)
-        GI = np.hstack([GI, 0.5 * Grem[:, ev], Grem[:, ~ev], np.diag(r)[:, r > 0]])
-        G, I = G[:, keep], I[keep]
-    if GI.shape[1] > h_ind:
-        Z = reduce_zonotope(Zonotope.trusted(np.zeros(n), GI), h_ind / n, method)
-        GI = np.asarray(Z.G)
-    return SoundPZ(c, G, I, GI)
+    k = max(h - n, 0)
+    if S.n_dependent <= k and S.GI.shape[1] == 0:
+        return S
+    keep = _largest(np.einsum("ij,ij->j", S.G, S.G), k)
+    c, Grem, rr = _enclose_removed(S.c, S.G[:, ~keep], S.I[~keep])
+    Z = np.hstack([Grem, S.GI])
+    B = box_generators(np.abs(Z), "girard", abs_G=np.abs(Z)) if Z.shape[1] else np.zeros((n, 0))
+    return SoundPZ(c, S.G[:, keep], S.I[keep], S.K[keep], B, up(S.r + rr, 1))
+
+
+def refactor(S: SoundPZ, fid: FactorIds) -> SoundPZ:
+    """The same set with every independent generator (and the box) made dependent on a fresh
+    factor (exact: a zonotope is a polynomial zonotope with linear monomials)."""
+    Z = _independent(S)
+    q = Z.shape[1]
+    if q == 0:
+        return S
+    I = np.zeros((q, S.degree_cap), dtype=np.int64)
+    I[:, 0] = fid.new(q)
+    K = keys(I, fid.bits)
+    # fresh factors have the largest indices: their keys exceed every existing linear key but
+    # not necessarily higher-degree ones, so sort
+    G = np.hstack([S.G, Z])
+    Iall = np.vstack([S.I, I])
+    Kall = np.concatenate([S.K, K])
+    order = np.argsort(Kall, kind="stable")
+    return SoundPZ(S.c, G[:, order], Iall[order], Kall[order], np.zeros((S.dim, 0)), np.zeros(S.dim))
 
 
 def split(S: SoundPZ, factor: int, bits: int) -> tuple[SoundPZ, SoundPZ]:
@@ -436,8 +557,9 @@ def split(S: SoundPZ, factor: int, bits: int) -> tuple[SoundPZ, SoundPZ]:
             Gs.append(S.G[:, sel] * coef[None, :])
             Ij = rest[sel].copy()
             if j:
-                Ij = -np.sort(-np.hstack([Ij, np.full((Ij.shape[0], j), factor, dtype=np.int64)]), axis=1)[:, :d]
+                Ij = -np.sort(-np.hstack([Ij, np.full((Ij.shape[0], j), factor, dtype=np.int64)]),
+                              axis=1)[:, :d]
             Is.append(Ij)
-        T = merge(SoundPZ(S.c.copy(), np.hstack(Gs), np.vstack(Is), S.GI), bits)
-        halves.append(pad(T, rounding_radius(magnitude(S), S.n_dependent * (emax + 1) + 3)))
+        rr = up(S.r + rounding_radius(magnitude(S), S.n_dependent * (emax + 1) + 3), 1)
+        halves.append(make(S.c.copy(), np.hstack(Gs), np.vstack(Is), S.GI, rr, bits))
     return halves[0], halves[1]

@@ -1,0 +1,409 @@
+"""Validation of the sound ``poly`` method (conservative polynomialization) against independent
+truth, side by side with ``taylor``: the rows of ``docs/validation/poly.md``.
+
+For every case the script runs ``poly`` and ``taylor`` (keeping the sets of a method that stops,
+``SolverError.partial``), then checks the sets against trajectories integrated by SciPy's DOP853
+(rtol 1e-12, atol 1e-14) on right-hand sides written out here in numpy (not the project's CasADi
+models or integrators): half of the initial states at vertices of the initial set, half uniform
+inside, the controls constant, bang-bang (a new unit direction / box corner every grid step) or
+uniform random per step.  Every state at every grid time must lie in that time's set, and the
+states at the step midpoints (of the first ``--tube-samples``) in the step's time-interval tube:
+
+* zonotope sets (``taylor``, tubes): the scaled gauge (exact membership certificate, else the LP);
+* polynomial zonotopes (``poly``'s sets): outside the zonotope enclosure is an escape; inside it
+  the three-valued membership on the polynomial (:func:`ocreach.sets.pz_exact.membership`): a
+  certified exclusion is an escape, a witness proves the point inside, the rest is reported as
+  undecided (neither proved in nor out).
+
+A point escapes when it is outside the set enlarged by ``1e-9 (1 + |x|)`` (the truth's own
+error is far below).  Tightness at the last time both reached and at each method's last time: the
+ratio of the set's width to the samples' width in 50 random position directions (for a polynomial
+zonotope the rigorous upper support bound of :func:`ocreach.sets.pz_exact.support_bounds`).
+
+    python examples/poly_validation.py [--cases vdp,dro,nrho24,nrho76,halo200] [--samples 10000]
+        [--out out/poly_validation]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+import ocreach
+from ocreach.errors import SolverError
+from ocreach.fileio import atomic_write_text, jsonable
+from ocreach.sets.polyzonotope import PolyZonotope
+from ocreach.sets.pz_union import PZUnion
+from ocreach.sets.union import ZonotopeUnion, union_gauge
+from ocreach.sets.zonotope import Zonotope
+
+HOUR = 3600.0 / 375200.0
+ABS_TOL = 1e-9
+RTOL, ATOL = 1e-12, 1e-14
+
+#: case -> (problem id, problem overrides, poly options, taylor options)
+CASES = {
+    "vdp": ("vdp", {}, {}, {}),
+    "dro": ("dro", {}, {}, {}),
+    "nrho24": ("nrho-9-2", {"t_final": 24 * HOUR}, {}, {}),
+    "nrho76": ("nrho-9-2", {}, {"max_parts": 8}, {"max_parts": 8}),
+    "nrho157": ("nrho-9-2", {"t_final": 157 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
+    "halo200": ("l2-halo", {"t_final": 200 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
+}
+
+
+# ------------------------------------------------------------------------------------------------
+# independent truth
+# ------------------------------------------------------------------------------------------------
+def rhs_for(problem):
+    """``(X (N, n), U (N, m)) -> dX/dt`` in numpy for the models of the cases."""
+    m = problem.model
+    if m.name.startswith("cr3bp"):
+        mu, a = problem.param("mu"), problem.param("a_max")
+        planar = m.n_x == 4
+
+        def rhs(X, U):
+            if planar:
+                x, y, vx, vy = X.T
+                z = vz = np.zeros_like(x)
+            else:
+                x, y, z, vx, vy, vz = X.T
+            r1 = np.sqrt((x + mu) ** 2 + y**2 + z**2)
+            r2 = np.sqrt((x - 1 + mu) ** 2 + y**2 + z**2)
+            ax = x + 2 * vy - (1 - mu) * (x + mu) / r1**3 - mu * (x - 1 + mu) / r2**3 + a * U[:, 0]
+            ay = y - 2 * vx - (1 - mu) * y / r1**3 - mu * y / r2**3 + a * U[:, 1]
+            if planar:
+                return np.column_stack([vx, vy, ax, ay])
+            az = -(1 - mu) * z / r1**3 - mu * z / r2**3 + a * U[:, 2]
+            return np.column_stack([vx, vy, vz, ax, ay, az])
+        return rhs
+    if m.name == "vanderpol":
+        mu, g = problem.param("mu"), problem.param("gain")
+
+        def rhs(X, U):
+            x1, x2 = X.T
+            return np.column_stack([x2, mu * (1 - x1**2) * x2 - x1 + g * U[:, 0]])
+        return rhs
+    if m.name == "twobody":
+        mu, a = problem.param("mu"), problem.param("a_max")
+
+        def rhs(X, U):
+            r = X[:, :3]
+            rn = np.linalg.norm(r, axis=1, keepdims=True)
+            return np.hstack([X[:, 3:], -mu * r / rn**3 + a * U])
+        return rhs
+    raise ValueError(f"no numpy truth for model {m.name}")
+
+
+def initial_states(problem, N: int, rng) -> np.ndarray:
+    S = problem.initial_set
+    if S is None:
+        return np.tile(problem.x0, (N, 1))
+    Z = S if isinstance(S, Zonotope) else S.to_zonotope()
+    nv = N // 2
+    return np.vstack([Z.sample(nv, rng, mode="extreme"), Z.sample(N - nv, rng)])
+
+
+def controls(problem, N: int, K: int, rng) -> np.ndarray:
+    """(N, K, m): a third constant, a third bang-bang, a third uniform random, per grid step."""
+    m = problem.model.n_u
+    ball = problem.control_set.kind == "ball"
+    laws = np.arange(N) % 3
+    if ball:
+        U = rng.standard_normal((N, K, m))
+        U /= np.linalg.norm(U, axis=-1, keepdims=True)
+        U[laws == 0] = U[laws == 0][:, :1]
+        rad = rng.uniform(size=(N, K, 1)) ** (1.0 / m)
+        U[laws == 2] *= rad[laws == 2]
+    else:
+        U = rng.choice([-1.0, 1.0], size=(N, K, m))
+        U[laws == 0] = U[laws == 0][:, :1]
+        U[laws == 2] = rng.uniform(-1, 1, size=(int((laws == 2).sum()), K, m))
+    return U
+
+
+def truth(problem, K: int, N: int, seed: int = 0):
+    """States at the grid times (N, K+1, n) and at the step midpoints (N, K, n)."""
+    rng = np.random.default_rng(seed)
+    rhs = rhs_for(problem)
+    X = initial_states(problem, N, rng)
+    U = controls(problem, N, K, rng)
+    n = X.shape[1]
+    grid = problem.grid
+    ends = np.empty((N, K + 1, n))
+    mids = np.empty((N, K, n))
+    ends[:, 0] = X
+    for k in range(K):
+        Uk = U[:, k]
+
+        def f(t, y, Uk=Uk):
+            return rhs(y.reshape(N, n), Uk).ravel()
+        t0, t1 = float(grid[k]), float(grid[k + 1])
+        sol = solve_ivp(f, (t0, t1), X.ravel(), method="DOP853", rtol=RTOL, atol=ATOL,
+                        t_eval=[0.5 * (t0 + t1), t1])
+        if not sol.success:
+            raise RuntimeError(sol.message)
+        mids[:, k] = sol.y[:, 0].reshape(N, n)
+        X = sol.y[:, 1].reshape(N, n)
+        ends[:, k + 1] = X
+    return ends, mids
+
+
+# ------------------------------------------------------------------------------------------------
+# containment
+# ------------------------------------------------------------------------------------------------
+def _enlarged(Z: Zonotope, eps: float) -> Zonotope:
+    return Zonotope(Z.c, np.hstack([Z.G, eps * np.eye(Z.dim)]))
+
+
+def check(S, P: np.ndarray) -> tuple[int, int, float]:
+    """``(escapes, undecided, largest zonotope gauge)`` of the points ``P`` against the set."""
+    eps = ABS_TOL * (1.0 + float(np.abs(P).max()))
+    if isinstance(S, (PolyZonotope, PZUnion)):
+        from ocreach.sets.pz_exact import membership
+
+        parts = S.parts if isinstance(S, PZUnion) else [S]
+        gz = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(p.to_zonotope(), eps) for p in parts]), P))
+        outside = gz > 1 + 1e-9
+        todo = np.flatnonzero(~outside)
+        inside = np.zeros(P.shape[0], bool)
+        certified_out = np.ones(P.shape[0], bool)
+        for part in parts:
+            idx = todo[~inside[todo]]
+            if idx.size == 0:
+                break
+            ok, guess = _witness(part, P[idx], eps)
+            inside[idx[ok]] = True
+            guess, idx = guess[~ok], idx[~ok]
+            if idx.size:   # near the boundary: bounded least squares, point by point
+                inside[idx[_witness_lsq(part, P[idx], eps, guess)]] = True
+                idx = idx[~inside[idx]]
+            if idx.size:   # no witness: try the exclusion certificate (beyond the tolerance)
+                mem = membership(part, P[idx], tol=eps, witness_iters=5)
+                inside[idx[mem.inside]] = True
+                excess = np.einsum("ij,ij->i", P[idx], mem.direction) - mem.bound
+                certified_out[idx[~(mem.outside & (excess > eps))]] = False
+        cert = np.zeros(P.shape[0], bool)
+        cert[todo] = certified_out[todo] & ~inside[todo]
+        und = ~outside & ~cert & ~inside
+        return int(outside.sum() + cert.sum()), int(und.sum()), float(gz.max())
+    parts = S.parts if isinstance(S, ZonotopeUnion) else [S]
+    g = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(p, eps) for p in parts]), P))
+    return int((g > 1 + 1e-9).sum()), 0, float(g.max())
+
+
+def _slots(E: np.ndarray) -> np.ndarray:
+    """``(h, d)`` factor indices of every monomial with repetition (-1: none) from ``E`` (p, h)."""
+    deg = E.sum(axis=0)
+    d = int(deg.max(initial=1))
+    out = np.full((E.shape[1], d), -1, dtype=np.int64)
+    for j in range(E.shape[1]):
+        idx = np.repeat(np.arange(E.shape[0]), E[:, j])
+        out[j, : idx.size] = idx
+    return out
+
+
+def _witness(S: PolyZonotope, P: np.ndarray, eps: float, iters: int = 80, starts: int = 6,
+             seed: int = 0) -> np.ndarray:
+    """Points of ``P`` (N, n) for which factors ``(a, b)`` in the box are found whose image lies
+    within ``eps`` (a witness that the point is in ``S``): projected Levenberg-Marquardt with
+    minimum-norm steps, vectorised over the points, from the centre and random starts."""
+    from scipy import sparse
+
+    p, q, h, n = S.n_factors, S.n_independent, S.n_dependent, S.dim
+    N = P.shape[0]
+    sl = _slots(np.asarray(S.E))
+    d = sl.shape[1]
+    onehot = [sparse.csr_matrix((np.ones(int((sl[:, s] >= 0).sum())),
+                                 (np.flatnonzero(sl[:, s] >= 0), sl[sl[:, s] >= 0, s])), shape=(h, p))
+              for s in range(d)]
+    G, GI = np.asarray(S.G), np.asarray(S.GI)
+    rng = np.random.default_rng(seed)
+    found = np.zeros(N, bool)
+    best_r = np.full(N, np.inf)
+    best = np.zeros((N, p + q))
+
+    def values(A):                     # monomials (N, h) and their slot derivatives (N, h, d)
+        V = np.where(sl[None] >= 0, A[:, np.maximum(sl, 0)], 1.0)
+        M = V.prod(axis=2)
+        D = np.empty((A.shape[0], h, d))
+        for s in range(d):
+            D[:, :, s] = np.where(sl[None, :, s] >= 0, np.delete(V, s, axis=2).prod(axis=2), 0.0)
+        return M, D
+
+    def residual(A, B, X):
+        M, D = values(A)
+        return S.c + M @ G.T + B @ GI.T - X, D
+
+    for st in range(starts):
+        idx = np.flatnonzero(~found)
+        if idx.size == 0:
+            break
+        X = P[idx]
+        A = np.zeros((idx.size, p)) if st == 0 else rng.uniform(-1, 1, (idx.size, p))
+        B = np.zeros((idx.size, q)) if st == 0 else rng.uniform(-1, 1, (idx.size, q))
+        lam = np.full(idx.size, 1e-3)
+        R, D = residual(A, B, X)
+        r = np.linalg.norm(R, axis=1)
+        for _ in range(iters):
+            # J (N, n, p + q): sum over slots of (G * D_s) scattered onto the slot's factor
+            J = np.zeros((idx.size, n, p + q))
+            for s in range(d if h else 0):
+                GD = (D[:, :, s][:, None, :] * G[None]).reshape(-1, h)
+                J[:, :, :p] += (onehot[s].T @ GD.T).T.reshape(idx.size, n, p)
+            J[:, :, p:] = GI
+            Z = np.hstack([A, B])
+            for _pass in range(2):   # again without the factors the step would push off the box
+                JJ = np.einsum("Nik,Njk->Nij", J, J)
+                scale = np.trace(JJ, axis1=1, axis2=2) / n + 1e-300
+                JJ = JJ + (lam * scale)[:, None, None] * np.eye(n)
+                y = np.linalg.solve(JJ, R[..., None])[..., 0]
+                stp = np.einsum("Nik,Ni->Nk", J, y)
+                blocked = ((Z >= 1) & (stp < 0)) | ((Z <= -1) & (stp > 0))
+                if not blocked.any():
+                    break
+                J = np.where(blocked[:, None, :], 0.0, J)
+            A2 = np.clip(A - stp[:, :p], -1, 1)
+            B2 = np.clip(B - stp[:, p:], -1, 1)
+            R2, D2 = residual(A2, B2, X)
+            r2 = np.linalg.norm(R2, axis=1)
+            better = r2 < r
+            A = np.where(better[:, None], A2, A)
+            B = np.where(better[:, None], B2, B)
+            R = np.where(better[:, None], R2, R)
+            D = np.where(better[:, None, None], D2, D)
+            r = np.where(better, r2, r)
+            lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-12, 1e12)
+            if np.all(r <= eps):
+                break
+        found[idx[r <= eps]] = True
+        imp = r < best_r[idx]
+        best_r[idx[imp]] = r[imp]
+        best[idx[imp]] = np.hstack([A, B])[imp]
+    return found, best
+
+
+def _witness_lsq(S: PolyZonotope, P: np.ndarray, eps: float, guess: np.ndarray,
+                 starts: int = 3) -> np.ndarray:
+    """Points of ``P`` for which SciPy's bounded least squares (``trf``) finds factors whose image
+    lies within ``eps`` (slower than :func:`_witness`, sure-footed at the box's faces)."""
+    from scipy.optimize import least_squares
+
+    p, q = S.n_factors, S.n_independent
+    rng = np.random.default_rng(1)
+    found = np.zeros(P.shape[0], bool)
+    for i, x in enumerate(P):
+        def fun(z, x=x):
+            return S.evaluate(z[:p], z[p:] if q else None) - x
+        for s in range(starts):
+            z0 = np.clip(guess[i], -1, 1) if s == 0 else rng.uniform(-1, 1, p + q)
+            sol = least_squares(fun, z0, bounds=(-1.0, 1.0), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            if np.linalg.norm(sol.fun) <= eps:
+                found[i] = True
+                break
+    return found
+
+
+def widths(S, D: np.ndarray, dims) -> np.ndarray:
+    """Upper bounds of the set's width in the directions ``D`` (on ``dims``)."""
+    from ocreach.sets.pz_exact import support_bounds
+
+    parts = S.parts if isinstance(S, (PZUnion, ZonotopeUnion)) else [S]
+    DD = np.vstack([D, -D])
+    vals = []
+    for p in parts:
+        q = p.project(dims)
+        if isinstance(q, PolyZonotope):
+            vals.append(support_bounds(q, DD, tol=1e-3).upper)
+        else:
+            vals.append(q.support(DD))
+    u = np.max(vals, axis=0)
+    return u[: len(D)] + u[len(D):]
+
+
+# ------------------------------------------------------------------------------------------------
+def run(problem, method: str, opts: dict):
+    t0 = time.perf_counter()
+    try:
+        res = ocreach.reach(problem, method, **opts)
+        return res, time.perf_counter() - t0, None
+    except SolverError as exc:
+        if getattr(exc, "partial", None) is None:
+            raise
+        return exc.partial, time.perf_counter() - t0, " ".join(str(exc).split())[:300]
+
+
+def validate(name: str, samples: int, tube_samples: int, seed: int = 0) -> dict:
+    pid, over, popts, topts = CASES[name]
+    problem = ocreach.get_problem(pid, **over)
+    out = {"case": name, "problem": pid, "overrides": over, "samples": samples,
+           "asked_steps": int(problem.grid.size - 1)}
+    results = {}
+    for method, opts in (("poly", popts), ("taylor", topts)):
+        run(problem, method, opts)          # warm the compiled functions
+        res, rt, fail = run(problem, method, opts)
+        results[method] = res
+        out[method] = {"options": opts, "runtime_s": rt, "reached_steps": int(res.times.size - 1),
+                       "reached_t": float(res.times[-1]), "failure": fail,
+                       "max_parts_used": res.meta.get("max_parts_used")}
+    K = max(r.times.size - 1 for r in results.values())
+    t0 = time.perf_counter()
+    ends, mids = truth(problem, K, samples, seed)
+    out["truth_runtime_s"] = time.perf_counter() - t0
+    pos = list(problem.position_dims) if problem.position_dims else list(range(problem.model.n_x))
+    D = np.random.default_rng(7).standard_normal((50, len(pos)))
+    D /= np.linalg.norm(D, axis=1, keepdims=True)
+    for method, res in results.items():
+        Km = res.times.size - 1
+        esc = und = 0
+        worst = 0.0
+        for k in range(Km + 1):
+            e, u, g = check(res.sets[k], ends[:, k])
+            esc, und, worst = esc + e, und + u, max(worst, g)
+        tube_esc = 0
+        for k in range(min(Km, len(res.tubes or []))):
+            e, _, _ = check(res.tubes[k], mids[:tube_samples, k])
+            tube_esc += e
+        entry = out[method]
+        entry.update({"escapes": esc, "undecided": und, "tube_escapes": tube_esc,
+                      "checked_points": samples * (Km + 1), "tube_points": tube_samples * Km,
+                      "max_enclosure_gauge": worst})
+        P = ends[:, Km][:, pos]
+        wmc = (P @ D.T).max(axis=0) + (-P @ D.T).max(axis=0)
+        r = widths(res.sets[Km], D, pos) / wmc
+        entry["width_ratio_last"] = {"k": Km, "mean": float(r.mean()), "min": float(r.min()),
+                                     "max": float(r.max())}
+    Kc = min(r.times.size - 1 for r in results.values())
+    P = ends[:, Kc][:, pos]
+    wmc = (P @ D.T).max(axis=0) + (-P @ D.T).max(axis=0)
+    out["common_k"] = Kc
+    for method, res in results.items():
+        r = widths(res.sets[Kc], D, pos) / wmc
+        out[method]["width_ratio_common"] = {"mean": float(r.mean()), "min": float(r.min()),
+                                             "max": float(r.max())}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", default="vdp,dro,nrho24")
+    ap.add_argument("--samples", type=int, default=10000)
+    ap.add_argument("--tube-samples", type=int, default=2000)
+    ap.add_argument("--out", default="out/poly_validation")
+    args = ap.parse_args()
+    outdir = Path(args.out)
+    outdir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in args.cases.split(","):
+        row = validate(name, args.samples, args.tube_samples)
+        rows.append(row)
+        print(json.dumps(jsonable(row), indent=1), flush=True)
+        atomic_write_text(outdir / "summary.json", json.dumps(jsonable(rows), indent=1))
+
+
+if __name__ == "__main__":
+    main()
