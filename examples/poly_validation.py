@@ -38,6 +38,7 @@ from ocreach.errors import SolverError
 from ocreach.fileio import atomic_write_text, jsonable
 from ocreach.sets.polyzonotope import PolyZonotope
 from ocreach.sets.pz_union import PZUnion
+from ocreach.sets.pz_witness import classify
 from ocreach.sets.union import ZonotopeUnion, union_gauge
 from ocreach.sets.zonotope import Zonotope
 
@@ -164,148 +165,11 @@ def check(S, P: np.ndarray) -> tuple[int, int, float]:
     """``(escapes, undecided, largest zonotope gauge)`` of the points ``P`` against the set."""
     eps = ABS_TOL * (1.0 + float(np.abs(P).max()))
     if isinstance(S, (PolyZonotope, PZUnion)):
-        from ocreach.sets.pz_exact import membership
-
-        parts = S.parts if isinstance(S, PZUnion) else [S]
-        gz = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(p.to_zonotope(), eps) for p in parts]), P))
-        outside = gz > 1 + 1e-9
-        todo = np.flatnonzero(~outside)
-        inside = np.zeros(P.shape[0], bool)
-        certified_out = np.ones(P.shape[0], bool)
-        for part in parts:
-            idx = todo[~inside[todo]]
-            if idx.size == 0:
-                break
-            ok, guess = _witness(part, P[idx], eps)
-            inside[idx[ok]] = True
-            guess, idx = guess[~ok], idx[~ok]
-            if idx.size:   # near the boundary: bounded least squares, point by point
-                inside[idx[_witness_lsq(part, P[idx], eps, guess)]] = True
-                idx = idx[~inside[idx]]
-            if idx.size:   # no witness: try the exclusion certificate (beyond the tolerance)
-                mem = membership(part, P[idx], tol=eps, witness_iters=5)
-                inside[idx[mem.inside]] = True
-                excess = np.einsum("ij,ij->i", P[idx], mem.direction) - mem.bound
-                certified_out[idx[~(mem.outside & (excess > eps))]] = False
-        cert = np.zeros(P.shape[0], bool)
-        cert[todo] = certified_out[todo] & ~inside[todo]
-        und = ~outside & ~cert & ~inside
-        return int(outside.sum() + cert.sum()), int(und.sum()), float(gz.max())
+        v = classify(S, P, eps)
+        return int(v.outside.sum()), int(v.undecided.sum()), v.max_gauge
     parts = S.parts if isinstance(S, ZonotopeUnion) else [S]
     g = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(p, eps) for p in parts]), P))
     return int((g > 1 + 1e-9).sum()), 0, float(g.max())
-
-
-def _slots(E: np.ndarray) -> np.ndarray:
-    """``(h, d)`` factor indices of every monomial with repetition (-1: none) from ``E`` (p, h)."""
-    deg = E.sum(axis=0)
-    d = int(deg.max(initial=1))
-    out = np.full((E.shape[1], d), -1, dtype=np.int64)
-    for j in range(E.shape[1]):
-        idx = np.repeat(np.arange(E.shape[0]), E[:, j])
-        out[j, : idx.size] = idx
-    return out
-
-
-def _witness(S: PolyZonotope, P: np.ndarray, eps: float, iters: int = 80, starts: int = 6,
-             seed: int = 0) -> np.ndarray:
-    """Points of ``P`` (N, n) for which factors ``(a, b)`` in the box are found whose image lies
-    within ``eps`` (a witness that the point is in ``S``): projected Levenberg-Marquardt with
-    minimum-norm steps, vectorised over the points, from the centre and random starts."""
-    from scipy import sparse
-
-    p, q, h, n = S.n_factors, S.n_independent, S.n_dependent, S.dim
-    N = P.shape[0]
-    sl = _slots(np.asarray(S.E))
-    d = sl.shape[1]
-    onehot = [sparse.csr_matrix((np.ones(int((sl[:, s] >= 0).sum())),
-                                 (np.flatnonzero(sl[:, s] >= 0), sl[sl[:, s] >= 0, s])), shape=(h, p))
-              for s in range(d)]
-    G, GI = np.asarray(S.G), np.asarray(S.GI)
-    rng = np.random.default_rng(seed)
-    found = np.zeros(N, bool)
-    best_r = np.full(N, np.inf)
-    best = np.zeros((N, p + q))
-
-    def values(A):                     # monomials (N, h) and their slot derivatives (N, h, d)
-        V = np.where(sl[None] >= 0, A[:, np.maximum(sl, 0)], 1.0)
-        M = V.prod(axis=2)
-        D = np.empty((A.shape[0], h, d))
-        for s in range(d):
-            D[:, :, s] = np.where(sl[None, :, s] >= 0, np.delete(V, s, axis=2).prod(axis=2), 0.0)
-        return M, D
-
-    def residual(A, B, X):
-        M, D = values(A)
-        return S.c + M @ G.T + B @ GI.T - X, D
-
-    for st in range(starts):
-        idx = np.flatnonzero(~found)
-        if idx.size == 0:
-            break
-        X = P[idx]
-        A = np.zeros((idx.size, p)) if st == 0 else rng.uniform(-1, 1, (idx.size, p))
-        B = np.zeros((idx.size, q)) if st == 0 else rng.uniform(-1, 1, (idx.size, q))
-        lam = np.full(idx.size, 1e-3)
-        R, D = residual(A, B, X)
-        r = np.linalg.norm(R, axis=1)
-        for _ in range(iters):
-            # J (N, n, p + q): sum over slots of (G * D_s) scattered onto the slot's factor
-            J = np.zeros((idx.size, n, p + q))
-            for s in range(d if h else 0):
-                GD = (D[:, :, s][:, None, :] * G[None]).reshape(-1, h)
-                J[:, :, :p] += (onehot[s].T @ GD.T).T.reshape(idx.size, n, p)
-            J[:, :, p:] = GI
-            Z = np.hstack([A, B])
-            for _pass in range(2):   # again without the factors the step would push off the box
-                JJ = np.einsum("Nik,Njk->Nij", J, J)
-                scale = np.trace(JJ, axis1=1, axis2=2) / n + 1e-300
-                JJ = JJ + (lam * scale)[:, None, None] * np.eye(n)
-                y = np.linalg.solve(JJ, R[..., None])[..., 0]
-                stp = np.einsum("Nik,Ni->Nk", J, y)
-                blocked = ((Z >= 1) & (stp < 0)) | ((Z <= -1) & (stp > 0))
-                if not blocked.any():
-                    break
-                J = np.where(blocked[:, None, :], 0.0, J)
-            A2 = np.clip(A - stp[:, :p], -1, 1)
-            B2 = np.clip(B - stp[:, p:], -1, 1)
-            R2, D2 = residual(A2, B2, X)
-            r2 = np.linalg.norm(R2, axis=1)
-            better = r2 < r
-            A = np.where(better[:, None], A2, A)
-            B = np.where(better[:, None], B2, B)
-            R = np.where(better[:, None], R2, R)
-            D = np.where(better[:, None, None], D2, D)
-            r = np.where(better, r2, r)
-            lam = np.clip(np.where(better, lam * 0.3, lam * 10.0), 1e-12, 1e12)
-            if np.all(r <= eps):
-                break
-        found[idx[r <= eps]] = True
-        imp = r < best_r[idx]
-        best_r[idx[imp]] = r[imp]
-        best[idx[imp]] = np.hstack([A, B])[imp]
-    return found, best
-
-
-def _witness_lsq(S: PolyZonotope, P: np.ndarray, eps: float, guess: np.ndarray,
-                 starts: int = 3) -> np.ndarray:
-    """Points of ``P`` for which SciPy's bounded least squares (``trf``) finds factors whose image
-    lies within ``eps`` (slower than :func:`_witness`, sure-footed at the box's faces)."""
-    from scipy.optimize import least_squares
-
-    p, q = S.n_factors, S.n_independent
-    rng = np.random.default_rng(1)
-    found = np.zeros(P.shape[0], bool)
-    for i, x in enumerate(P):
-        def fun(z, x=x):
-            return S.evaluate(z[:p], z[p:] if q else None) - x
-        for s in range(starts):
-            z0 = np.clip(guess[i], -1, 1) if s == 0 else rng.uniform(-1, 1, p + q)
-            sol = least_squares(fun, z0, bounds=(-1.0, 1.0), xtol=1e-15, ftol=1e-15, gtol=1e-15)
-            if np.linalg.norm(sol.fun) <= eps:
-                found[i] = True
-                break
-    return found
 
 
 def widths(S, D: np.ndarray, dims) -> np.ndarray:

@@ -128,31 +128,47 @@ def unflatten_third(a: np.ndarray, n_x: int, n_z: int) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 @dataclass
 class PolyOptions(ZonotopeOptions):
-    """Options of ``poly``: those of ``taylor`` (:class:`ZonotopeOptions`; ``order`` here counts
-    every generator of the polynomial zonotope, dependent and independent) plus
+    """Options of ``poly`` (every value is checked before any work; ``ocreach methods poly``).
 
-    * ``order`` (6): zonotope order of the linear part of a time-point set after each step (the
-      linear monomials of factors that occur nowhere else, with the independent generators:
-      ``order * n_x`` generators, reduced like a zonotope), >= 1;
-    * ``poly_order`` (10): monomials of degree >= 2 kept per state (``poly_order * n_x``; the
-      smallest others are enclosed by the linear part), >= 0;
-    * ``error_order`` (10): zonotope order of the set the quadratic maps are evaluated on (its
-      ``error_order * n_x`` largest monomials kept with their factors, the rest boxed; CORA's
-      ``errorOrder``), >= 1;
-    * ``max_degree`` (3): highest total degree of a monomial kept dependent (higher ones are
-      enclosed by independent generators), 2..6;
-    * ``refactor`` (True): after each step the independent generators (the boxed part) become
-      dependent generators with fresh factors (Kochdumper & Althoff's restructuring in its simplest
-      form), so the next steps map their curvature too and a split can halve them;
-    * ``remainder_splits`` (2): the remainder's interval derivatives are bounded as the maximum
-      over ``remainder_splits^3`` sub-boxes of the tube's box in the first three states (tighter
-      than one box: less dependency in the interval evaluation), 1..4;
-    * ``tube_order`` (10): zonotope order of the time-interval tubes, >= 1;
-    * ``input_factors`` (True): the thrust's input solution of every step becomes new dependent
-      factors (later steps then map its curvature); False: independent generators;
-    * ``input_order`` (1): zonotope order of one step's input solution before it joins the set, >= 1;
-    * ``output`` ("pz"): the time-point sets as polynomial zonotopes (``"pz"``) or as their
-      zonotope enclosures (``"zonotope"``, for consumers that need zonotopes, e.g. drift tubes).
+    ``order`` (6): zonotope order of the linear part of a time-point set after each step (the
+    linear monomials of factors that occur nowhere else, with the independent generators:
+    ``order * n_x`` generators, reduced like a zonotope), >= 1;
+    ``poly_order`` (10): monomials of degree >= 2 kept per state (``poly_order * n_x``; the
+    smallest others are enclosed by the linear part), >= 0;
+    ``error_order`` (10): zonotope order of the set the quadratic maps are evaluated on (its
+    ``error_order * n_x`` largest monomials kept with their factors, the rest boxed; CORA's
+    ``errorOrder``), >= 1;
+    ``max_degree`` (3): highest total degree of a monomial kept dependent (higher ones are
+    enclosed by independent generators), 2..6;
+    ``refactor`` (True): after each step the independent generators (the boxed part) become
+    dependent generators with fresh factors (Kochdumper & Althoff's restructuring in its simplest
+    form), so the next steps map their curvature too and a split can halve them;
+    ``remainder_splits`` (2): the remainder's interval derivatives are bounded as the maximum over
+    ``remainder_splits^d`` sub-boxes of the tube's box, cut along the ``d <= 3`` widest states the
+    third derivatives depend on (less dependency in the interval evaluation), 1..4;
+    ``tube_order`` (10): zonotope order of the time-interval tubes, >= 1;
+    ``input_factors`` (True): the thrust's input solution of every step becomes new dependent
+    factors (later steps then map its curvature); False: independent generators;
+    ``input_order`` (1): zonotope order of one step's input solution before it joins the set, >= 1;
+    ``output`` ("pz"): the time-point sets as polynomial zonotopes (``"pz"``) or as their
+    zonotope enclosures (``"zonotope"``, for consumers that need zonotopes, e.g. drift tubes);
+    ``growth_tol`` (0.1): step-size control, a sub-step whose error box widens the set by more
+    than this fraction of its extent (plus the input's reach over the sub-step) is halved (at most
+    max_halvings times), > 0, or None (accept every closed step, as ``taylor``);
+    ``reduction`` ("girard"): the box of the linear part's reduction, ``"girard"`` or ``"pca"``;
+    ``max_error`` (None): error-box radius (a number or one per state) above which a part is
+    split; None = split only when a step cannot be enclosed;
+    ``split`` (True): allow splitting; ``max_parts`` (64): most parts at one time;
+    ``substeps`` (1): sub-steps per grid step to start with; ``max_halvings`` (6): how often a
+    sub-step may be halved;
+    ``input_set`` ("auto"): enclosure of the control set, ``"zonotope"`` (of the thrust ball with
+    input_generators generators), ``"box"`` or ``"auto"`` (zonotope for a ball, box for a box);
+    ``input_generators`` (None): generators of the ball's enclosure (default ``3 n_u``, >= n_u);
+    ``disturbance`` (None): additive disturbance on ``dx/dt`` (a number on the velocity rows, one
+    radius per state, or an Interval/Zonotope);
+    ``max_iter`` (16): iterations of the error-box fixed-point loop;
+    ``mass_varies`` (False): enclose the propellant burn by scaling the input set by
+    ``m0 / m_min`` (as ``taylor``).
     """
 
     order: float = 6.0
@@ -165,6 +181,7 @@ class PolyOptions(ZonotopeOptions):
     input_factors: bool = True
     input_order: float = 1.0
     output: str = "pz"
+    growth_tol: float | None = 0.1
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -187,6 +204,10 @@ class PolyOptions(ZonotopeOptions):
         if self.remainder_splits > 4:
             raise ProblemError(f"remainder_splits must be an integer in 1..4; got "
                                f"{self.remainder_splits!r}")
+        if self.growth_tol is not None:
+            self.growth_tol = check_real("growth_tol", self.growth_tol)
+            if not self.growth_tol > 0:
+                raise ProblemError(f"growth_tol must be > 0 or None; got {self.growth_tol!r}")
         if self.output not in OUTPUTS:
             raise ProblemError(f"output must be one of {OUTPUTS}; got {self.output!r}")
 
@@ -222,6 +243,10 @@ class PolyContext(Context):
         self.h_lin = max(int(np.floor(opts.order * self.n)), self.n)
         self.h_poly = int(np.floor(opts.poly_order * self.n))
         self.h_err = max(int(np.floor(opts.error_order * self.n)), self.n)
+        #: per state, how far the input moves it per unit time (|B G_v| + W): the scale of a step
+        self.input_reach = up(np.abs(self.lin(problem.x0, V.c, 0.0, self.p)[2][:, : V.dim])
+                              @ np.abs(V.G).sum(axis=1)
+                              + (np.abs(W.G).sum(axis=1) if W is not None else 0.0), 4)
         #: per-state sensitivity of the last remainder bound to the set's extent (for splitting)
         self.weights: np.ndarray | None = None
 
@@ -230,6 +255,15 @@ def _lo_hi_pad(lo: np.ndarray, hi: np.ndarray, k: int) -> tuple[np.ndarray, np.n
     """``[lo, hi]`` widened by the rounding of the sums that produced them (``k`` terms)."""
     r = rounding_radius(np.maximum(np.abs(lo), np.abs(hi)), k)
     return lo - r, hi + r
+
+
+def chord_constants(j: np.ndarray) -> np.ndarray:
+    """``|q_j| = max_{lambda in [0, 1]} lambda - lambda^j = j^(-1/(j-1)) - j^(-j/(j-1))`` for
+    integers ``j >= 1`` (0 for ``j = 1``), rounded up (the float formula is within a few ulps)."""
+    j = np.asarray(j, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.where(j > 1, j ** (-1.0 / (j - 1.0)) - j ** (-j / (j - 1.0)), 0.0)
+    return q * (1.0 + 1e-12)
 
 
 def gamma_matrices(et, k_max: int = 2) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
@@ -241,8 +275,6 @@ def gamma_matrices(et, k_max: int = 2) -> tuple[list[np.ndarray], np.ndarray, li
     ``y_k(tau) = h sum_i w_ik (tau / h)^(i + k + 1) T_i g`` off its chord: ``lambda^j - lambda`` lies
     in ``[q_j, 0]`` on [0, 1] (the curvature constants of :mod:`ocreach.reach.linsys`), so
     ``C_k = h sum_i |q_(i+k+1)| w_ik |T_i| + E h``."""
-    from ocreach.reach.linsys import _Q
-
     n = et.T.shape[1]
     i = np.arange(et.eta + 1)
     Tflat = et.T.reshape(et.eta + 1, n * n)
@@ -251,7 +283,7 @@ def gamma_matrices(et, k_max: int = 2) -> tuple[list[np.ndarray], np.ndarray, li
     for k in range(k_max + 1):
         w = np.array([factorial(int(j)) * factorial(k) / factorial(int(j) + k + 1) for j in i])
         out.append(weighted_sum(et.h * w, Tflat, n))
-        q = np.abs(_Q[i + k + 1]) * (1 + 1e-12)
+        q = chord_constants(i + k + 1)
         chord.append(up(weighted_sum(et.h * w * q, absT, n) + et.E * et.h, et.eta + 4))
     rad = et.E * et.h + rounding_radius(et.h * et.M, et.eta + 4)
     return out, rad, chord
@@ -451,6 +483,22 @@ class PolyReach(ZonotopeReach):
     def step(self, Z, t, h, L):
         return poly_step(self.ctx, Z, t, h, L)
 
+    def refine(self, Z: SoundPZ, h: float, res):
+        """Halve a sub-step whose error box widens the set by more than ``growth_tol`` of its
+        extent (plus the input's reach over the step): a longer step would close the remainder
+        loop but with a bound far above what shorter steps give (e.g. one 0.1 TU step of the dro
+        from a point: a remainder 300 times the thrust)."""
+        tol = self.opts.growth_tol
+        if tol is None:
+            return res
+        grow = h * res.L
+        size = spz.radius(Z) + h * self.ctx.input_reach
+        if np.any(grow > tol * size):
+            i = int(np.argmax(grow / np.maximum(size, 1e-300)))
+            return StepFail(f"the error box widens state {i} by {grow[i]:.3g}, more than growth_tol "
+                            f"= {tol:g} of its extent {size[i]:.3g}")
+        return res
+
     def reduce_point(self, S: SoundPZ) -> SoundPZ:
         return spz.reduce(S, self.ctx.h_lin, self.ctx.h_poly, self.opts.reduction,
                           self.ctx.fid if self.opts.refactor else None)
@@ -465,14 +513,20 @@ class PolyReach(ZonotopeReach):
         return S.n_dependent > 0
 
     def split_part(self, part: Part) -> tuple[Part, Part]:
-        """Split along the factor whose monomials weigh most in the remainder bound (the weights
-        of the last failing bound, else the generator norms)."""
-        S = part.Z
-        w = self.ctx.weights if self.ctx.weights is not None else np.ones(S.dim)
+        """Split a failing part in two.  The set is first re-encoded with its linear part (the
+        factors that occur only linearly, with the independent generators) reduced to its
+        interval hull (Girard's box, ``n`` fresh factors): a thrust-dominated set is the sum of
+        many comparable generators, so halving one of them barely shrinks it, while halving a box
+        generator halves the set's extent in that state -- and the remainder is bounded on the
+        box.  It is then split along the factor whose monomials weigh most in the last remainder
+        bound (the weights of the failing bound, else the generator norms)."""
+        ctx = self.ctx
+        S = spz.reduce(part.Z, ctx.n, ctx.h_poly, "girard", ctx.fid)
+        w = ctx.weights if ctx.weights is not None else np.ones(S.dim)
         col = w @ np.abs(S.G)
         f = S.factors()
         score = np.array([col[np.any(S.I == k, axis=1)].sum() for k in f])
-        a, b = spz.split(S, int(f[int(np.argmax(score))]), self.ctx.bits)
+        a, b = spz.split(S, int(f[int(np.argmax(score))]), ctx.bits)
         return Part(Z=a, L=None, level=part.level), Part(Z=b, L=None, level=part.level)
 
     def as_set(self, parts: list):

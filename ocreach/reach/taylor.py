@@ -318,6 +318,11 @@ class ZonotopeReach:
         """One sub-step of one part: :class:`StepOK` or :class:`StepFail`."""
         return ct_step(self.ctx, Z, t, h, L)
 
+    def refine(self, Z, h: float, res):
+        """``res``, or a :class:`StepFail` to halve a sub-step that succeeded but should be shorter
+        (``poly``'s step-size control; taylor accepts every closed step)."""
+        return res
+
     def reduce_point(self, S):
         return self._reduce(S)
 
@@ -353,6 +358,8 @@ class ZonotopeReach:
         while t < t1 - 1e-12 * abs(t1 - t0):
             h = min(base / 2**level, t1 - t)
             res = self.step(Z, t, h, L)
+            if not isinstance(res, StepFail) and level < opts.max_halvings:
+                res = self.refine(Z, h, res)
             if isinstance(res, StepFail):
                 if level < opts.max_halvings:
                     level += 1

@@ -224,6 +224,11 @@ def magnitude(S: SoundPZ) -> np.ndarray:
     return np.abs(S.c) + np.abs(S.G).sum(axis=1) + np.abs(S.GI).sum(axis=1) + S.r
 
 
+def radius(S: SoundPZ) -> np.ndarray:
+    """Half-widths of a box around the centre that contains ``S`` (float, not rounded)."""
+    return np.abs(S.G).sum(axis=1) + np.abs(S.GI).sum(axis=1) + S.r
+
+
 def pad(S: SoundPZ, r: np.ndarray) -> SoundPZ:
     """``S`` plus the box of radii ``r >= 0`` as independent generators (zero radii add none)."""
     r = np.asarray(r, dtype=float)
