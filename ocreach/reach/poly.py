@@ -9,7 +9,7 @@ tubes are zonotopes.  On a step ``[t, t + h]`` from the set ``R`` (local time ``
 1. expansion point ``z* = (x*, v*)``: ``x* = c + h/2 f(c, u_c)`` (``c`` the centre of ``R``'s
    zonotope enclosure), ``v* = u_c`` (and ``t* = t + h/2`` when ``f`` depends on time, ``v = (u,
    t)``); ``f0``, ``A = df/dx``, ``B = df/dv`` and the Hessian ``H`` at ``z*`` from the one CasADi
-   model (:func:`ocreach.reach.taylor.hessian_interval` gives their interval enclosures at the
+   model (:func:`ocreach.reach.taylor_step.hessian_interval` gives their interval enclosures at the
    point, which bound the rounding of the float values);
 2. third-order expansion (Althoff 2013, Eq. 6): ``f(z) = f0 + A d + B dv + 1/2 d^T H_xx d + rho``
    where ``rho`` holds the second-order terms in ``v`` (``d^T H_xv dv + 1/2 dv^T H_vv dv``, zero for
@@ -33,13 +33,13 @@ tubes are zonotopes.  On a step ``[t, t + h]`` from the set ``R`` (local time ``
    through the quadratic term as well;
 6. ``Lbar`` depends on the tube, which depends on ``Lbar``: the fixed-point loop of ``taylor``
    (guess, bound on the inflated box of the tube, enlarge until the bound lies in the guess; the
-   continuity argument of :mod:`ocreach.reach.taylor` then shows every trajectory stays in the
+   continuity argument of :mod:`ocreach.reach.taylor_step` then shows every trajectory stays in the
    tube), and the final sets are recomputed with the bound found.
 
 Failing steps are halved (``max_halvings``) and failing parts split in two along the factor with
-the largest contribution to the remainder (:func:`ocreach.sets.pz_rounded.split`, exact up to
+the largest contribution to the remainder (:func:`ocreach.sets.pz_sound.split`, exact up to
 rounding); ``max_error`` splits proactively.  Every set operation is rounded outward
-(:mod:`ocreach.sets.pz_rounded`, :mod:`ocreach.sets.rounding`), so the sets are enclosures of
+(:mod:`ocreach.sets.pz_sound`, :mod:`ocreach.sets.rounding`), so the sets are enclosures of
 the continuous-time flow for every admissible (measurable) control, not only for the sampled ones.
 """
 from __future__ import annotations
@@ -62,17 +62,19 @@ from ocreach.reach.linsys import (
 )
 from ocreach.reach.result import ReachResult
 from ocreach.reach.taylor import (
-    GROWTH,
-    Context,
     Part,
-    StepFail,
     ZonotopeOptions,
     ZonotopeReach,
     check_smooth,
+    initial_zonotope,
+)
+from ocreach.reach.taylor_step import (
+    GROWTH,
+    Context,
+    StepFail,
     eval_error,
     hessian_interval,
     inflate_box,
-    initial_zonotope,
     unflatten_hessian,
     z_symbol,
 )
@@ -225,7 +227,7 @@ class PolyStepOK:
 
 
 class PolyContext(Context):
-    """:class:`ocreach.reach.taylor.Context` plus the interval functions of the expansion, the
+    """:class:`ocreach.reach.taylor_step.Context` plus the interval functions of the expansion, the
     factor numbering and the reduction sizes."""
 
     def __init__(self, problem: Problem, opts: PolyOptions, V: Zonotope, W: Zonotope | None):
@@ -434,8 +436,6 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         # the same terms from the Hessian's variation over the box (second-order Lagrange form)
         ealt = 0.5 * np.einsum("a,iab,b->i", dz, np.maximum(Hbhi - Hs0, Hs0 - Hblo), dz)
         eq = np.einsum("a,iab,b->i", r_rho, absHxx, gx)
-        emix = (np.einsum("a,iab,b->i", gx, Hmag[:, :n, n:], dv)
-                + 0.5 * np.einsum("a,iab,b->i", dv, Hmag[:, n:, n:], dv)) if nv else 0.0
         elin = eval_error(pt[:3], (f0, A, Bv), gx, dv)
         need = up(np.minimum(e3 + emix + eh, ealt) + eq + elin, nz * nz * nz + 8)
         if not np.all(np.isfinite(need)):
