@@ -87,7 +87,7 @@ def factor_slots(E: np.ndarray) -> np.ndarray:
 
 
 def witness_search(S: PolyZonotope, P: np.ndarray, eps: float, iters: int = 80, starts: int = 6,
-             seed: int = 0) -> np.ndarray:
+                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """``(found, best)``: the points of ``P`` (N, n) for which factors ``(a, b)`` in the box were
     found whose image lies within ``eps`` (a witness that the point is in ``S``), and the best
     factors per point.  Projected Levenberg-Marquardt with minimum-norm steps (factors that a step
@@ -169,22 +169,39 @@ def witness_search(S: PolyZonotope, P: np.ndarray, eps: float, iters: int = 80, 
 
 
 def witness_lsq(S: PolyZonotope, P: np.ndarray, eps: float, guess: np.ndarray,
-                 starts: int = 3) -> np.ndarray:
+                starts: int = 3, max_nfev: int = 200) -> np.ndarray:
     """Points of ``P`` for which SciPy's bounded least squares (``trf``, from ``guess`` and
-    random starts) finds factors whose image lies within ``eps``: slower than
+    random starts, analytic Jacobian, at most ``max_nfev`` evaluations per start) finds factors
+    whose image lies within ``eps``: slower than
     :func:`witness_search`, one point at a time, but sure-footed when the witness lies close to
     the factor box's faces (points near the set's boundary)."""
     from scipy.optimize import least_squares
 
     p, q = S.n_factors, S.n_independent
+    E, G, GI = np.asarray(S.E), np.asarray(S.G), np.asarray(S.GI)
     rng = np.random.default_rng(1)
     found = np.zeros(P.shape[0], bool)
+
+    def jac(z, x=None):
+        """``[G dm/da, GI]``: ``dm_j/da_k = E_kj a_k^(E_kj - 1) prod_(l != k) a_l^E_lj``."""
+        a = z[:p]
+        Apow = a[:, None] ** E                                    # (p, h)
+        dA = np.where(E > 0, E * a[:, None] ** np.maximum(E - 1, 0), 0.0)
+        Jm = np.empty((p, E.shape[1]))
+        for k in range(p):
+            row = Apow[k].copy()
+            Apow[k] = dA[k]
+            Jm[k] = Apow.prod(axis=0)
+            Apow[k] = row
+        return np.hstack([G @ Jm.T, GI])
+
     for i, x in enumerate(P):
         def fun(z, x=x):
             return S.evaluate(z[:p], z[p:] if q else None) - x
         for s in range(starts):
             z0 = np.clip(guess[i], -1, 1) if s == 0 else rng.uniform(-1, 1, p + q)
-            sol = least_squares(fun, z0, bounds=(-1.0, 1.0), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            sol = least_squares(fun, z0, jac=jac, bounds=(-1.0, 1.0), xtol=1e-15, ftol=1e-15,
+                                gtol=1e-15, max_nfev=max_nfev)
             if np.linalg.norm(sol.fun) <= eps:
                 found[i] = True
                 break
