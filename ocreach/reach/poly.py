@@ -130,59 +130,42 @@ def unflatten_third(a: np.ndarray, n_x: int, n_z: int) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 @dataclass
 class PolyOptions(ZonotopeOptions):
-    """Options of ``poly`` (every value is checked before any work; ``ocreach methods poly``).
+    """Options of ``poly``: those of ``taylor`` (:class:`ZonotopeOptions`) plus the sizes of the
+    polynomial zonotopes; every value is checked before any work (``ocreach methods poly``)."""
 
-    ``order`` (6): zonotope order of the linear part of a time-point set after each step (the
-    linear monomials of factors that occur nowhere else, with the independent generators:
-    ``order * n_x`` generators, reduced like a zonotope), >= 1;
-    ``poly_order`` (10): monomials of degree >= 2 kept per state (``poly_order * n_x``; the
-    smallest others are enclosed by the linear part), >= 0;
-    ``error_order`` (10): zonotope order of the set the quadratic maps are evaluated on (its
-    ``error_order * n_x`` largest monomials kept with their factors, the rest boxed; CORA's
-    ``errorOrder``), >= 1;
-    ``max_degree`` (3): highest total degree of a monomial kept dependent (higher ones are
-    enclosed by independent generators), 2..6;
-    ``refactor`` (True): after each step the independent generators (the boxed part) become
-    dependent generators with fresh factors (Kochdumper & Althoff's restructuring in its simplest
-    form), so the next steps map their curvature too and a split can halve them;
-    ``remainder_splits`` (2): the remainder's interval derivatives are bounded as the maximum over
-    ``remainder_splits^d`` sub-boxes of the tube's box, cut along the ``d <= 3`` widest states the
-    third derivatives depend on (less dependency in the interval evaluation), 1..4;
-    ``tube_order`` (10): zonotope order of the time-interval tubes, >= 1;
-    ``input_factors`` (True): the thrust's input solution of every step becomes new dependent
-    factors (later steps then map its curvature); False: independent generators;
-    ``input_order`` (1): zonotope order of one step's input solution before it joins the set, >= 1;
-    ``output`` ("pz"): the time-point sets as polynomial zonotopes (``"pz"``) or as their
-    zonotope enclosures (``"zonotope"``, for consumers that need zonotopes, e.g. drift tubes);
-    ``growth_tol`` (0.1): step-size control, a sub-step whose error box widens the set by more
-    than this fraction of its extent (plus the input's reach over the sub-step) is halved (at most
-    max_halvings times), > 0, or None (accept every closed step, as ``taylor``);
-    ``reduction`` ("girard"): the box of the linear part's reduction, ``"girard"`` or ``"pca"``;
-    ``max_error`` (None): error-box radius (a number or one per state) above which a part is
-    split; None = split only when a step cannot be enclosed;
-    ``split`` (True): allow splitting; ``max_parts`` (64): most parts at one time;
-    ``substeps`` (1): sub-steps per grid step to start with; ``max_halvings`` (6): how often a
-    sub-step may be halved;
-    ``input_set`` ("auto"): enclosure of the control set, ``"zonotope"`` (of the thrust ball with
-    input_generators generators), ``"box"`` or ``"auto"`` (zonotope for a ball, box for a box);
-    ``input_generators`` (None): generators of the ball's enclosure (default ``3 n_u``, >= n_u);
-    ``disturbance`` (None): additive disturbance on ``dx/dt`` (a number on the velocity rows, one
-    radius per state, or an Interval/Zonotope);
-    ``max_iter`` (16): iterations of the error-box fixed-point loop;
-    ``mass_varies`` (False): enclose the propellant burn by scaling the input set by
-    ``m0 / m_min`` (as ``taylor``).
-    """
-
+    #: zonotope order of the linear part of a time-point set after each step (the linear
+    #: monomials of factors that occur nowhere else, with the independent generators: order * n_x
+    #: generators, reduced like a zonotope), >= 1
     order: float = 6.0
+    #: monomials of degree >= 2 kept per state (poly_order * n_x; the smallest others are
+    #: enclosed by the linear part), >= 0
     poly_order: float = 10.0
+    #: zonotope order of the set the quadratic maps are evaluated on (its error_order * n_x
+    #: largest monomials kept with their factors, the rest boxed; CORA's errorOrder), >= 1
     error_order: float = 10.0
+    #: highest total degree of a monomial kept dependent (higher ones are enclosed by
+    #: independent generators), 2..6
     max_degree: int = 3
+    #: after each step the independent generators become dependent generators with fresh
+    #: factors (restructuring), so later steps map their curvature and a split can halve them
     refactor: bool = True
+    #: the remainder's interval derivatives are bounded as the maximum over remainder_splits^d
+    #: sub-boxes of the tube's box, cut along the d <= 3 widest states the third derivatives
+    #: depend on (less dependency in the interval evaluation), 1..4
     remainder_splits: int = 2
+    #: zonotope order of the time-interval tubes, >= 1
     tube_order: float = 10.0
+    #: the thrust's input solution of every step becomes new dependent factors (later steps map
+    #: its curvature); False: independent generators
     input_factors: bool = True
+    #: zonotope order of one step's input solution before it joins the set, >= 1
     input_order: float = 1.0
+    #: the time-point sets as polynomial zonotopes ("pz") or as their zonotope enclosures
+    #: ("zonotope", for consumers that need zonotopes, e.g. drift tubes)
     output: str = "pz"
+    #: step-size control: a sub-step whose error box widens the set by more than this fraction
+    #: of its extent (plus the input's reach over the sub-step) is halved (at most max_halvings
+    #: times), > 0; None: accept every closed step, as taylor
     growth_tol: float | None = 0.1
 
     def __post_init__(self) -> None:
