@@ -135,7 +135,7 @@ def test_poly_vdp_contains_scipy_truth_and_is_tighter_than_taylor():
     res = ocreach.reach(p, "poly")
     assert res.meta["guaranteed"] and res.times.size == p.grid.size
     rng = np.random.default_rng(1)
-    N, K = 150, p.grid.size - 1
+    N, K = 90, p.grid.size - 1
     U = np.where(rng.random((N, K)) < 0.5, -1.0, 1.0)
     U[: N // 3] = U[: N // 3, :1]
     U[N // 3: 2 * N // 3] = rng.uniform(-1, 1, (N // 3, K))

@@ -195,13 +195,23 @@ def witness_lsq(S: PolyZonotope, P: np.ndarray, eps: float, guess: np.ndarray,
             Apow[k] = row
         return np.hstack([G @ Jm.T, GI])
 
+    class _Witnessed(Exception):
+        """Raised by the residual as soon as a factor vector (in the box) is within ``eps``."""
+
     for i, x in enumerate(P):
         def fun(z, x=x):
-            return S.evaluate(z[:p], z[p:] if q else None) - x
+            r = S.evaluate(z[:p], z[p:] if q else None) - x
+            if np.linalg.norm(r) <= eps and np.all(np.abs(z) <= 1.0):
+                raise _Witnessed
+            return r
         for s in range(starts):
             z0 = np.clip(guess[i], -1, 1) if s == 0 else rng.uniform(-1, 1, p + q)
-            sol = least_squares(fun, z0, jac=jac, bounds=(-1.0, 1.0), xtol=1e-15, ftol=1e-15,
-                                gtol=1e-15, max_nfev=max_nfev)
+            try:
+                sol = least_squares(fun, z0, jac=jac, bounds=(-1.0, 1.0), xtol=1e-15, ftol=1e-15,
+                                    gtol=1e-15, max_nfev=max_nfev)
+            except _Witnessed:
+                found[i] = True
+                break
             if np.linalg.norm(sol.fun) <= eps:
                 found[i] = True
                 break
