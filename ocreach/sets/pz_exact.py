@@ -541,7 +541,9 @@ def membership(pz: PolyZonotope, points: Any, tol: float = 1e-7, directions: Any
     Exclusion certificates come from the branch-and-bound upper support bound in ``directions``
     (default: 64 directions on the circle for n = 2, else the 2n axis directions and 64 random
     ones) and in the direction from the nearest witness point found to each point not proved
-    inside.  ``tol`` is the distance within which a witness counts as inside."""
+    inside.  ``tol`` is the distance within which a witness counts as inside, and a certificate
+    needs the point beyond the support bound by more than ``tol`` (a point on the boundary, e.g. a
+    vertex of a box, is never certified outside by rounding)."""
     from ocreach.sets._base import as_points
 
     P, _ = as_points("points", points, pz.dim)
@@ -561,7 +563,7 @@ def membership(pz: PolyZonotope, points: Any, tol: float = 1e-7, directions: Any
     bound = np.full(N, np.nan)
     excess = P @ Dd.T - sb.upper[None, :]
     j = np.argmax(excess, axis=1)
-    out = excess[np.arange(N), j] > 0
+    out = excess[np.arange(N), j] > tol
     status[out] = -1
     dirs[out] = Dd[j[out]]
     bound[out] = sb.upper[j[out]]
@@ -583,7 +585,7 @@ def membership(pz: PolyZonotope, points: Any, tol: float = 1e-7, directions: Any
             if np.any(ok):
                 Dr = dv[ok] / nv[ok, None]
                 sr = support_bounds(pz, Dr, tol=support_tol)
-                ex = np.einsum("ij,ij->i", P[rest[ok]], Dr) > sr.upper
+                ex = np.einsum("ij,ij->i", P[rest[ok]], Dr) > sr.upper + tol
                 hit = rest[ok][ex]
                 status[hit] = -1
                 dirs[hit] = Dr[ex]
