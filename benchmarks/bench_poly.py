@@ -20,7 +20,7 @@ import numpy as np
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.markdown import replace_markdown_section
+from ocreach.fileio import replace_markdown_section
 from ocreach.registry import get_problem
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
@@ -30,9 +30,11 @@ CASES = [
     ("vdp 3 TU", "vdp", {}, {}),
     ("dro 2 TU (8 sub-steps)", "dro", {"t_final": 2.0}, {"substeps": 8}),
     ("nrho-9-2 24 h", "nrho-9-2", {"t_final": 24 * HOUR}, {}),
-    ("nrho-9-2 60 h", "nrho-9-2", {"t_final": 60 * HOUR}, {"max_parts": 1}),
+    ("nrho-9-2 76 h", "nrho-9-2", {}, {"max_parts": 1}),
+    ("nrho-9-2 76 h, sundman:k=1.5", "nrho-9-2", {}, {"max_parts": 1, "coordinates": "sundman:k=1.5"}),
     ("l2-halo 80 h", "l2-halo", {"t_final": 80 * HOUR}, {"max_parts": 1}),
-    ("earth-mars 90 d", "earth-mars", {"t_days": 90.0}, {"max_parts": 1}),
+    ("earth-mars 200 d", "earth-mars", {"t_days": 200.0}, {"max_parts": 1}),
+    ("earth-mars 200 d, mee", "earth-mars", {"t_days": 200.0}, {"max_parts": 1, "coordinates": "mee"}),
 ]
 
 

@@ -10,9 +10,9 @@ uniform random per step.  Every state at every grid time must lie in that time's
 states at the step midpoints (of the first ``--tube-samples``) in the step's time-interval tube:
 
 * zonotope sets (``taylor``, tubes): the scaled gauge (exact membership certificate, else the LP);
-* polynomial zonotopes (``poly``'s sets): outside the zonotope enclosure is an escape; inside it
-  the three-valued membership on the polynomial (:func:`ocreach.sets.pz_exact.membership`): a
-  certified exclusion is an escape, a witness proves the point inside, the rest is reported as
+* polynomial zonotopes (``poly``'s sets): :func:`ocreach.sets.pz_witness.classify` -- outside the
+  zonotope enclosure or a certified exclusion (support bound) is an escape, a witness (factors in
+  the box mapping within the tolerance) proves the point inside, the rest is reported as
   undecided (neither proved in nor out).
 
 A point escapes when it is outside the set enlarged by ``1e-9 (1 + |x|)`` (the truth's own
@@ -20,7 +20,7 @@ error is far below).  Tightness at the last time both reached and at each method
 ratio of the set's width to the samples' width in 50 random position directions (for a polynomial
 zonotope the rigorous upper support bound of :func:`ocreach.sets.pz_exact.support_bounds`).
 
-    python examples/poly_validation.py [--cases vdp,dro,nrho24,nrho76,halo200] [--samples 10000]
+    python examples/poly_validation.py [--cases vdp,dro,nrho24,nrho76,nrho76sun,halo200,em200,em200mee] [--samples 10000]
         [--out out/poly_validation]
 """
 from __future__ import annotations
@@ -54,6 +54,11 @@ CASES = {
     "nrho76": ("nrho-9-2", {}, {"max_parts": 8}, {"max_parts": 8}),
     "nrho157": ("nrho-9-2", {"t_final": 157 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
     "halo200": ("l2-halo", {"t_final": 200 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
+    "nrho76sun": ("nrho-9-2", {}, {"max_parts": 1, "coordinates": "sundman:k=1.5"},
+                  {"max_parts": 1, "coordinates": "sundman:k=1.5"}),
+    "em200": ("earth-mars", {"t_days": 200.0}, {"max_parts": 1}, {"max_parts": 1}),
+    "em200mee": ("earth-mars", {"t_days": 200.0}, {"max_parts": 1, "coordinates": "mee"},
+                 {"max_parts": 1, "coordinates": "mee"}),
 }
 
 
