@@ -23,6 +23,7 @@ from ocreach.outdir import Stages, write_as_unit
 
 #: Modules that add commands: each has ``register(subparsers) -> None``.  One line per module.
 COMMAND_MODULES: list[str] = [
+    "ocreach.arch.cli",
     "ocreach.custody.cli",
     "ocreach.sweep.cli",
 ]

@@ -344,6 +344,34 @@ class ZonotopeReach:
     def _can_split(self, stats: dict) -> bool:
         return self.opts.split and stats["n_parts"] < self.opts.max_parts
 
+    def advance_grid_step(self, parts: list[Part], t0: float, t1: float
+                          ) -> tuple[list[Part], list[Zonotope], dict[str, Any], StepFail | None]:
+        """Carry every part from ``t0`` to ``t1`` (sub-steps, halvings, splits): the parts at
+        ``t1``, the sub-step tubes, the step's statistics and the failure that ended it (None if
+        the step succeeded).  One grid step of :meth:`run`; the hybrid runner steps with it."""
+        stats = {"iterations": 0, "substeps": 0, "err": np.zeros(self.problem.model.n_x),
+                 "n_parts": len(parts), "splits": 0}
+        queue = list(parts)
+        done: list[Part] = []
+        step_tubes: list[Zonotope] = []
+        while queue:
+            part = queue.pop()
+            new, tb, fail = self._advance(part, t0, t1, stats)
+            if fail is None:
+                done.append(new)
+                step_tubes.extend(tb)
+                continue
+            if self._can_split(stats) and part.Z.n_generators > 0:
+                scores = self.err.split_scores(part.Z)
+                j = int(np.argmax(scores))
+                a, b = part.Z.split(j)
+                queue += [Part(Z=a, L=None, level=part.level), Part(Z=b, L=None, level=part.level)]
+                stats["n_parts"] += 1
+                stats["splits"] += 1
+                continue
+            return done, step_tubes, stats, fail
+        return done, step_tubes, stats, None
+
     def run(self) -> ReachResult:
         prob = self.problem
         grid = prob.grid
@@ -359,26 +387,8 @@ class ZonotopeReach:
                                        "parts": []}
         for k in range(grid.size - 1):
             t0, t1 = float(grid[k]), float(grid[k + 1])
-            stats = {"iterations": 0, "substeps": 0, "err": np.zeros(prob.model.n_x),
-                     "n_parts": len(parts), "splits": 0}
-            queue = list(parts)
-            done: list[Part] = []
-            step_tubes: list[Zonotope] = []
-            while queue:
-                part = queue.pop()
-                new, tb, fail = self._advance(part, t0, t1, stats)
-                if fail is None:
-                    done.append(new)
-                    step_tubes.extend(tb)
-                    continue
-                if self._can_split(stats) and part.Z.n_generators > 0:
-                    scores = self.err.split_scores(part.Z)
-                    j = int(np.argmax(scores))
-                    a, b = part.Z.split(j)
-                    queue += [Part(Z=a, L=None, level=part.level), Part(Z=b, L=None, level=part.level)]
-                    stats["n_parts"] += 1
-                    stats["splits"] += 1
-                    continue
+            done, step_tubes, stats, fail = self.advance_grid_step(parts, t0, t1)
+            if fail is not None:
                 self._fail(k, t0, t1, fail, stats, sets, tubes, meta_steps, t_start)
             parts = done
             sets.append(_as_set([p.Z for p in parts]))
@@ -509,10 +519,20 @@ class TaylorZonotope(Method):
             self.rk4_substeps = check_count("rk4_substeps", self.rk4_substeps, 1)
 
     def solve(self, problem: Problem) -> ReachResult:
+        if self.options.alg == "dt":
+            check_smooth(problem.model)
+            initial_zonotope(problem)  # wrong dimension -> clear error before any work
+            return DiscreteTaylor(self, problem, self.options, self.options.rk4_substeps).run()
+        return self.reacher(problem).run()
+
+    def reacher(self, problem: Problem) -> ZonotopeReach:
+        """The continuous-time propagator of ``problem`` (checked), run by :meth:`solve` and
+        stepped grid step by grid step by the hybrid runner (:mod:`ocreach.reach.hybrid`)."""
+        if self.options.alg != "ct":
+            raise ProblemError(f"taylor: the continuous-time propagator needs alg='ct'; got "
+                               f"alg={self.options.alg!r} (the RK4 map of 'dt' has no tubes)")
         check_smooth(problem.model)
         initial_zonotope(problem)  # wrong dimension -> clear error before any work
-        if self.options.alg == "dt":
-            return DiscreteTaylor(self, problem, self.options, self.options.rk4_substeps).run()
         err = TaylorError(problem.model, problem.params)
-        return ZonotopeReach(self, problem, self.options, err, {"alg": "ct"}).run()
+        return ZonotopeReach(self, problem, self.options, err, {"alg": "ct"})
 
