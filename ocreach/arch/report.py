@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ocreach.outdir import OutputDir
-from ocreach.reach.result import atomic_write_text, json_text
+from ocreach.fileio import atomic_write_text, json_text
 from ocreach.specs import Linear, support_bound
 
 CSV_HEADER = ["benchmark", "instance", "result", "time", "accuracy", "timesteps"]
@@ -122,7 +122,7 @@ def figure(benchmark: str, runs: list[tuple[Any, Any, Any]], path: Path) -> Path
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    from ocreach.plot import save_figure
+    from ocreach.reach.plot import save_figure
     from ocreach.sets.zonotope import zonotope_polygon
 
     spec = FIGURES.get(benchmark)

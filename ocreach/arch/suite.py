@@ -27,7 +27,7 @@ def arch_ids(only: str | None = None) -> list[str]:
     """Ids of the bundled ARCH problems, in the order of ``problems/arch.py``; ``only`` keeps those
     whose id, ARCH-COMP benchmark name or ``BENCHMARK-INSTANCE`` matches one of its
     comma-separated names (case-insensitive)."""
-    from ocreach.problem import problem_factories
+    from ocreach.registry import problem_factories
 
     ids = [pid for pid in problem_factories() if pid.startswith("arch-")]
     import ocreach.problems.arch as arch
@@ -101,9 +101,9 @@ def _short(problem):
 
 
 def _reach(problem, method: str):
-    import ocreach
+    from ocreach.reach.base import reach
 
-    return ocreach.reach(problem, method)
+    return reach(problem, method)
 
 
 def _steps(problem, result) -> int:
@@ -117,9 +117,9 @@ def run_instance(pid: str, *, method: str = METHOD, samples: int = 2000, seed: i
     """Run one instance; returns the row, the problem and the guaranteed result (None if it
     failed).  A method failure (e.g. the remainder cannot be enclosed) is the row's ``error`` and
     makes the result ``unknown``, with the reason."""
-    import ocreach
+    from ocreach.registry import get_problem
 
-    problem = ocreach.get_problem(pid)
+    problem = get_problem(pid)
     info = problem.extra["arch"]
     run = InstanceRun(pid, info["benchmark"], info["instance"], method,
                       options={**problem.options_for(method), "hybrid": problem.options_for("hybrid")})

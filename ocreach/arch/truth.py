@@ -2,7 +2,7 @@
 escapes from the guaranteed sets and for counter-examples of the specifications.
 
 A continuous problem's samples (a quarter at vertices of the initial box, the rest uniform) are
-integrated by the batch DOP853 of :func:`ocreach.flow.propagate` and compared, at every grid time,
+integrated by the batch DOP853 of :func:`ocreach.dynamics.flow.propagate` and compared, at every grid time,
 with the time-point set there.  A hybrid problem's samples come from
 :func:`ocreach.reach.hybrid.simulate_hybrid`; every sampled state (at grid times and before and
 after each jump) must lie in a flowpipe piece of its location whose clock range contains its time,
@@ -68,7 +68,7 @@ def continuous_truth(problem, result, samples: int = 2000, seed: int = 0,
                      stride: int = 1) -> Truth:
     """Truth of a continuous instance against the time-point sets of ``result`` (every
     ``stride``-th grid time and the last)."""
-    from ocreach.flow import propagate
+    from ocreach.dynamics.flow import propagate
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -133,7 +133,10 @@ def hybrid_truth(problem, result, samples: int = 2000, seed: int = 0, stride: in
             if b <= a:
                 continue
             cand = order[a:b]
-            cand = cand[~inside[cand]]
+            I = pc.set.interval_hull()  # a point outside a piece's box is not in the piece
+            tol = 1e-9 * (1 + np.maximum(np.abs(I.lo), np.abs(I.hi)))
+            cand = cand[~inside[cand] & np.all((P[cand] >= I.lo - tol) & (P[cand] <= I.hi + tol),
+                                               axis=1)]
             if cand.size == 0:
                 continue
             g = np.atleast_1d(gauge(pc.set, P[cand], lp=False))

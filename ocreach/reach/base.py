@@ -328,7 +328,7 @@ def reach(problem: Problem | str, method: str, *, threads: int | None = None,
         from ocreach.reach.hybrid import reach_hybrid
 
         with parallel.settings(threads=threads):
-            return reach_hybrid(problem, method, **options)
+            return reach_hybrid(problem, method, method_class(method), **options)
     cls = method_class(method)
     merged = {**problem.options_for(method), **options}
     with parallel.settings(threads=threads):

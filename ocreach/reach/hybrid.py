@@ -245,13 +245,6 @@ def _groups(items: list[tuple[float, float, Zonotope]], k: int) -> list[list[Zon
 
 
 # =============================================================================== guaranteed
-def _method(method: str, options: dict):
-    from ocreach.reach.base import method_class
-
-    cls = method_class(method)
-    return cls(**options)
-
-
 def _tau_range(Z: Zonotope, i: int) -> tuple[float, float]:
     e = np.zeros(Z.dim)
     e[i] = 1.0
@@ -267,9 +260,11 @@ def _local_grid(H: float, dt: float) -> np.ndarray:
     return g
 
 
-def reach_guaranteed(problem: HybridProblem, method: str = "taylor", **options: Any) -> HybridResult:
-    """The guaranteed flowpipe of ``problem`` (module docstring) with ``taylor`` or ``sdc``;
-    ``options`` are the method's options plus ``hybrid={...}`` (:class:`HybridOptions`)."""
+def reach_guaranteed(problem: HybridProblem, method: str, method_cls: type, **options: Any
+                     ) -> HybridResult:
+    """The guaranteed flowpipe of ``problem`` (module docstring) with ``taylor`` or ``sdc``
+    (``method_cls`` its class); ``options`` are the method's options plus ``hybrid={...}``
+    (:class:`HybridOptions`)."""
     from ocreach.reach.taylor import Part
 
     if method not in GUARANTEED:
@@ -277,7 +272,7 @@ def reach_guaranteed(problem: HybridProblem, method: str = "taylor", **options: 
     hraw = {**problem.options_for("hybrid"), **dict(options.pop("hybrid", None) or {})}
     hopts = HybridOptions(**hraw)
     mopts = {**problem.options_for(method), **options}
-    meth = _method(method, mopts)
+    meth = method_cls(**mopts)
     aut = problem.automaton
     names = (*aut.state_names, CLOCK)
     it = len(names) - 1
@@ -543,7 +538,7 @@ class _Runs:
     """The state of every run of :func:`simulate_hybrid` (vectorised over samples)."""
 
     def __init__(self, aut, problem, X0, rng, rtol, atol, T):
-        from ocreach.flow import flow_rhs
+        from ocreach.dynamics.flow import flow_rhs
 
         self.aut, self.rng, self.rtol, self.atol, self.T = aut, rng, rtol, atol, T
         self.names = (*aut.state_names, CLOCK)
@@ -764,12 +759,12 @@ def simulate_hybrid(problem: HybridProblem, samples: int = 1000, seed: int | Non
 
 
 # =============================================================================== entry point
-def reach_hybrid(problem: HybridProblem, method: str, **options: Any):
+def reach_hybrid(problem: HybridProblem, method: str, method_cls: type, **options: Any):
     """``ocreach.reach`` on a :class:`~ocreach.hybrid.HybridProblem`: the guaranteed flowpipe
-    (``taylor``, ``sdc``) or samples through the automaton (``mc``: ``samples``, ``seed``,
-    ``rtol``, ``atol``)."""
+    (``taylor``, ``sdc``; ``method_cls`` the method's class) or samples through the automaton
+    (``mc``: ``samples``, ``seed``, ``rtol``, ``atol``)."""
     if method in GUARANTEED:
-        return reach_guaranteed(problem, method, **options)
+        return reach_guaranteed(problem, method, method_cls, **options)
     if method in SAMPLED:
         allowed = {"samples", "seed", "rtol", "atol"}
         merged = {**{k: v for k, v in problem.options_for(method).items() if k in allowed}, **options}
