@@ -265,8 +265,6 @@ def reach_guaranteed(problem: HybridProblem, method: str, method_cls: type, **op
     """The guaranteed flowpipe of ``problem`` (module docstring) with ``taylor`` or ``sdc``
     (``method_cls`` its class); ``options`` are the method's options plus ``hybrid={...}``
     (:class:`HybridOptions`)."""
-    from ocreach.reach.taylor import Part
-
     if method not in GUARANTEED:
         raise ProblemError(f"hybrid guaranteed reachability supports {GUARANTEED}; got {method!r}")
     hraw = {**problem.options_for("hybrid"), **dict(options.pop("hybrid", None) or {})}
@@ -297,7 +295,7 @@ def reach_guaranteed(problem: HybridProblem, method: str, method_cls: type, **op
                 done.append(br)
                 continue
             loc = aut.location(br.location)
-            cands = _propagate_branch(problem, meth, Part, loc, br, names, it, T,
+            cands = _propagate_branch(problem, meth, loc, br, names, it, T,
                                       (hopts.dt or {}).get(loc.name, dt0), pieces, finals)
             done.append(br)
             for tr, items in cands:
@@ -319,7 +317,7 @@ def reach_guaranteed(problem: HybridProblem, method: str, method_cls: type, **op
     return HybridResult(names=names, pieces=pieces, finals=finals, branches=done, meta=meta)
 
 
-def _propagate_branch(problem, meth, Part, loc: Location, br: Branch, names, it: int, T: float,
+def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, T: float,
                       dt: float, pieces, finals) -> list[tuple[Transition, list]]:
     """Propagate one branch (module docstring, items 1-3); its guard sets per outgoing
     transition as ``(transition, [(t_lo, t_hi, set), ...])``."""
@@ -343,7 +341,7 @@ def _propagate_branch(problem, meth, Part, loc: Location, br: Branch, names, it:
                and complementary(br.entered.guard[0], tr.guard[0]) if len(br.entered.guard) == 1
                else False for tr in outgoing} if br.entered is not None else \
         {tr.label: False for tr in outgoing}
-    parts = [Part(Z=Z)]
+    parts = reacher.initial_parts()  # the branch's initial set Z
     pieces.append(Piece(Z, tau_lo, tau_hi, names, loc.name))
     br.stop = "horizon"
     for k in range(grid.size - 1):
@@ -379,7 +377,7 @@ def _propagate_branch(problem, meth, Part, loc: Location, br: Branch, names, it:
         for p in new:
             Zc = cut_region(p.Z, loc.invariant, names) if loc.invariant else p.Z
             if Zc is not None:
-                kept.append(Part(Z=Zc, L=p.L, level=p.level))
+                kept.append(dataclasses.replace(p, Z=Zc))
         parts = kept
         if not parts:
             br.stop = "every run has left the location"

@@ -344,6 +344,10 @@ class ZonotopeReach:
     def _can_split(self, stats: dict) -> bool:
         return self.opts.split and stats["n_parts"] < self.opts.max_parts
 
+    def initial_parts(self) -> list[Part]:
+        """The parts :meth:`run` starts from: the problem's initial set, one part."""
+        return [Part(Z=initial_zonotope(self.problem))]
+
     def advance_grid_step(self, parts: list[Part], t0: float, t1: float
                           ) -> tuple[list[Part], list[Zonotope], dict[str, Any], StepFail | None]:
         """Carry every part from ``t0`` to ``t1`` (sub-steps, halvings, splits): the parts at
@@ -379,8 +383,8 @@ class ZonotopeReach:
             raise ProblemError(f"problem {prob.id!r} has a backward grid; taylor/sdc propagate "
                                "forward in time only")
         t_start = time.perf_counter()
-        R0 = initial_zonotope(prob)
-        parts = [Part(Z=R0)]
+        parts = self.initial_parts()
+        R0 = parts[0].Z
         sets: list[Any] = [R0]
         tubes: list[Any] = []
         meta_steps: dict[str, list] = {"remainder": [], "iterations": [], "splits": [], "substeps": [],
