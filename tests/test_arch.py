@@ -157,21 +157,45 @@ def test_lalo20_w001_is_verified_and_contains_independent_truth():
     assert width >= np.ptp(Xs[-1][:, 3])
 
 
+def _least_norm_inside(Z, P: np.ndarray) -> np.ndarray:
+    """Rows of ``P`` proved inside ``Z``: the least-norm factors ``xi`` of ``G xi = x - c`` with
+    ``|xi| <= 1`` and a residual at rounding level (a sufficient test, no LP)."""
+    G = np.asarray(Z.G)
+    R = P - Z.c
+    xi = np.linalg.lstsq(G, R.T, rcond=None)[0]
+    res = np.abs(G @ xi - R.T).max(axis=0)
+    scale = 1e-9 * (1 + np.abs(G).sum(axis=1).max())
+    return (np.abs(xi).max(axis=0) <= 1.0 - 1e-9) & (res <= scale)
+
+
 def _in_pieces(res, loc: str, X: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Per row, True if ``(x, t)`` lies in some piece of location ``loc`` covering time ``t``:
-    the membership certificate on every candidate piece, then the exact LP gauge for the rows no
-    certificate placed."""
+    first the least-norm factor test on every candidate piece (narrowest time range first), then
+    the membership certificate with its LP, then the exact LP gauge for the rows still open."""
     P = np.column_stack([X, t])
     ok = np.zeros(P.shape[0], dtype=bool)
-    pcs = [pc for pc in res.pieces if pc.location == loc and pc.t_hi >= t.min() - 1e-9
-           and pc.t_lo <= t.max() + 1e-9]
-    for pc in pcs:
-        I = pc.set.interval_hull()  # a point outside a piece's box is not in the piece
-        m = ~ok & (t >= pc.t_lo - 1e-9) & (t <= pc.t_hi + 1e-9) & np.all(
-            (P >= I.lo - 1e-9 * (1 + np.abs(I.lo))) & (P <= I.hi + 1e-9 * (1 + np.abs(I.hi))), axis=1)
-        if m.any():
-            idx = np.flatnonzero(m)
-            ok[idx[np.atleast_1d(gauge(pc.set, P[idx], lp=False)) <= 1.0]] = True
+    pcs = sorted((pc for pc in res.pieces if pc.location == loc and pc.t_hi >= t.min() - 1e-9
+                  and pc.t_lo <= t.max() + 1e-9), key=lambda pc: pc.t_hi - pc.t_lo)
+    boxes = [pc.set.interval_hull() for pc in pcs]
+
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+
+    def candidates(pc, I):  # rows in the piece's time range and box (outside the box: not in it)
+        a = np.searchsorted(ts, pc.t_lo - 1e-9, side="left")
+        b = np.searchsorted(ts, pc.t_hi + 1e-9, side="right")
+        idx = order[a:b]
+        idx = idx[~ok[idx]]
+        Q = P[idx]
+        inb = np.all((Q >= I.lo - 1e-9 * (1 + np.abs(I.lo))) & (Q <= I.hi + 1e-9 * (1 + np.abs(I.hi))),
+                     axis=1)
+        return idx[inb]
+
+    for test in (_least_norm_inside, lambda Z, Q: np.atleast_1d(gauge(Z, Q, lp=False)) <= 1.0):
+        for pc, I in zip(pcs, boxes):
+            idx = candidates(pc, I)
+            if idx.size:
+                ok[idx[test(pc.set, P[idx])]] = True
     for i in np.flatnonzero(~ok):
         near = [pc for pc in pcs if pc.t_lo - 1e-9 <= t[i] <= pc.t_hi + 1e-9]
         ok[i] = min((float(union_gauge(pc.set, P[i], exact=True)) for pc in near),
@@ -270,15 +294,16 @@ def test_spacecraft_hybrid_is_verified_and_contains_independent_truth():
     for sl in np.linspace(0.0, 25.0, 51):  # aborting, local time after the abort
         m = t_ab + sl <= 40.0
         checks["aborting"].append((abo(sl)[m], t_ab[m] + sl))
-    for loc, lst in checks.items():
-        for X, t in lst:
-            if X.shape[0]:
-                assert _in_pieces(res, loc, X, t).all(), f"escape in {loc} near t = {t.min():.3g}"
-                if loc == "attempt":
-                    assert (np.hypot(X[:, 2], X[:, 3]) <= 3.3).all()
-                    assert (np.abs(X[:, 1]) <= -X[:, 0] * math.tan(math.radians(20))).all()
-                if loc == "aborting":
-                    assert not ((np.abs(X[:, 0]) <= 2) & (np.abs(X[:, 1]) <= 2)).any()
+    for loc, lst in checks.items():  # all states of a location in one call (one test per piece)
+        X = np.vstack([X for X, _ in lst])
+        t = np.concatenate([t for _, t in lst])
+        ok = _in_pieces(res, loc, X, t)
+        assert ok.all(), f"{(~ok).sum()} escapes in {loc}, first near t = {t[~ok].min():.3g}"
+        if loc == "attempt":
+            assert (np.hypot(X[:, 2], X[:, 3]) <= 3.3).all()
+            assert (np.abs(X[:, 1]) <= -X[:, 0] * math.tan(math.radians(20))).all()
+        if loc == "aborting":
+            assert not ((np.abs(X[:, 0]) <= 2) & (np.abs(X[:, 1]) <= 2)).any()
     # the crossing states are in the attempt's initial sets
     assert _in_pieces(res, "attempt", x_c[ia], t_c[ia]).all()
     assert {("attempt", "abort"), ("abort",)} <= set(res.final_paths())
