@@ -346,3 +346,16 @@ def test_arch_command_writes_the_suite_files(tmp_path, capsys):
     with pytest.raises(ProblemError, match="matches no ARCH instance"):
         arch_ids("nosuch")
     assert arch_ids("LALO20") == ["arch-lalo20-w001", "arch-lalo20-w005", "arch-lalo20-w01"]
+
+
+def test_arch_command_bad_input_exits_2_naming_the_allowed_values(tmp_path, capsys):
+    from ocreach.cli import main
+
+    out = tmp_path / "bad"
+    assert main(["arch", "--only", "nosuch", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--only 'nosuch' matches no ARCH instance" in err
+    assert "LALO20" in err and "lalo20-w001" in err and "spre22" in err
+    assert main(["arch", "--only", "lalo20-w001", "--samples", "-1", "--out", str(out)]) == 2
+    assert "--samples must be an integer >= 0; got -1" in capsys.readouterr().err
+    assert not out.exists()
