@@ -236,14 +236,20 @@ def test_lotka_volterra_hybrid_contains_independent_truth():
     assert np.isfinite(dt_out).all()
     t_out = np.full(N_TRUTH, np.inf)
     t_out[ent] = t_in[ent] + dt_out
+    per_loc = {"inside": ([], []), "outside": ([], [])}
     for t in p.grid[::6]:
         X = at(float(t))
         inside = (t >= t_in) & (t < t_out)
         cnt = np.clip(np.minimum(t, t_out) - t_in, 0, None)
         S = np.column_stack([X, cnt])
         for loc, m in (("inside", inside), ("outside", ~inside)):
-            if m.any():
-                assert _in_pieces(res, loc, S[m], np.full(m.sum(), float(t))).all(), f"escape at {t}"
+            per_loc[loc][0].append(S[m])
+            per_loc[loc][1].append(np.full(m.sum(), float(t)))
+    for loc, (Ss, ts) in per_loc.items():  # every state of a location in one call
+        S, tt = np.vstack(Ss), np.concatenate(ts)
+        if tt.size:
+            ok = _in_pieces(res, loc, S, tt)
+            assert ok.all(), f"{(~ok).sum()} escapes in {loc}, first at t = {tt[~ok].min():.3g}"
     # the jump states: on the circle, before (source) and after (target) the jump
     en = np.column_stack([x_in[ent], np.zeros(ent.size)])
     assert _in_pieces(res, "inside", en, t_in[ent]).all()
