@@ -365,3 +365,36 @@ def test_arch_command_bad_input_exits_2_naming_the_allowed_values(tmp_path, caps
     assert main(["arch", "--only", "lalo20-w001", "--samples", "-1", "--out", str(out)]) == 2
     assert "--samples must be an integer >= 0; got -1" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------------------------ harness
+def test_soundness_harness_checks_hybrid_flowpipes_through_the_automaton():
+    """The harness's truth through an automaton (ocreach.testing.truth.hybrid_truth) follows the
+    same jumps as the independent runs here, finds no escape from the taylor flowpipe and catches
+    the flowpipe shrunk by 10 %."""
+    import dataclasses
+
+    from ocreach.testing import bundled_cases
+    from ocreach.testing.harness import Outcome, check_hybrid
+    from ocreach.testing.truth import hybrid_truth
+
+    p = ocreach.get_problem("arch-lovo21", t_final=1.2)
+    tr = hybrid_truth(p, 40, seed=8)
+    assert tr.failure == "" and tr.blocked == 0
+    # every recorded (x, y) is the independent run's state at its time, from the same start
+    start = tr.times == p.grid[0]  # each run's first state (the runs are recorded in order)
+    at = batch(lotka_volterra, tr.points[start, :2], 1.2)
+    lab = np.cumsum(start) - 1
+    for k in range(0, tr.times.size, 37):
+        assert np.abs(tr.points[k, :2] - at(float(tr.times[k]))[lab[k]]).max() < 1e-7
+    (case,) = bundled_cases(steps=30, ids=["arch-lovo21"])
+    res = ocreach.reach(case.problem, "taylor")
+    truth = case.hybrid_truth(45, 0, (0.5,))
+    ok = Outcome("taylor", case.label, "bundled", "complete")
+    check_hybrid(res, truth, ok)
+    assert ok.points_checked == truth.points.shape[0] > 0 and ok.escapes == 0, ok.line()
+    shrunk = dataclasses.replace(res, pieces=[dataclasses.replace(
+        pc, set=Zonotope(pc.set.c, 0.9 * pc.set.G)) for pc in res.pieces])
+    bad = Outcome("taylor", case.label, "bundled", "complete")
+    check_hybrid(shrunk, truth, bad)
+    assert bad.escapes > 0
