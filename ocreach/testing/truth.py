@@ -261,6 +261,7 @@ WINDOW_END = 0.15
 
 
 def _clock_window(region, clock: str) -> tuple[float, float]:
+    """The window ``[lo, hi]`` that the clock-only constraints of ``region`` allow."""
     lo, hi = -np.inf, np.inf
     for c in region:
         if getattr(c, "names", None) == (clock,):
@@ -285,8 +286,9 @@ def hybrid_truth(problem, n: int, seed: int = 0, inner: Sequence[float] = (0.5,)
     transition is taken at a time drawn in its window (each end with probability
     :data:`WINDOW_END`).  Not the project's sampler (:func:`ocreach.reach.hybrid.simulate_hybrid`)
     nor its compiled integrator."""
+    from ocreach.hybrid import CLOCK as clock
+
     aut = problem.automaton
-    clock = "t"
     names = (*aut.state_names, clock)
     grid = np.asarray(problem.grid, float)
     T = float(grid[-1])
