@@ -73,7 +73,7 @@ class ImpulsiveTubeMPC:
     gate_position_km: float | None = 0.0
     gate_velocity_mps: float | None = 0.0
     beta: float = 0.7
-    horizon_revolutions: float = 1.0
+    horizon_revolutions: float = 2.0
     check_every: int = 2
     slack_penalty: float = 100.0
     tube_source: str = "taylor-or-linear"
@@ -110,7 +110,9 @@ class ImpulsiveTubeMPC:
               else self.gate_velocity_mps / units.velocity)
         self._gate = np.r_[np.full(3, gp), np.full(3, gv)]
         self._N = int(round(self.horizon_revolutions * sc.M))
-        end = min(sc.X.shape[0] - 1, sc.steps + self._N + 1)
+        # the tubes cover the whole reference (the run and its look-ahead): one set of tubes
+        # (and one disk-cache entry) for every horizon
+        end = sc.X.shape[0] - 1
         self._tubes = drift_tubes(sc, self._gate + self._nav, settings, self.tube_source, end)
         self._A = sc.jacobians[0]
         self._solver = None
@@ -153,16 +155,17 @@ class ImpulsiveTubeMPC:
     def _problem(self, n_checks: int):
         import cvxpy as cp
 
+        # every row divided by its tube half-width h_j,i: the entries are O(1) (the raw rows
+        # span 1e-9 .. 1 in model units and Clarabel stalled at its iteration limit)
         dv = cp.Variable(3)
         s = cp.Variable(n_checks, nonneg=True)
-        M = cp.Parameter((6 * n_checks, 3))   # Phi(j, k) [0; I], stacked
-        b = cp.Parameter(6 * n_checks)        # Phi(j, k) dxhat
-        c = cp.Parameter(6 * n_checks)        # beta h_j - |Phi| n
-        H = cp.Parameter(6 * n_checks, nonneg=True)  # h_j (slack scale)
+        M = cp.Parameter((6 * n_checks, 3))   # Phi(j, k) [0; I] / h, stacked
+        b = cp.Parameter(6 * n_checks)        # Phi(j, k) dxhat / h
+        c = cp.Parameter(6 * n_checks)        # (beta h_j - |Phi| n) / h
         E = np.kron(np.eye(n_checks), np.ones((6, 1)))
-        cons = [cp.abs(M @ dv + b) <= c + cp.multiply(H, E @ s)]
+        cons = [cp.abs(M @ dv + b) <= c + E @ s]
         prob = cp.Problem(cp.Minimize(cp.norm(dv, 2) + self.slack_penalty * cp.sum(s)), cons)
-        return prob, dv, s, M, b, c, H
+        return prob, dv, s, M, b, c
 
     def burn(self, sc: Scenario, k: int, xhat: np.ndarray) -> np.ndarray:
         """Commanded burn (model units, (3,)) from the estimate at step ``k``."""
@@ -170,7 +173,7 @@ class ImpulsiveTubeMPC:
         n = js.size
         if self._solver is None or self._solver[0] != n:
             self._solver = (n, self._problem(n))
-        prob, dv, _, M, b, c, H = self._solver[1]
+        prob, dv, _, M, b, c = self._solver[1]
         h = self._tubes["half_widths"][js]
         d = np.asarray(xhat, float) - sc.X[k]
         P = np.empty((n, 6, 6))
@@ -183,10 +186,9 @@ class ImpulsiveTubeMPC:
             P[m] = Pk
         # the velocity scale: dv in units of 1 cm/s keeps the SOCP well conditioned
         scale = 0.01 / sc.units.velocity
-        M.value = (P[:, :, 3:] * scale).reshape(-1, 3)
-        b.value = (P @ d).ravel()
-        c.value = (self.beta * h - np.abs(P) @ self._nav).ravel()
-        H.value = h.ravel()
+        M.value = (P[:, :, 3:] * scale / h[:, :, None]).reshape(-1, 3)
+        b.value = (P @ d / h).ravel()
+        c.value = ((self.beta * h - np.abs(P) @ self._nav) / h).ravel()
         try:
             prob.solve(solver="CLARABEL", max_iter=400)
         except Exception as exc:  # noqa: BLE001 - cvxpy raises SolverError subclasses

@@ -232,8 +232,9 @@ class Scenario:
     def synodic_crossing(self, x0: np.ndarray, t0: float, t_guess: float,
                          p: np.ndarray | None = None) -> tuple[float, np.ndarray]:
         """Time and state (controllers' frame) where the trajectory from ``x0`` at ``t0``
-        crosses the true synodic x-z plane (``y_syn = 0``) near ``t_guess``: Newton on
-        ``y_syn(t)`` with ``dy_syn/dt = vy_syn`` (short propagations)."""
+        crosses the true synodic x-z plane (``y_syn = 0``) near ``t_guess``: the sign change
+        nearest ``t_guess`` on a 15-minute grid over +-24 h, then Newton on ``y_syn(t)`` with
+        ``dy_syn/dt = vy_syn`` (short propagations); :class:`SolverError` if there is none."""
         from ocreach.dynamics.flow import propagate
 
         p = self.params if p is None else p
@@ -244,8 +245,23 @@ class Scenario:
             return propagate(self.model, x, np.zeros((1, 3)), [ta, tb], p=p, rtol=RTOL,
                              atol=ATOL)[-1]
 
-        t = float(t_guess)
-        x = flow(x0, t0, t)
+        # bracket: the sign change of y_syn nearest t_guess on a 15-min grid within +-24 h
+        # (after t0): Newton from a guess hours off (a drifted phase) can jump revolutions
+        h = 900.0 / self.units.time
+        grid = t_guess + h * np.arange(-96, 97)
+        grid = grid[grid > t0]
+        t, x = float(t_guess), None
+        if grid.size >= 2:
+            start = flow(x0, t0, grid[0])
+            X = propagate(self.model, start, np.zeros((grid.size - 1, 3)), grid, p=p,
+                          rtol=RTOL, atol=ATOL)
+            y = np.array([self.synodic(tt, xx)[1] for tt, xx in zip(grid, X, strict=True)])
+            s = np.flatnonzero(np.sign(y[:-1]) != np.sign(y[1:]))
+            if s.size:
+                j = int(s[np.argmin(np.abs(grid[s] - t_guess))])
+                t, x = float(grid[j]), X[j]
+        if x is None:
+            x = flow(x0, t0, t)
         for _ in range(20):
             q = self.synodic(t, x)
             if abs(q[1]) < 1e-12:
