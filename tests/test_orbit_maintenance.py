@@ -77,8 +77,13 @@ def test_bad_input_fails_before_any_work(tmp_path, monkeypatch):
                      ({"controllers": "xaxis,bogus"}, "controller")):
         with pytest.raises(ProblemError, match=word):
             maintenance_report.orbit_maintenance_report(p, out, **kw)
-    assert main(["report", "orbit-maintenance", "--problem", "nrho-9-2", "--runs", "0",
-                 "--out", str(out)]) == 2
+    for argv in (["--runs", "0"], ["--years", "-1"], ["--workers", "0"],
+                 ["--set", "area_to_mass=-0.1"], ["--set", "burn_anomaly_deg=360"],
+                 ["--set", "burn_anomaly_deg=-5"], ["--set", "nav_position_sigma_km=-1"],
+                 ["--set", "magnitude_sigma=-0.01"], ["--set", "pointing_sigma_deg=-1"],
+                 ["--controllers", "xaxis,bogus"]):
+        assert main(["report", "orbit-maintenance", "--problem", "nrho-9-2", *argv,
+                     "--out", str(out)]) == 2, argv
     assert not any(tmp_path.iterdir())
 
 
