@@ -24,6 +24,12 @@ SOURCES: list[dict] = [
      "determination, and attitude control for spacecraft in near rectilinear halo orbits', "
      "AAS 18-388, 2018", "available": "abstract only (NTRS 20180006800)", "value": None,
      "note": "finite maneuvers, skipped maneuvers, perturbations, DSN OD; no number stored"},
+    {"key": "davis2017b", "cite": "Davis, Phillips, Howell, Vutukuri & McCarthy, "
+     "'Stationkeeping and transfer trajectory design for spacecraft in cislunar space', "
+     "AAS 17-826, 2017", "available": "abstract and introduction only (docslib 5389829; "
+     "sciencedocbox transcription)", "value": None,
+     "note": "NRHOs in high-fidelity force models and their stationkeeping cost; no number in "
+     "the stored text"},
     {"key": "fu2021", "cite": "Fu, Baresi & Armellin, 'A high-order target point approach to "
      "the stationkeeping of near rectilinear halo orbits', 2021",
      "available": "title only (a library listing)", "value": None, "note": "no number stored"},
@@ -48,9 +54,16 @@ SOURCES: list[dict] = [
                "execution_1sigma": 0.01, "min_burn_mps": 0.01},
      "note": "9:2 NRHO in a full ephemeris model with SRP and lunar gravity harmonics; 3.68 "
      "m/s per year when the reference ignores the lunar harmonics (a model mismatch)"},
+    {"key": "ijae2022", "cite": "'Continuous-thrust station-keeping of cis-lunar orbits using "
+     "optimal sliding mode control with practical constraints', International Journal of "
+     "Aerospace Engineering 2022, article 5518728, Table 5", "available": "the table",
+     "value": {"annual_cost_mps_all_limits": 23.8698, "annual_cost_mps_no_navigation_error":
+               14.1253, "annual_cost_mps_no_limitation": 3.0066, "success_rate_all_limits": 0.995},
+     "note": "9:2 NRHO, continuous thrust (sliding mode control): the navigation error alone "
+     "accounts for about 10 m/s per year of a continuous controller's cost"},
     {"key": "shimane2025", "cite": "Shimane, Di Cairano, Ho & Weiss, 'Revolution-spaced "
      "output-feedback model predictive control for station keeping on near-rectilinear halo "
-     "orbits', 2025 (arXiv 2502.05013)", "available": "abstract; a secondary summary",
+     "orbits', 2025 (arXiv 2502.05013)", "available": "abstract (arXiv html v2: 'a similar cumulative cost' to x-axis control, no number in the stored excerpt); a secondary summary",
      "value": {"phase_drift_h_5yr": 2.1}, "note": "x-axis crossing control lets the phase "
      "drift (about 2.1 h of perilune epoch over 5 years, Fig. 4 via the summary)"},
 ]
