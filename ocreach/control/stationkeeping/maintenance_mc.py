@@ -45,9 +45,11 @@ def task_spec(settings: MaintenanceSettings, controllers: dict[str, dict], runs:
     if not controllers:
         raise ProblemError("controllers must name at least one controller")
     plain = settings.to_dict()
+    # run by run (every controller's run i before run i + 1): an interrupted Monte Carlo keeps
+    # comparable runs of every controller, on the same draws
     tasks = [{"kind": TASK_KIND, "settings": plain, "controller": name,
               "options": dict(opts), "run": i}
-             for name, opts in controllers.items() for i in range(runs)]
+             for i in range(runs) for name, opts in controllers.items()]
     raw = {"name": f"orbit maintenance {settings.scenario.problem}",
            "description": f"{runs} runs x {list(controllers)}", "settings": plain,
            "controllers": controllers, "runs": runs}
