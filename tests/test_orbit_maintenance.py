@@ -276,6 +276,16 @@ def test_interrupted_monte_carlo_resumes_from_its_store(tmp_path, short):
     assert mc.records["xaxis"][0]["dv_total_mps"] == again["dv_total_mps"]  # seeded
 
 
+def test_monte_carlo_runs_run_by_run_across_the_controllers(short):
+    """An interrupted Monte Carlo keeps comparable runs: run i of every controller is queued
+    before run i + 1 of any."""
+    from ocreach.control.stationkeeping.maintenance_mc import task_spec
+
+    spec = task_spec(short[0], {"xaxis": {}, "lqr": {}}, 2)
+    assert [(t["run"], t["controller"]) for t in spec.tasks] == [
+        (0, "xaxis"), (0, "lqr"), (1, "xaxis"), (1, "lqr")]
+
+
 def test_report_writes_the_folder_as_a_unit(tmp_path, short):
     import ocreach
     from ocreach.control.stationkeeping.maintenance_report import (
