@@ -38,6 +38,7 @@ from scipy.integrate import solve_ivp
 from ocreach.control.stationkeeping import MaintenanceSettings, make_controller, run_maintenance
 from ocreach.control.stationkeeping.scenario import ATOL, RTOL, scenario
 from ocreach.fileio import replace_markdown_section
+from ocreach.outdir import benchmarks_doc
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
@@ -147,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     text = markdown(plant, loop, mc)
     print(text)
     if args.write:
-        replace_markdown_section(DOCS, text)
+        replace_markdown_section(benchmarks_doc(DOCS), text)
     return 0
 
 

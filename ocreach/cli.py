@@ -310,6 +310,9 @@ def cmd_report(args: argparse.Namespace) -> int:
             opts[name] = getattr(args, name)
     if args.kind in ("station-keeping", "orbit-maintenance"):
         opts.setdefault("progress", True)
+    check = getattr(report_fn, "check_arguments", None)
+    if check is not None:  # every argument checked before the folder's temporary twin exists
+        opts = {**check(problem, target, **opts), "as_unit": False}
     out = OutputDir(target)
     mark = Stages()
     done: dict = {}

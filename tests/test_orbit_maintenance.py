@@ -306,3 +306,21 @@ def test_report_writes_the_folder_as_a_unit(tmp_path, short):
     assert "Delta-V per year, 95th percentile" in md and "CAPSTONE" in md
     assert res["store"] == str(tmp_path / "om.runs")
     assert not list(tmp_path.glob(".om.tmp-*"))
+
+
+def test_cli_report_is_written_as_a_unit_with_its_store_beside_it(tmp_path, short):
+    """``ocreach report orbit-maintenance`` writes the folder through the CLI's temporary twin;
+    the store is named after the folder (so the same command resumes), not after the twin."""
+    from ocreach.cli import main
+
+    out = tmp_path / "om"
+    argv = ["report", "orbit-maintenance", "--problem", "nrho-9-2", "--runs", "1", "--years",
+            str(SHORT["years"]), "--controllers", "lqr", "--set",
+            f"lookahead={SHORT['lookahead']}", "--set", "serial=True", "--set",
+            "progress=False", "--out", str(out)]
+    assert main(argv) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["om", "om.runs"]
+    data = json.loads((out / "metrics.json").read_text())
+    assert data["store"] == str(tmp_path / "om.runs") and data["summary"]["lqr"]["runs"] == 1
+    assert main(argv) == 0  # the same command again: the run comes from the store
+    assert json.loads((out / "metrics.json").read_text())["timing"]["already_finished"] == 1

@@ -9,7 +9,7 @@
 runs :func:`~ocreach.control.stationkeeping.maintenance_mc.run_monte_carlo` (its store, the
 resumable sweep folder, is ``DIR.runs`` next to the report unless ``--set store=PATH``; an
 interrupted run is continued by the same command) and writes ``DIR`` as a unit
-(:class:`ocreach.outdir.OutputDir`): ``metrics.json`` (settings, sources, per controller the
+(:func:`ocreach.outdir.write_as_unit`): ``metrics.json`` (settings, sources, per controller the
 summary and every run's metrics), ``report.md`` (the table and the comparison with the
 published budgets) and the figures ``delta_v_histogram.png``, ``deviation_envelope.png`` and
 ``burns_on_orbit.png``.  ``--set`` takes the options of
@@ -45,14 +45,16 @@ FIGURES = ("delta_v_histogram.png", "deviation_envelope.png", "burns_on_orbit.pn
 
 
 def parse_controllers(controllers: Any, options: dict[str, Any]) -> dict[str, dict]:
-    """``controllers`` (comma-separated or a sequence) with the ``CONTROLLER.NAME`` entries of
-    ``options`` (removed from it) as their options, every one checked by constructing it."""
+    """``controllers`` (comma-separated, a sequence, or a dict of name -> options) with the
+    ``CONTROLLER.NAME`` entries of ``options`` (removed from it) as their options, every one
+    checked by constructing it."""
     names = ([c.strip() for c in controllers.split(",") if c.strip()]
              if isinstance(controllers, str) else list(controllers))
     if not names or len(set(names)) != len(names):
         raise ProblemError(f"controllers must name distinct controllers from {list(CONTROLLERS)}; "
                            f"got {controllers!r}")
-    out: dict[str, dict] = {n: {} for n in names}
+    given = controllers if isinstance(controllers, dict) else {}
+    out: dict[str, dict] = {n: dict(given.get(n) or {}) for n in names}
     for key in [k for k in options if "." in k]:
         name, _, opt = key.partition(".")
         if name not in out:
@@ -64,19 +66,21 @@ def parse_controllers(controllers: Any, options: dict[str, Any]) -> dict[str, di
     return out
 
 
-def orbit_maintenance_report(problem, out_dir: str | Path, *, runs: int = 100,
-                             years: float = 1.0, controllers: Any = DEFAULT_CONTROLLERS,
-                             workers: int | None = None, dask_local: int | None = None,
-                             scheduler: str | None = None, store: str | None = None,
-                             serial: bool = False, progress: bool = True,
-                             **options: Any) -> dict:
-    """Run the Monte Carlo for ``problem`` and write the report folder ``out_dir`` (module
-    doc): ``runs`` per controller of ``years`` each; ``workers`` (a local process pool, default
-    the core count), ``dask_local`` (a Dask LocalCluster of that many workers), ``scheduler``
-    (a Dask address) or ``serial``; ``store`` the resumable Monte Carlo folder (default
-    ``out_dir.runs``).  Returns the summary (per controller) and where everything went."""
-    from ocreach.outdir import OutputDir, check_output_dir
+def check_report_arguments(problem, out_dir: str | Path, *, runs: int = 100,
+                           years: float = 1.0, controllers: Any = DEFAULT_CONTROLLERS,
+                           workers: int | None = None, dask_local: int | None = None,
+                           scheduler: str | None = None, store: str | None = None,
+                           serial: bool = False, progress: bool = True,
+                           **options: Any) -> dict[str, Any]:
+    """Every argument of :func:`orbit_maintenance_report` checked, nothing created or run:
+    the counts, the executor choice, the controllers and their options, the settings, the
+    problem (no overrides), ``out_dir`` and the store (new, empty or this Monte Carlo's own;
+    default ``out_dir.runs``).  Returns the keyword arguments with ``store`` filled in (what
+    ``ocreach report`` passes on after it has made the folder's temporary twin)."""
+    from ocreach.control.stationkeeping.maintenance_mc import task_spec
+    from ocreach.outdir import check_output_dir
     from ocreach.registry import get_problem
+    from ocreach.sweep.store import Store
 
     runs = check_count("runs (Monte Carlo runs per controller)", runs, 1)
     for nm, v in (("workers", workers), ("dask_local", dask_local)):
@@ -96,36 +100,79 @@ def orbit_maintenance_report(problem, out_dir: str | Path, *, runs: int = 100,
     target = check_output_dir(out_dir)
     store = Path(store) if store is not None else target.with_name(target.name + ".runs")
     check_output_dir(store, "store")
+    Store.check(store, task_spec(settings, ctl, runs))  # a foreign folder: refused here
+    return {"runs": runs, "years": years, "controllers": ctl, "workers": workers,
+            "dask_local": dask_local, "scheduler": scheduler, "store": str(store),
+            "serial": serial, "progress": progress, **{k: v for k, v in options.items()}}
+
+
+def orbit_maintenance_report(problem, out_dir: str | Path, *, runs: int = 100,
+                             years: float = 1.0, controllers: Any = DEFAULT_CONTROLLERS,
+                             workers: int | None = None, dask_local: int | None = None,
+                             scheduler: str | None = None, store: str | None = None,
+                             serial: bool = False, progress: bool = True,
+                             as_unit: bool = True, **options: Any) -> dict:
+    """Run the Monte Carlo for ``problem`` and write the report folder ``out_dir`` (module
+    doc): ``runs`` per controller of ``years`` each; ``workers`` (a local process pool, default
+    the core count), ``dask_local`` (a Dask LocalCluster of that many workers), ``scheduler``
+    (a Dask address) or ``serial``; ``store`` the resumable Monte Carlo folder (default
+    ``out_dir.runs``).  Every argument is checked first (:func:`check_report_arguments`).
+    ``as_unit``: write ``out_dir`` as a unit (:func:`ocreach.outdir.write_as_unit`); False
+    when the caller does (``ocreach report`` writes into the folder's temporary twin).
+    Returns the summary (per controller) and where everything went."""
+    from ocreach.outdir import OutputDir, Stages, write_as_unit
+
+    kw = check_report_arguments(problem, out_dir, runs=runs, years=years,
+                                controllers=controllers, workers=workers,
+                                dask_local=dask_local, scheduler=scheduler, store=store,
+                                serial=serial, progress=progress, **options)
+    if not as_unit:
+        return _write_report(problem, Path(out_dir), **kw)
+    out, mark, done = OutputDir(out_dir), Stages(), {}
+
+    def work() -> None:
+        mark("orbit-maintenance")
+        done["result"] = _write_report(problem, out.path, **kw)
+
+    if write_as_unit(out, mark, work) is not None:  # Ctrl-C: the partial files are kept
+        raise KeyboardInterrupt
+    return {**done["result"], "out": str(out.target)}
+
+
+#: ``ocreach report`` checks every argument before it creates the folder's temporary twin
+orbit_maintenance_report.check_arguments = check_report_arguments  # type: ignore[attr-defined]
+
+
+def _write_report(problem, folder: Path, *, runs: int, years: float, controllers: dict,
+                  workers, dask_local, scheduler, store: str, serial: bool, progress: bool,
+                  **options: Any) -> dict:
+    """The Monte Carlo (resumed from ``store``) and the report's files written into ``folder``
+    (arguments as :func:`check_report_arguments` returns them)."""
+    from ocreach.fileio import atomic_write_text, json_text
+
+    settings = MaintenanceSettings.from_options(problem=problem.id, years=years, **options)
     try:
-        mc = run_monte_carlo(settings, ctl, runs, store, workers=workers, dask_local=dask_local,
-                             scheduler=scheduler, serial=serial, progress=progress)
+        mc = run_monte_carlo(settings, controllers, runs, store, workers=workers,
+                             dask_local=dask_local, scheduler=scheduler, serial=serial,
+                             progress=progress)
     except KeyboardInterrupt:
         print(f"interrupted: the finished runs are kept in {store}; the same command continues "
               f"from there", file=sys.stderr)
         raise
     data = {"problem": problem.id, "runs": runs, "years": settings.scenario.years,
             "settings": settings.to_dict(), "controllers": {
-                n: make_controller(n, o).describe() for n, o in ctl.items()},
+                n: make_controller(n, o).describe() for n, o in controllers.items()},
             "summary": mc.summary, "failures": mc.failures, "timing": mc.timing,
             "store": str(store), "sources": SOURCES,
             "published_budgets": {"capstone_dv_per_year_mps": CAPSTONE_DV_PER_YEAR_MPS,
                                   "capstone_dv_per_rev_mps": CAPSTONE_DV_PER_REV_MPS,
                                   "zhang2022_dv_per_year_mps": ZHANG2022_DV_PER_YEAR_MPS},
             "runs_metrics": {n: [_compact(r) for r in rs] for n, rs in mc.records.items()}}
-    _add_tube_log(data, settings, ctl)
-    out = OutputDir(target)
-    try:
-        from ocreach.fileio import atomic_write_text, json_text
-
-        atomic_write_text(out.path / "metrics.json", json_text(data))
-        atomic_write_text(out.path / "report.md", markdown(data))
-        figures(mc.records, settings, out.path)
-        out.commit()
-    except BaseException:
-        if out.done is None:
-            out.keep_partial("failed while writing the report")
-        raise
-    return {"summary": mc.summary, "out": str(target), "store": str(store),
+    _add_tube_log(data, settings, controllers)
+    atomic_write_text(folder / "metrics.json", json_text(data))
+    atomic_write_text(folder / "report.md", markdown(data))
+    figures(mc.records, settings, folder)
+    return {"summary": mc.summary, "out": str(folder), "store": str(store),
             "files": ["metrics.json", "report.md", *FIGURES], "timing": mc.timing}
 
 
@@ -310,5 +357,5 @@ def figures(records: dict[str, list[dict]], settings: MaintenanceSettings, folde
     save_figure(fig, folder / FIGURES[2])
 
 
-__all__ = ["DEFAULT_CONTROLLERS", "FIGURES", "markdown", "orbit_maintenance_report",
-           "parse_controllers"]
+__all__ = ["DEFAULT_CONTROLLERS", "FIGURES", "check_report_arguments", "markdown",
+           "orbit_maintenance_report", "parse_controllers"]
