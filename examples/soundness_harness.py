@@ -58,9 +58,11 @@ Set the class attribute `guaranteed = True` on the method (`ocreach.reach.base.M
 read before anything is solved) and register it in `METHOD_PATHS`; the CI profile and this long
 profile then run it on every generated system and bundled problem, with its default options,
 and its results must say `meta["guaranteed"] = True`.  A hybrid automaton (a problem with an
-`automaton`) is reported `no-truth` -- a failure -- until a truth through the automaton's
-transitions joins `ocreach.testing.truth`; a result without sets on the time grid is reported
-`no-sets`.  A set type other than zonotopes, boxes, their unions and polynomial zonotopes is
+`automaton`) is checked through its transitions (`ocreach.testing.truth.hybrid_truth`: each run
+alone through SciPy's DOP853 with the guards and invariants as event functions; every state, and
+the states just before and after each jump, against the flowpipe pieces of its location that
+cover its time); a hybrid result without pieces is reported `no-truth` and a result without sets
+on the time grid `no-sets` (failures).  A set type other than zonotopes, boxes, their unions and polynomial zonotopes is
 checked by its support function only (weaker; the table would say so).
 """
 

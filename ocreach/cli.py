@@ -23,6 +23,7 @@ from ocreach.outdir import Stages, write_as_unit
 
 #: Modules that add commands: each has ``register(subparsers) -> None``.  One line per module.
 COMMAND_MODULES: list[str] = [
+    "ocreach.arch.cli",
     "ocreach.custody.cli",
     "ocreach.sweep.cli",
 ]
@@ -37,6 +38,8 @@ BENCH_PEERS: dict[str, list[tuple[str, str]]] = {
 REPORT_KINDS: dict[str, str] = {
     "lqr-vs-mpc": "ocreach.control.report:lqr_vs_mpc_report",
     "station-keeping": "ocreach.control.stationkeeping.report:station_keeping_report",
+    "orbit-maintenance":
+        "ocreach.control.stationkeeping.maintenance_report:orbit_maintenance_report",
 }
 
 
@@ -299,8 +302,17 @@ def cmd_report(args: argparse.Namespace) -> int:
         opts["plant"] = args.plant
     if getattr(args, "reference", None):
         opts["reference"] = args.reference
-    if args.kind == "station-keeping":
+    for name in ("runs", "years", "workers", "dask_local"):
+        if getattr(args, name, None) is not None:
+            if args.kind != "orbit-maintenance":
+                raise ProblemError(f"--{name.replace('_', '-')} is an option of the "
+                                   f"orbit-maintenance report; got it with {args.kind!r}")
+            opts[name] = getattr(args, name)
+    if args.kind in ("station-keeping", "orbit-maintenance"):
         opts.setdefault("progress", True)
+    check = getattr(report_fn, "check_arguments", None)
+    if check is not None:  # every argument checked before the folder's temporary twin exists
+        opts = {**check(problem, target, **opts), "as_unit": False}
     out = OutputDir(target)
     mark = Stages()
     done: dict = {}
@@ -313,7 +325,9 @@ def cmd_report(args: argparse.Namespace) -> int:
     if rc is not None:
         return rc
     print(json.dumps(done["metrics"], indent=2, default=str))
-    print(f"wrote {out.target}: report.md, report.html, metrics.json and figures")
+    files = done["metrics"].get("files") if isinstance(done["metrics"], dict) else None
+    print(f"wrote {out.target}: " + (", ".join(files) if files else
+                                     "report.md, report.html, metrics.json and figures"))
     return 0
 
 
@@ -402,7 +416,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--problem", default="l2-halo")
     rp.add_argument("--out")
     rp.add_argument("--set", action="append", metavar="KEY=VALUE")
-    rp.add_argument("--controllers", help="station-keeping: e.g. event-mpc,tube-mpc,mpc,lqr")
+    rp.add_argument("--controllers", help="station-keeping: e.g. event-mpc,tube-mpc,mpc,lqr; "
+                    "orbit-maintenance: e.g. xaxis,target-point,tube-mpc,lqr")
     rp.add_argument("--revolutions", type=float, help="station-keeping: revolutions (default 10)")
     rp.add_argument("--plant", choices=["cr3bp", "ephemeris"],
                     help="station-keeping: true plant (default cr3bp; ephemeris: DE421 point "
@@ -410,6 +425,13 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--reference", choices=["cr3bp", "ephemeris"],
                     help="station-keeping: reference orbit (default cr3bp; ephemeris: the orbit "
                          "corrected in the DE421 plant, needs --plant ephemeris, controllers mpc,lqr)")
+    rp.add_argument("--runs", type=int, help="orbit-maintenance: Monte Carlo runs per controller "
+                    "(default 100)")
+    rp.add_argument("--years", type=float, help="orbit-maintenance: years per run (default 1)")
+    rp.add_argument("--workers", type=int, help="orbit-maintenance: local worker processes "
+                    "(default: the core count)")
+    rp.add_argument("--dask-local", type=int, dest="dask_local", metavar="N",
+                    help="orbit-maintenance: a Dask LocalCluster of N workers instead")
     rp.set_defaults(func=cmd_report)
 
     b = sub.add_parser("bench", help="run the benchmarks in benchmarks/")

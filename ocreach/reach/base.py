@@ -177,6 +177,9 @@ class Method:
     def check_before(self, problem: Problem) -> None:
         """Raise :class:`ProblemError` before any work if the method does not apply or the run
         would exceed ``max_memory_gb``."""
+        from ocreach.hybrid import check_hybrid
+
+        check_hybrid(problem)  # a method's solve() would ignore the automaton
         ok, why = self.applicable_with_options(problem)
         if not ok:
             raise ProblemError(f"method {self.name!r} does not apply to problem {problem.id!r}: {why}")
@@ -309,7 +312,8 @@ def reach(problem: Problem | str, method: str, *, threads: int | None = None,
 
     Options not given fall back to the problem's ``method_options[method]`` and then to the
     method's defaults.  ``ocreach.reach(p, "stt", h_max=400)`` is sugar for
-    ``STTReach(h_max=400).solve(p)``.  ``threads``: threads of the native batch kernels (default
+    ``STTReach(h_max=400).solve(p)``.  A :class:`~ocreach.hybrid.HybridProblem` is solved through
+    its automaton (:func:`ocreach.reach.hybrid.reach_hybrid`).  ``threads``: threads of the native batch kernels (default
     :func:`ocreach.parallel.threads`); the method runs under the BLAS thread limit of
     :func:`ocreach.parallel.blas_limit` (neither changes results).
     """
@@ -319,6 +323,13 @@ def reach(problem: Problem | str, method: str, *, threads: int | None = None,
 
     if not isinstance(problem, Problem):
         problem = get_problem(str(problem))
+    from ocreach.hybrid import HybridProblem
+
+    if isinstance(problem, HybridProblem):  # follow the automaton's transitions
+        from ocreach.reach.hybrid import reach_hybrid
+
+        with parallel.settings(threads=threads):
+            return reach_hybrid(problem, method, method_class(method), **options)
     cls = method_class(method)
     merged = {**problem.options_for(method), **options}
     with parallel.settings(threads=threads):

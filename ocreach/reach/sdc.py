@@ -201,6 +201,11 @@ class SDCZonotope(Method):
             self.dev_order = float(check_count("dev_order", self.dev_order, 1))
 
     def solve(self, problem: Problem) -> ReachResult:
+        return self.reacher(problem).run()
+
+    def reacher(self, problem: Problem) -> ZonotopeReach:
+        """The propagator of ``problem`` (checked), run by :meth:`solve` and stepped by the
+        hybrid runner (:mod:`ocreach.reach.hybrid`)."""
         check_smooth(problem.model)
         check_sdc_model(problem.model)
         initial_zonotope(problem)
@@ -209,5 +214,4 @@ class SDCZonotope(Method):
         meta = {"alg": "ct", "base": o.base}
         if o.base == "origin":
             meta.update({"guaranteed": False, "unsound_reason": UNSOUND_REASON})
-        res = ZonotopeReach(self, problem, o, err, meta).run()
-        return res
+        return ZonotopeReach(self, problem, o, err, meta)

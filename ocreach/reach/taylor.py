@@ -381,6 +381,35 @@ class ZonotopeReach:
     def _can_split(self, stats: dict) -> bool:
         return self.opts.split and stats["n_parts"] < self.opts.max_parts
 
+    def initial_parts(self) -> list[Part]:
+        """The parts :meth:`run` starts from: the problem's initial set, one part."""
+        return [Part(Z=self.initial_set())]
+
+    def advance_grid_step(self, parts: list[Part], t0: float, t1: float
+                          ) -> tuple[list[Part], list[Zonotope], dict[str, Any], StepFail | None]:
+        """Carry every part from ``t0`` to ``t1`` (sub-steps, halvings, splits): the parts at
+        ``t1``, the sub-step tubes, the step's statistics and the failure that ended it (None if
+        the step succeeded).  One grid step of :meth:`run`; the hybrid runner steps with it."""
+        stats = {"iterations": 0, "substeps": 0, "err": np.zeros(self.problem.model.n_x),
+                 "n_parts": len(parts), "splits": 0}
+        queue = list(parts)
+        done: list[Part] = []
+        step_tubes: list[Zonotope] = []
+        while queue:
+            part = queue.pop()
+            new, tb, fail = self._advance(part, t0, t1, stats)
+            if fail is None:
+                done.append(new)
+                step_tubes.extend(tb)
+                continue
+            if self._can_split(stats) and self.can_split_set(part.Z):
+                queue += list(self.split_part(part))
+                stats["n_parts"] += 1
+                stats["splits"] += 1
+                continue
+            return done, step_tubes, stats, fail
+        return done, step_tubes, stats, None
+
     def run(self) -> ReachResult:
         prob = self.problem
         grid = prob.grid
@@ -388,31 +417,15 @@ class ZonotopeReach:
             raise ProblemError(f"problem {prob.id!r} has a backward grid; taylor/sdc propagate "
                                "forward in time only")
         t_start = time.perf_counter()
-        R0 = self.initial_set()
-        parts = [Part(Z=R0)]
-        sets: list[Any] = [self.as_set([R0])]
+        parts = self.initial_parts()
+        sets: list[Any] = [self.as_set([p.Z for p in parts])]
         tubes: list[Any] = []
         meta_steps: dict[str, list] = {"remainder": [], "iterations": [], "splits": [], "substeps": [],
                                        "parts": []}
         for k in range(grid.size - 1):
             t0, t1 = float(grid[k]), float(grid[k + 1])
-            stats = {"iterations": 0, "substeps": 0, "err": np.zeros(prob.model.n_x),
-                     "n_parts": len(parts), "splits": 0}
-            queue = list(parts)
-            done: list[Part] = []
-            step_tubes: list[Zonotope] = []
-            while queue:
-                part = queue.pop()
-                new, tb, fail = self._advance(part, t0, t1, stats)
-                if fail is None:
-                    done.append(new)
-                    step_tubes.extend(tb)
-                    continue
-                if self._can_split(stats) and self.can_split_set(part.Z):
-                    queue += list(self.split_part(part))
-                    stats["n_parts"] += 1
-                    stats["splits"] += 1
-                    continue
+            done, step_tubes, stats, fail = self.advance_grid_step(parts, t0, t1)
+            if fail is not None:
                 self._fail(k, t0, t1, fail, stats, sets, tubes, meta_steps, t_start)
             parts = done
             sets.append(self.as_set([p.Z for p in parts]))
@@ -543,10 +556,20 @@ class TaylorZonotope(Method):
             self.rk4_substeps = check_count("rk4_substeps", self.rk4_substeps, 1)
 
     def solve(self, problem: Problem) -> ReachResult:
+        if self.options.alg == "dt":
+            check_smooth(problem.model)
+            initial_zonotope(problem)  # wrong dimension -> clear error before any work
+            return DiscreteTaylor(self, problem, self.options, self.options.rk4_substeps).run()
+        return self.reacher(problem).run()
+
+    def reacher(self, problem: Problem) -> ZonotopeReach:
+        """The continuous-time propagator of ``problem`` (checked), run by :meth:`solve` and
+        stepped grid step by grid step by the hybrid runner (:mod:`ocreach.reach.hybrid`)."""
+        if self.options.alg != "ct":
+            raise ProblemError(f"taylor: the continuous-time propagator needs alg='ct'; got "
+                               f"alg={self.options.alg!r} (the RK4 map of 'dt' has no tubes)")
         check_smooth(problem.model)
         initial_zonotope(problem)  # wrong dimension -> clear error before any work
-        if self.options.alg == "dt":
-            return DiscreteTaylor(self, problem, self.options, self.options.rk4_substeps).run()
         err = TaylorError(problem.model, problem.params)
-        return ZonotopeReach(self, problem, self.options, err, {"alg": "ct"}).run()
+        return ZonotopeReach(self, problem, self.options, err, {"alg": "ct"})
 

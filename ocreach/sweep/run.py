@@ -66,7 +66,9 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
               dask_local: int | None = None, serial: bool = False, retry_failed: bool = False,
               max_in_flight: int | None = None, limit: int | None = None, chunk: int | None = None,
               progress: bool = True,
-              on_record: Callable[[dict[str, Any]], None] | None = None) -> RunSummary:
+              on_record: Callable[[dict[str, Any]], None] | None = None,
+              runner: Callable[[list[dict[str, Any]]], list[dict[str, Any]]] = run_tasks,
+              desc: str = "sweep") -> RunSummary:
     """Run the pending tasks of ``spec`` into the folder ``out`` (created when new).
 
     Executor choice: ``executor`` (any Executor), ``serial``, ``scheduler`` (Dask address),
@@ -74,7 +76,11 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
     the core count).  Tasks go out in chunks of ``chunk`` (default :func:`auto_chunk`; 1 for
     small sweeps) and at most ``max_in_flight`` chunks are submitted and unfinished (default
     twice the worker count); ``limit`` stops after that many new tasks; ``retry_failed`` reruns
-    failed ones; ``on_record`` is called with every record written.  Spec, folder and executor
+    failed ones; ``on_record`` is called with every record written; ``runner`` is the
+    module-level function a worker calls on a chunk of payloads ``{"key", "task", "base_dir"}``
+    (default :func:`~ocreach.sweep.worker.run_tasks`, ``reach`` tasks; another kind of task
+    brings its own, e.g. the orbit-maintenance Monte Carlo), ``desc`` the progress bar's
+    label.  Spec, folder and executor
     are all checked before the first task is submitted (the folder first: a foreign folder or
     an unreachable scheduler leaves nothing behind).
     """
@@ -106,7 +112,7 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
             size = chunk or auto_chunk(len(todo), handle.n_workers)
             chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
             _drive(spec, chunks, len(todo), store, handle, summary,
-                   max_in_flight or 2 * handle.n_workers, progress, on_record)
+                   max_in_flight or 2 * handle.n_workers, progress, on_record, runner, desc)
             return summary
     finally:
         if executor is None:
@@ -115,13 +121,15 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
 
 def _drive(spec: Spec, chunks: list[list[tuple[str, dict[str, Any]]]], n_tasks: int, store: Store,
            handle: ExecutorHandle, summary: RunSummary, bound: int, progress: bool,
-           on_record: Callable[[dict[str, Any]], None] | None) -> None:
+           on_record: Callable[[dict[str, Any]], None] | None,
+           runner: Callable[[list[dict[str, Any]]], list[dict[str, Any]]] = run_tasks,
+           desc: str = "sweep") -> None:
     from tqdm import tqdm
 
     pending = iter(chunks)
     in_flight: dict[Future, list[str]] = {}
     bar = tqdm(total=n_tasks, unit="task", disable=not progress, dynamic_ncols=True,
-               desc="sweep", file=sys.stderr)
+               desc=desc, file=sys.stderr)
 
     def submit_more() -> None:
         while len(in_flight) < bound:
@@ -130,7 +138,7 @@ def _drive(spec: Spec, chunks: list[list[tuple[str, dict[str, Any]]]], n_tasks: 
                 return
             payloads = [{"key": key, "task": task, "base_dir": spec.base_dir} for key, task in nxt]
             try:
-                fut = handle.executor.submit(run_tasks, payloads)
+                fut = handle.executor.submit(runner, payloads)
             except BrokenExecutor as exc:
                 raise SweepError(f"the executor ({handle.kind}) broke, e.g. a worker process died "
                                  f"({exc}); the finished records are kept, re-run to continue") from None

@@ -129,3 +129,36 @@ def _check_support(S, P: np.ndarray, eps: float) -> Verdict:
     ex_own = np.einsum("ij,ij->i", P, D) - h_own - eps
     escaped = (ex_axes > 0) | (ex_own > 0)
     return Verdict(np.where(escaped, np.inf, 1.0), escaped, np.zeros(P.shape[0], bool), False)
+
+
+def check_flowpipe(pieces, points: np.ndarray, times: np.ndarray, locations) -> Verdict:
+    """The verdict of every truth state of a hybrid automaton: row ``i`` of ``points`` (its
+    state and global time, the coordinates of the pieces) at ``times[i]`` in ``locations[i]``
+    is inside when some piece of that location whose time range contains ``times[i]`` (widened by
+    :func:`tolerance`) contains it (:func:`check_points`); its gauge is the least over those
+    pieces (inf where no piece covers its time)."""
+    P = np.atleast_2d(np.asarray(points, dtype=float))
+    t = np.asarray(times, dtype=float)
+    loc = np.asarray(locations, dtype=object)
+    N = P.shape[0]
+    g = np.full(N, np.inf)
+    inside = np.zeros(N, bool)
+    undecided = np.zeros(N, bool)
+    exact = True
+    eps = tolerance(t)
+    for pc in pieces:
+        idx = np.flatnonzero(~inside & (loc == pc.location) & (t >= pc.t_lo - eps)
+                             & (t <= pc.t_hi + eps))
+        if idx.size:  # a point outside the piece's box (enlarged) is not in the piece
+            box = pc.set.interval_hull()
+            pad = tolerance(P[idx]) * (1 + 1e-6)
+            idx = idx[np.all((P[idx] >= box.lo - pad) & (P[idx] <= box.hi + pad), axis=1)]
+        if idx.size == 0:
+            continue
+        v = check_points(pc.set, P[idx])
+        exact &= v.exact
+        g[idx] = np.minimum(g[idx], v.gauge)
+        inside[idx[~v.escaped & ~v.undecided]] = True
+        undecided[idx[v.undecided]] = True
+    undecided &= ~inside
+    return Verdict(g, ~inside & ~undecided, undecided, exact)

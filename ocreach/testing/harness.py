@@ -18,9 +18,11 @@ and every time-interval tube over ``[t_k, t_k+1]`` the states at the interior ti
 refuses a problem with :class:`ProblemError` has refused it cleanly (not an escape); one that stops
 with :class:`SolverError` has the sets of its ``err.partial`` checked; any other exception, a result
 on the wrong time grid, or a guaranteed method whose result is not marked guaranteed, is a failure.
-So is a hybrid automaton (a problem with an ``automaton``): the truth here integrates one
-location's dynamics, so such a problem is reported ``no-truth`` until a truth through the
-automaton's transitions joins :mod:`ocreach.testing.truth`, rather than passed unchecked.
+A hybrid automaton (a problem with an ``automaton``) is checked through its transitions: runs of
+the automaton (:func:`ocreach.testing.truth.hybrid_truth`: every run alone through SciPy's DOP853
+with the guards and invariants as event functions) at the grid and interior times and just
+before and after every jump, each against the flowpipe pieces of its location that cover its
+time (:func:`check_hybrid`); a hybrid result without pieces is ``no-truth`` (a failure).
 """
 from __future__ import annotations
 
@@ -34,8 +36,9 @@ import numpy as np
 
 from ocreach.errors import ProblemError, SolverError
 from ocreach.reach.base import Method, available_methods, method_class
-from ocreach.testing.containment import Verdict, check_points
-from ocreach.testing.truth import Rhs, Truth, integrate, model_rhs, samples
+from ocreach.testing.containment import Verdict, check_flowpipe, check_points
+from ocreach.testing.truth import (HybridTruth, Rhs, Truth, hybrid_truth, integrate, model_rhs,
+                                  samples)
 
 #: statuses of an :class:`Outcome` that are not failures (escapes aside)
 PASSING = ("complete", "partial", "refused")
@@ -60,6 +63,13 @@ class Case:
     kind: str
     description: str = ""
     _truth: dict = field(default_factory=dict, repr=False)
+
+    def hybrid_truth(self, n_samples: int, seed: int, inner: tuple[float, ...]) -> HybridTruth:
+        """The truth of a hybrid automaton's case: runs through its transitions (cached)."""
+        key = ("hybrid", n_samples, seed, inner)
+        if key not in self._truth:
+            self._truth[key] = hybrid_truth(self.problem, n_samples, seed=seed, inner=inner)
+        return self._truth[key]
 
     def truth(self, n_samples: int, seed: int, inner: tuple[float, ...], pieces: int) -> Truth:
         """The truth of this case (computed once per sampling and cached)."""
@@ -208,6 +218,17 @@ def check_result(result, truth: Truth, out: Outcome, tube_samples: int | None = 
         out.tubes_checked += 1
 
 
+def check_hybrid(result, truth: HybridTruth, out: Outcome) -> None:
+    """Check the flowpipe pieces of a hybrid ``result`` against the runs through the automaton
+    (:func:`ocreach.testing.truth.hybrid_truth`): every truth state, with its time, in a piece of
+    its location covering that time (:func:`ocreach.testing.containment.check_flowpipe`)."""
+    out.truth_failure = truth.failure
+    P = np.column_stack([truth.points, truth.times])
+    v = check_flowpipe(result.pieces, P, truth.times, truth.locations)
+    _record(out, v, "piece", 0, 0.0, truth.labels, P)
+    out.sets_checked += len(result.pieces)
+
+
 def run_method(method: str | type[Method], case: Case, *, n_samples: int = 60, seed: int = 0,
                inner: Sequence[float] = (0.5,), pieces: int = 2, tube_samples: int | None = None,
                options: dict[str, Any] | None = None) -> Outcome:
@@ -223,9 +244,15 @@ def run_method(method: str | type[Method], case: Case, *, n_samples: int = 60, s
         out.seconds = time.perf_counter() - t0
         return out
     if result is not None and getattr(case.problem, "automaton", None) is not None:
-        out.status = "no-truth"
-        out.reason = ("the problem is a hybrid automaton; the harness has no independent truth "
-                      "through its transitions yet, so its sets are not checked")
+        if not hasattr(result, "pieces"):
+            out.status = "no-truth"
+            out.reason = (f"the problem is a hybrid automaton and the result "
+                          f"({type(result).__name__}) has no flowpipe pieces to check")
+        elif (result.meta or {}).get("guaranteed") is not True:
+            out.status = "not-guaranteed"
+            out.reason = "the hybrid flowpipe is not marked guaranteed"
+        else:
+            check_hybrid(result, case.hybrid_truth(n_samples, seed, tuple(inner)), out)
     elif result is not None and not (hasattr(result, "sets") and hasattr(result, "times")):
         out.status = "no-sets"
         out.reason = (f"the result ({type(result).__name__}) has no sets on the time grid that "

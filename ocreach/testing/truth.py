@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -233,3 +234,155 @@ def integrate(rhs: Rhs, grid: np.ndarray, smp: Samples, inner: Sequence[float] =
                     interior[:, k, j] = X
         states[:, k + 1] = X
     return Truth(grid, states, inner, interior, smp.labels, K)
+
+
+# ------------------------------------------------------------------------------ hybrid automata
+@dataclass(frozen=True)
+class HybridTruth:
+    """Truth states of a hybrid automaton: ``points`` (M, n) with their global times ``times``
+    (M,), ``locations`` (M,) and the sample each came from (``labels``); the states at the grid
+    times, at the interior times ``inner`` of every step, and just before and after every jump.
+    ``blocked``: samples that reached an invariant's boundary with no enabled transition (their
+    states up to there are kept); ``jumps``: transitions taken."""
+
+    points: np.ndarray
+    times: np.ndarray
+    locations: tuple[str, ...]
+    labels: tuple[str, ...]
+    blocked: int = 0
+    jumps: int = 0
+    failure: str = ""
+
+
+#: a guard or invariant constraint holds at a state when its value is <= this (times 1 + |bound|)
+HYBRID_TOL = 1e-9
+#: probability of each end of a permissive transition's time window (the rest uniform inside)
+WINDOW_END = 0.15
+
+
+def _clock_window(region, clock: str) -> tuple[float, float]:
+    """The window ``[lo, hi]`` that the clock-only constraints of ``region`` allow."""
+    lo, hi = -np.inf, np.inf
+    for c in region:
+        if getattr(c, "names", None) == (clock,):
+            a = float(c.coeffs[0][1])
+            lo, hi = (lo, min(hi, c.bound / a)) if a > 0 else (max(lo, c.bound / a), hi)
+    return lo, hi
+
+
+def _holds(region, x: np.ndarray, t: float, names, tol: float = HYBRID_TOL) -> bool:
+    xa = np.r_[x, t][None, :]
+    return all(float(c.value(xa, names)[0]) <= tol * (1 + abs(float(getattr(c, "bound", 0.0))))
+               for c in region)
+
+
+def hybrid_truth(problem, n: int, seed: int = 0, inner: Sequence[float] = (0.5,),
+                 rtol: float = RTOL, atol: float = ATOL, max_jumps: int = 50) -> HybridTruth:
+    """About ``n`` runs of ``problem.automaton`` from vertices, the centre and the inside of the
+    initial set (inputs, if any, a constant vertex of the input set), each integrated alone by
+    SciPy's DOP853 with each location's :func:`model_rhs`: the urgent guards' and the invariant's
+    state constraints are event functions (a run jumps where an urgent guard starts to hold, or at
+    the invariant's boundary through an enabled transition, else it is blocked); a permissive
+    transition is taken at a time drawn in its window (each end with probability
+    :data:`WINDOW_END`).  Not the project's sampler (:func:`ocreach.reach.hybrid.simulate_hybrid`)
+    nor its compiled integrator."""
+    from ocreach.hybrid import CLOCK as clock
+
+    aut = problem.automaton
+    names = (*aut.state_names, clock)
+    grid = np.asarray(problem.grid, float)
+    T = float(grid[-1])
+    rng = np.random.default_rng(seed)
+    n_vertex = max(1, n // 2)
+    X0, where = initial_points(problem, n_vertex, max(1, n - n_vertex), rng)
+    nu = aut.locations[0].model.n_u
+    U0 = (problem.control_set.sample_boundary(rng, (X0.shape[0],)).reshape(X0.shape[0], nu)
+          if nu else np.zeros((X0.shape[0], 0)))
+    rhs = {loc.name: model_rhs(SimpleNamespace(model=loc.model, params=problem.params))
+           for loc in aut.locations}
+    rec_t = np.unique(np.r_[grid, [grid[k] + f * (grid[k + 1] - grid[k])
+                                   for k in range(grid.size - 1) for f in inner]])
+    pts, ts, locs, labels = [], [], [], []
+    blocked = jumps = 0
+
+    def record(x, t, loc, s):
+        pts.append(np.asarray(x, float).copy())
+        ts.append(float(t))
+        locs.append(loc)
+        labels.append(where[s])
+
+    for s in range(X0.shape[0]):
+        x, t, loc, u = X0[s].astype(float), float(grid[0]), problem.initial_location, U0[s]
+        record(x, t, loc, s)
+        for _ in range(max_jumps + 1):
+            L = aut.location(loc)
+            out = aut.outgoing(loc)
+            # the permissive jump drawn on entering the location
+            t_dec, tr_dec = np.inf, None
+            for tr in out:
+                if tr.urgent:
+                    continue
+                lo, hi = _clock_window(tr.guard, clock)
+                lo, hi = max(lo, t), min(hi, T)
+                if lo <= hi:
+                    v = rng.uniform()
+                    td = lo if v < WINDOW_END else hi if v < 2 * WINDOW_END else rng.uniform(lo, hi)
+                    if td < t_dec:
+                        t_dec, tr_dec = td, tr
+            inv_hi = _clock_window(L.invariant, clock)[1]
+            t_end = min(T, t_dec, inv_hi)
+            watch = [(c, -1) for tr in out if tr.urgent for c in tr.guard
+                     if getattr(c, "names", None) != (clock,)]
+            watch += [(c, +1) for c in L.invariant if getattr(c, "names", None) != (clock,)]
+            events = []
+            for c, direction in watch:
+                def ev(tt, y, c=c):
+                    return float(c.value(np.r_[y, tt][None, :], names)[0])
+                ev.terminal, ev.direction = True, direction
+                events.append(ev)
+            f = rhs[loc]
+            hit = False
+            if t_end > t:
+                t_eval = np.r_[rec_t[(rec_t > t) & (rec_t < t_end)], t_end]
+                sol = solve_ivp(lambda tt, y: f(tt, y[None, :], u[None, :])[0], (t, t_end), x,
+                                method="DOP853", rtol=rtol, atol=atol, events=events or None,
+                                t_eval=t_eval)
+                if sol.status < 0:
+                    return HybridTruth(np.array(pts), np.array(ts), tuple(locs), tuple(labels),
+                                       blocked, jumps, f"DOP853 failed in {loc!r}: {sol.message}")
+                for j in range(sol.t.size):
+                    record(sol.y[:, j], sol.t[j], loc, s)
+                hit = sol.status == 1
+                if hit:  # the first event (a terminal event ends the integration there)
+                    k = min((i for i, e in enumerate(sol.t_events) if e.size),
+                            key=lambda i: sol.t_events[i][0])
+                    x, t = sol.y_events[k][0].copy(), float(sol.t_events[k][0])
+                else:
+                    x, t = sol.y[:, -1].copy(), t_end
+            if not hit and t >= T:
+                break
+            if hit:
+                tr = next((tr for tr in out if tr.urgent and _holds(tr.guard, x, t, names)), None) \
+                    or next((tr for tr in out if _holds(tr.guard, x, t, names)), None)
+                if tr is None:
+                    if _holds(L.invariant, x, t, names):
+                        continue  # one constraint of a conjunctive guard: go on
+                    blocked += 1
+                    break
+            elif t >= t_dec:
+                tr = tr_dec if _holds(tr_dec.guard, x, t, names) else None
+                if tr is None:
+                    continue
+            else:  # the invariant's time bound
+                tr = next((tr for tr in out if _holds(tr.guard, x, t, names)), None)
+                if tr is None:
+                    blocked += 1
+                    break
+            record(x, t, loc, s)
+            x, loc = tr.reset.apply(x), tr.target
+            record(x, t, loc, s)
+            jumps += 1
+        else:
+            return HybridTruth(np.array(pts), np.array(ts), tuple(locs), tuple(labels), blocked,
+                               jumps, f"a run took more than max_jumps = {max_jumps} jumps")
+    return HybridTruth(np.array(pts), np.array(ts), tuple(locs), tuple(labels), blocked, jumps)

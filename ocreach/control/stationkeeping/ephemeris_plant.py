@@ -38,6 +38,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ocreach.control.common import saturate
+from ocreach.control.stationkeeping.srp import AU_KM, SolarRadiationPressure
 from ocreach.errors import ProblemError, SolverError
 
 #: Bodies of the default ephemeris plant (point masses; the Moon is the origin).
@@ -59,7 +60,11 @@ class EphemerisPlant:
     units and the parameters ``[mu, a_max]``); ``span_days``: days after the epoch the plant must
     cover (the ephemeris is refitted over it plus one day); ``bodies``: point masses, the Moon
     included; ``frame_acceleration``: as in :func:`~ocreach.models.ephemeris.ephemeris_inertial`;
-    ``circular``: the circular Earth-Moon stand-in.  ``step(x, u, w, t0, dt)`` has the interface of
+    ``circular``: the circular Earth-Moon stand-in.  ``srp``: a
+    :class:`~ocreach.control.stationkeeping.srp.SolarRadiationPressure` (cannonball solar radiation
+    pressure; the Sun must be among the ``bodies``), or None (default: no SRP).  With SRP the
+    frame model has a third parameter ``srp_scale`` (default 1: the nominal ``C_r A / m``; a run's
+    true value over the nominal).  ``step(x, u, w, t0, dt)`` has the interface of
     :class:`ocreach.control.simulate.Plant`.
     """
 
@@ -68,7 +73,7 @@ class EphemerisPlant:
     def __init__(self, reference, control_set_kind: str, velocity_dims: tuple[int, ...], *,
                  span_days: float, epoch=DEFAULT_EPOCH, bodies: Sequence[str] = DEFAULT_BODIES,
                  frame_acceleration: str = "modelled", rtol: float = 1e-10, atol: float = 1e-12,
-                 circular: bool = False) -> None:
+                 circular: bool = False, srp=None) -> None:
         from ocreach.ephemeris import CircularEarthMoon
         from ocreach.models.ephemeris import ephemeris_inertial
 
@@ -90,6 +95,14 @@ class EphemerisPlant:
                                f"got {list(bodies)}")
         if circular and set(bodies) != {"earth", "moon"}:
             bodies = ("moon", "earth")
+        if srp is not None:
+            if not isinstance(srp, SolarRadiationPressure):
+                raise ProblemError(f"srp must be a SolarRadiationPressure or None; got "
+                                   f"{type(srp).__name__}")
+            if "sun" not in bodies:
+                raise ProblemError(f"solar radiation pressure needs the Sun among the ephemeris "
+                                   f"bodies; got {list(bodies)}")
+        self.srp = srp
         self.mu, self.a_max = float(reference.params[0]), float(reference.params[1])
         self.t0 = float(reference.time(0))
         self.units = units
@@ -150,7 +163,11 @@ class EphemerisPlant:
         model.  It is the plant of :meth:`step` expressed in the controllers' coordinates (the
         dynamics of :mod:`ocreach.control.stationkeeping.ephemeris_reference`).  Cached on the plant's model.
         """
-        return self.model.cached(("cr3bp_frame_model", self.t0, self.mu), self._build_frame_model)
+        return self.model.cached(("cr3bp_frame_model", self.t0, self.mu, self._srp_key()),
+                                 self._build_frame_model)
+
+    def _srp_key(self) -> tuple | None:
+        return None if self.srp is None else tuple(sorted(self.srp.as_dict().items()))
 
     def frame_model_on(self, t_lo: float, t_hi: float):
         """:meth:`frame_model` for reference times ``t_lo <= t <= t_hi`` only, without the
@@ -174,7 +191,8 @@ class EphemerisPlant:
             model.cache["window_error"] = self._window_error(inertial.cache["window_seconds"])
             return model
 
-        return self.model.cached(("cr3bp_frame_model", self.t0, self.mu, window), build)
+        return self.model.cached(("cr3bp_frame_model", self.t0, self.mu, window, self._srp_key()),
+                                 build)
 
     def _window_error(self, win: tuple[float, float]) -> dict:
         """Rigorous bound on ``|f_full - f_window|`` (acceleration, DU/TU^2, 2-norm) of
@@ -232,6 +250,10 @@ class EphemerisPlant:
         if self.frame_acceleration == "ephemeris":
             dd = float(np.linalg.norm(eph.window_error_bound("moon", "ssb", *win, derivative=2)))
             total += dd * tu**2 / du_km
+        if self.srp is not None:  # the same d/|d|^3 form as the Sun's pull, at the largest scale
+            m1 = near["sun"] - delta["sun"] - radius
+            k = self._srp_unit_coefficient() * (1.0 + self.srp.uncertainty)
+            total += 2.0 * k * delta["sun"] / m1**3
         return {"acceleration": total * (1 + 1e-9), "radius": float(radius),
                 "centre": [1.0 - self.mu, 0.0, 0.0],
                 "position_km": {b: delta[b] * du_km for b in others}}
@@ -245,6 +267,7 @@ class EphemerisPlant:
         u = ca.SX.sym("u", 3)
         t = ca.SX.sym("t")
         mu, a_max = ca.SX.sym("mu"), ca.SX.sym("a_max")
+        params, names, p_default = [mu, a_max], ["mu", "a_max"], [self.mu, self.a_max]
         s = x[:3] - ca.vertcat(1 - mu, 0, 0)
         v = x[3:6]
         c, sn = ca.cos(t - self.t0), ca.sin(t - self.t0)
@@ -256,25 +279,52 @@ class EphemerisPlant:
         a_in = inertial.f_fun(y, ca.DM.zeros(3), t - self.t0, ca.DM(self._p))[3:6]
         acc = (ca.mtimes(C.T, a_in) + ca.vertcat(2 * v[1] + s[0], -2 * v[0] + s[1], 0)
                + a_max * u)
+        if self.srp is not None:
+            scale = ca.SX.sym("srp_scale")
+            params.append(scale)
+            names.append("srp_scale")
+            p_default.append(1.0)
+            win = inertial.cache.get("window_seconds")
+            du_km = self.units.length / 1e3
+            r_sun = self.ephemeris.position_expr("sun", self.units.time * (t - self.t0), "moon",
+                                                 window=win) / du_km
+            a_srp = self.srp.expression(ca.mtimes(C, s) - r_sun, du_km, self.units.acceleration,
+                                        scale)
+            acc = acc + ca.mtimes(C.T, a_srp)
         f = ca.cse(ca.vertcat(v, acc))
         units = self.units
         return Model.build(
-            "ephemeris-cr3bp-frame" + suffix, x, u, f, t=t, p=ca.vertcat(mu, a_max),
-            p_default=[self.mu, self.a_max], state_names=["x", "y", "z", "vx", "vy", "vz"],
-            control_names=["ux", "uy", "uz"], param_names=["mu", "a_max"], thrust_param="a_max",
+            "ephemeris-cr3bp-frame" + ("" if self.srp is None else "-srp") + suffix, x, u, f, t=t,
+            p=ca.vertcat(*params), p_default=p_default,
+            state_names=["x", "y", "z", "vx", "vy", "vz"],
+            control_names=["ux", "uy", "uz"], param_names=names, thrust_param="a_max",
             control_set=self.kind if self.kind in ("ball", "box") else "ball", units=units,
             state_units=units.state_labels(3),
             description=(f"DE421 point masses {list(self.bodies)} (Moon-centred: Patel & Scheeres "
-                         f"Eq. 11 plus the frame's indirect term) in the CR3BP rotating frame fixed at epoch {self.epoch} TDB"))
+                         f"Eq. 11 plus the frame's indirect term) in the CR3BP rotating frame fixed at epoch {self.epoch} TDB"
+                         + ("" if self.srp is None else
+                            f", cannonball SRP C_r = {self.srp.cr:g}, A/m = "
+                            f"{self.srp.area_to_mass:g} m^2/kg times srp_scale")))
+
+    def _srp_unit_coefficient(self) -> float:
+        """``C_r A/m P_1AU (1 AU)^2`` in model units (DU^3/TU^2): the SRP acceleration is this
+        times ``d / |d|^3``, ``d`` the Sun-to-spacecraft vector in DU."""
+        au = AU_KM / (self.units.length / 1e3)
+        return self.srp.coefficient / self.units.acceleration * au**2
 
     def step(self, x: np.ndarray, u: np.ndarray, w: np.ndarray, t0: float, dt: float) -> np.ndarray:
         f = self.model.f_fun
         acc_c = self.a_max * saturate(u, self.kind) + (self.E @ w)[3:6]
         p, u0, off, C0 = self._p, self._u0, self.t0, self.C0
+        k_srp = None if self.srp is None else self._srp_unit_coefficient()
+        du_km, tu = self.units.length / 1e3, self.units.time
 
         def rhs(t, y):
             d = np.asarray(f(y, u0, t - off, p)).ravel()
             d[3:6] += C0 @ (_rz(t - off) @ acc_c)
+            if k_srp is not None:  # nominal SRP (srp_scale 1)
+                rel = y[:3] - self.ephemeris.position("sun", tu * (t - off), "moon") / du_km
+                d[3:6] += k_srp * rel / np.linalg.norm(rel) ** 3
             d[6] = 0.0
             return d
 
@@ -287,13 +337,16 @@ class EphemerisPlant:
     def describe(self) -> dict:
         """Settings for metrics.json."""
         gm_e, gm_m = self.ephemeris.gm("earth"), self.ephemeris.gm("moon")
-        return {"plant": "ephemeris", "epoch": str(self.epoch), "bodies": list(self.bodies),
-                "circular": self.circular, "frame_acceleration": self.frame_acceleration,
-                "span_days": self.span_days,
-                "frame": "Moon-centred ICRF point masses (Patel & Scheeres Eq. 11 plus the Moon-centred frame's indirect term, DE421 refit); "
-                         "CR3BP states through the rotating frame fixed at the epoch (true "
-                         "Earth-Moon synodic axes at t0, uniform rotation 1 rad/TU)",
-                "mu_de421": float(gm_m / (gm_e + gm_m))}
+        out = {"plant": "ephemeris", "epoch": str(self.epoch), "bodies": list(self.bodies),
+               "circular": self.circular, "frame_acceleration": self.frame_acceleration,
+               "span_days": self.span_days,
+               "frame": "Moon-centred ICRF point masses (Patel & Scheeres Eq. 11 plus the Moon-centred frame's indirect term, DE421 refit); "
+                        "CR3BP states through the rotating frame fixed at the epoch (true "
+                        "Earth-Moon synodic axes at t0, uniform rotation 1 rad/TU)",
+               "mu_de421": float(gm_m / (gm_e + gm_m))}
+        if self.srp is not None:
+            out["srp"] = self.srp.as_dict()
+        return out
 
 
 __all__ = ["DEFAULT_BODIES", "DEFAULT_EPOCH", "PLANTS", "EphemerisPlant"]

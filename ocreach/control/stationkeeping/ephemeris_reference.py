@@ -175,7 +175,8 @@ def _check_revolutions(revolutions) -> int:
 
 def _cache_key(problem: Problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[float, float],
                revolutions: int, arcs: int, phase: float, bodies: tuple[str, ...], tol: float,
-               frame_acceleration: str, distance_ratio: float) -> tuple[str, dict]:
+               frame_acceleration: str, distance_ratio: float,
+               srp: dict | None = None) -> tuple[str, dict]:
     settings = {
         "version": _CACHE_VERSION, "problem": problem.id,
         "orbit_x0": np.asarray(problem.reference.x0, float).tolist(),
@@ -187,6 +188,8 @@ def _cache_key(problem: Problem, cr3bp_ref: TrackingReference, epoch_jd: tuple[f
         "tol": float(tol), "max_distance_ratio": float(distance_ratio),
         "frame_acceleration": frame_acceleration,
     }
+    if srp is not None:  # only with SRP: the keys of orbits without it stay what they were
+        settings["srp"] = srp
     digest = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:20]
     name = f"{problem.id}_rev{revolutions}_{digest}"
     return name, settings
@@ -252,7 +255,8 @@ def correct_orbit(problem: Problem, revolutions: int, *, epoch: Any = DEFAULT_EP
                   bodies: Sequence[str] = DEFAULT_BODIES, arcs_per_rev: int = 4,
                   tol: float = DEFECT_TOL, max_iter: int = 30, dt: float | None = None,
                   frame_acceleration: str = "modelled", patch_phase: float = 0.5,
-                  max_distance_ratio: float = 2.0, use_cache: bool = True) -> EphemerisOrbit:
+                  max_distance_ratio: float = 2.0, use_cache: bool = True,
+                  srp: Any = None) -> EphemerisOrbit:
     """The problem's CR3BP periodic orbit corrected into a ``revolutions``-revolution orbit of the
     DE421 plant from ``epoch`` (module doc).  ``arcs_per_rev`` patch points per revolution at the
     phases ``(j + patch_phase) / arcs_per_rev`` (module doc, step 1); ``dt`` the control step
@@ -260,7 +264,9 @@ def correct_orbit(problem: Problem, revolutions: int, *, epoch: Any = DEFAULT_EP
     :func:`~ocreach.control.reference.reference_from_problem`); ``max_distance_ratio``: the
     corrected orbit's closest and farthest distance from the Moon must be within this factor of
     the CR3BP orbit's (:func:`check_same_orbit`); ``use_cache``: read and write the disk cache
-    (a cached orbit is re-checked in the current dynamics).  Raises :class:`ProblemError` on bad
+    (a cached orbit is re-checked in the current dynamics); ``srp``: solar radiation pressure of
+    the plant (:class:`~ocreach.control.ephemeris_plant.EphemerisPlant`; the orbit is one of the
+    plant with it, at the nominal ``C_r A / m``).  Raises :class:`ProblemError` on bad
     input (an epoch outside DE421 included) and :class:`SolverError` if the correction does not
     converge."""
     from ocreach.ephemeris import parse_epoch
@@ -288,17 +294,19 @@ def correct_orbit(problem: Problem, revolutions: int, *, epoch: Any = DEFAULT_EP
     span_days = revolutions * M * cr.dt * problem.units.time / 86400.0
     plant = EphemerisPlant(cr, problem.control_set.kind, problem.velocity_dims,
                            span_days=span_days, epoch=epoch, bodies=bodies,
-                           frame_acceleration=frame_acceleration)  # checks the epoch's coverage
+                           frame_acceleration=frame_acceleration,
+                           srp=srp)  # checks the epoch's coverage
     model = plant.frame_model()
     steps = patch_steps(M, revolutions, arcs, patch_phase)
     times = cr.dt * steps
     name, settings = _cache_key(problem, cr, epoch_jd, revolutions, arcs, patch_phase,
-                                tuple(plant.bodies), tol, frame_acceleration, max_distance_ratio)
+                                tuple(plant.bodies), tol, frame_acceleration, max_distance_ratio,
+                                None if srp is None else srp.as_dict())
     cached = _cache_load(name, settings, steps.size) if use_cache else None
     if cached is not None and np.array_equal(cached["steps"], steps):
         # the key holds the settings, not the dynamics' code: re-check the stored patch points
         # in the dynamics of this run (one batch of arcs) before trusting them
-        F_now, _ = patch_defects(model, times, cached["states"], cr.params)
+        F_now, _ = patch_defects(model, times, cached["states"], model.p_default)
         if float(np.max(np.abs(F_now))) <= tol:
             return EphemerisOrbit(times, cached["states"], F_now, steps, cr.dt, cached["meta"],
                                   plant)
@@ -306,7 +314,8 @@ def correct_orbit(problem: Problem, revolutions: int, *, epoch: Any = DEFAULT_EP
                     "(largest defect %.3g > tol %g): recomputed", name,
                     float(np.max(np.abs(F_now))), tol)
     seed = cr.state(steps % M)
-    X, F, history = multiple_shooting(model, times, seed, cr.params, tol=tol, max_iter=max_iter)
+    X, F, history = multiple_shooting(model, times, seed, model.p_default, tol=tol,
+                                      max_iter=max_iter)
     shift = X - seed
     meta = {"settings": settings, "epoch": str(epoch), "iterations": len(history) - 1,
             "max_defect_history": history, "max_defect": float(np.max(np.abs(F))),

@@ -161,6 +161,10 @@ def interval_tubes(problem, reference: TrackingReference, a: int, b: int, G0: An
     if source != "linear":
         try:
             sound_ref = sound_reference(reference, a, b, method, model_on)
+        except SolverError as err:  # the window model's error bound cannot be computed there
+            if source == method:
+                raise
+            failure = err
         except ProblemError as err:
             if source == method:
                 raise ProblemError(f"tube source {source!r} cannot enclose the drift along "

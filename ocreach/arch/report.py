@@ -1,0 +1,227 @@
+"""Output of the ARCH suite: ``arch.csv`` in the ARCH-COMP result format (``benchmark, instance,
+result, time, accuracy, timesteps`` as in the repeatability packages' ``results.csv``),
+``arch.md`` (the table, the specs, the truth check), ``results.json`` (every row in full) and one
+figure per benchmark, as the reports draw them."""
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ocreach.outdir import OutputDir
+from ocreach.fileio import atomic_write_text, json_text
+from ocreach.specs import Linear, support_bound
+
+CSV_HEADER = ["benchmark", "instance", "result", "time", "accuracy", "timesteps"]
+
+#: per benchmark: ("time", coefficients of the plotted quantity, its label, reference lines) or
+#: ("plane", [(x name, y name), ...], reference lines); the axes of the reports' figures
+FIGURES: dict[str, tuple] = {
+    "CVDP20": ("plane", [("x1", "y1"), ("x2", "y2")], {"y": [2.75, 4.05]}),
+    "CVDP23": ("plane", [("x1", "y1"), ("x2", "y2")], {"y": [2.75]}),
+    "LALO20": ("time", {"x4": 1.0}, "x4", [4.5, 5.0]),
+    "QUAD20": ("time", {"x3": 1.0}, "x3 (height)", [1.4, 0.9, 0.98, 1.02]),
+    "PRDE20": ("time", {"z": 1.0}, "z", []),
+    "ROBE21": ("time", {"x": 1.0, "y": 1.0, "z": 1.0}, "s = x + y + z", []),
+    "LOVO21": ("plane", [("x", "y")], {"circle": (1.0, 1.0, 0.161)}),
+    "SPRE22": ("plane", [("x", "y")], {"cone": 20.0, "target": 2.0}),
+}
+COLOURS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"]
+
+
+def fmt(v: Any, digits: int = 4) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return ""
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def csv_text(rows) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_HEADER)
+    for r in rows:
+        w.writerow([r.benchmark, r.instance, {"verified": 1, "violated": 0}.get(r.result, ""),
+                    fmt(r.time, 6), fmt(r.accuracy, 6), r.timesteps])
+    return buf.getvalue()
+
+
+def markdown(rows, machine: str, samples: int, date: str) -> str:
+    lines = [f"# ARCH-COMP NLN benchmarks (ocreach, method `{rows[0].method if rows else ''}`)", "",
+             f"{date}; {machine}.  Times are wall seconds of the reachable set and the spec checks, "
+             "after a warm-up over the first grid steps (compilation, reported apart).", "",
+             "| benchmark | instance | result | time [s] | measure | value | steps | truth: "
+             "samples / escapes / counter-examples |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        tr = r.truth or {}
+        t = (f"{tr.get('samples', '')} / {tr.get('escapes', '')} / {len(tr.get('violations', {}))}"
+             if tr else "not run")
+        lines.append(f"| {r.benchmark} | {r.instance or '-'} | {r.result} | {fmt(r.time)} | "
+                     f"{r.accuracy_label} | {fmt(r.accuracy)} | {r.timesteps} | {t} |")
+    lines += ["", "## Details", ""]
+    for r in rows:
+        lines.append(f"### {r.benchmark} {r.instance}".rstrip())
+        lines.append("")
+        lines.append(f"- problem `{r.problem_id}`, method `{r.method}`, options "
+                     f"`{ {k: v for k, v in r.options.items() if v} }`")
+        lines.append(f"- reachable set {fmt(r.reach_s)} s, specs {fmt(r.check_s)} s, warm-up "
+                     f"{fmt(r.warmup_s)} s, {r.timesteps} steps")
+        for s in r.specs:
+            m = f", margin {fmt(s['margin'])}" if s.get("margin") is not None else ""
+            lines.append(f"- spec *{s['name']}*: **{s['status']}** ({s['detail']}{m})")
+        for k, v in r.measures.items():
+            tv = (r.truth or {}).get("measures", {}).get(k)
+            lines.append(f"- {k}: {fmt(v, 6)}" + (f" (sampled truth: {fmt(tv, 6)}, a lower "
+                                                   "bound)" if tv is not None else ""))
+        if r.paths:
+            lines.append(f"- final jump sequences: {r.paths.get('final_paths')}; jump counts "
+                         f"{r.paths.get('final_jump_counts')}; {r.paths.get('branches')} branches")
+        if r.truth:
+            tr = r.truth
+            lines.append(f"- sampled truth: {tr['samples']} samples, {tr['points_checked']} states "
+                         f"checked, {tr['escapes']} outside the guaranteed sets (worst gauge "
+                         f"{fmt(tr['worst_gauge'], 12)}), {tr['time_s']:.1f} s")
+            for k, v in tr["violations"].items():
+                lines.append(f"  - counter-example of *{k}*: {v['detail']}")
+            if tr.get("paths"):
+                lines.append(f"  - sampled jump sequences: {tr['paths']}")
+            if tr.get("blocked"):
+                lines.append(f"  - {tr['blocked']} runs blocked (no enabled transition)")
+        if r.error:
+            lines.append(f"- **reason**: {r.error}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+# =============================================================================== figures
+def _flow(res, names):
+    """``(t_lo, t_hi, set, location, names)`` of every set of a result."""
+    if hasattr(res, "pieces"):
+        return [(p.t_lo, p.t_hi, p.set, p.location, p.names) for p in res.pieces]
+    out = [(float(res.times[k]), float(res.times[k + 1]), T, "", tuple(names))
+           for k, T in enumerate(res.tubes or [])]
+    return out
+
+
+def _parts(S):
+    return list(S.parts) if hasattr(S, "parts") else [S]
+
+
+def figure(benchmark: str, runs: list[tuple[Any, Any, Any]], path: Path) -> Path | None:
+    """The benchmark's figure from ``[(row, problem, result), ...]`` (results that failed are
+    drawn as far as they got: nothing)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    from ocreach.reach.plot import save_figure
+    from ocreach.sets.zonotope import zonotope_polygon
+
+    spec = FIGURES.get(benchmark)
+    done = [(r, p, res) for r, p, res in runs if res is not None]
+    if spec is None or not done:
+        return None
+    kind = spec[0]
+    if kind == "time":
+        _, coeffs, label, hlines = spec
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        for i, (row, prob, res) in enumerate(done):
+            names = prob.model.state_names
+            rects = []
+            for t0, t1, S, _loc, nm in _flow(res, names):
+                d = Linear(tuple(coeffs.items()), 0.0).vector(nm)
+                for Z in _parts(S):
+                    hi, lo = support_bound(Z, d), -support_bound(Z, -d)
+                    rects.append([(t0, lo), (t1, lo), (t1, hi), (t0, hi)])
+            ax.add_collection(PolyCollection(rects, facecolor=COLOURS[i % 5], edgecolor="none",
+                                             alpha=0.6, label=f"{row.instance} ({row.result})"))
+        for h in hlines:
+            ax.axhline(h, color="red", ls="--", lw=1)
+        ax.autoscale_view()
+        ax.set_xlabel("t")
+        ax.set_ylabel(label)
+    else:
+        _, planes, extra = spec
+        fig, axes = plt.subplots(1, len(planes), figsize=(6 * len(planes), 5.5), squeeze=False)
+        for ax, (a, b) in zip(axes[0], planes):
+            for i, (row, prob, res) in enumerate(done):
+                names = prob.model.state_names
+                flow = _flow(res, names)
+                step = max(1, len(flow) // 4000)
+                locs = sorted({f[3] for f in flow})
+                for j, loc in enumerate(locs):
+                    polys = []
+                    for t0, t1, S, lc, nm in flow[::step]:
+                        if lc != loc:
+                            continue
+                        ia, ib = nm.index(a), nm.index(b)
+                        for Z in _parts(S):
+                            P = Z.project([ia, ib])
+                            polys.append(zonotope_polygon(P.c, P.G))
+                    col = COLOURS[(i + j) % 5]
+                    lab = (f"{row.instance} " if row.instance else "") + (loc or "") + f" ({row.result})"
+                    ax.add_collection(PolyCollection(polys, facecolor=col, edgecolor=col,
+                                                     linewidth=0.2, alpha=0.5, label=lab.strip()))
+            ax.autoscale_view()
+            ax.set_xlabel(a)
+            ax.set_ylabel(b)
+            for y in extra.get("y", []):
+                ax.axhline(y, color="red", ls="--", lw=1)
+            if "circle" in extra:
+                cx, cy, r = extra["circle"]
+                th = np.linspace(0, 2 * np.pi, 200)
+                ax.plot(cx + r * np.cos(th), cy + r * np.sin(th), "k-", lw=1)
+            if "cone" in extra:
+                tan = math.tan(math.radians(extra["cone"]))
+                ax.plot([-100, 0, -100], [-100 * tan, 0, 100 * tan], "g-", lw=1, label="line of sight")
+            if "target" in extra:
+                h = extra["target"]
+                ax.add_patch(matplotlib.patches.Rectangle((-h, -h), 2 * h, 2 * h, color="k"))
+    for ax in fig.axes:
+        ax.legend(fontsize=7, loc="best")
+        ax.set_title(f"{benchmark}: guaranteed sets (ocreach)", fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path, palette=True)
+
+
+class Writer:
+    """Writes the suite's files into an :class:`~ocreach.outdir.OutputDir` as instances finish
+    (``arch.csv`` and ``arch.md`` are rewritten each time, so a partial run keeps what finished)."""
+
+    def __init__(self, out: OutputDir, machine: str, samples: int, date: str, figures: bool = True):
+        self.out, self.machine, self.samples, self.date = out, machine, samples, date
+        self.figures = figures
+        self.rows: list = []
+        self.by_bench: dict[str, list] = {}
+
+    def add(self, row, problem, result) -> None:
+        self.rows.append(row)
+        self.write_tables()
+        lst = self.by_bench.setdefault(row.benchmark, [])
+        lst.append((row, problem, result))
+
+    def write_tables(self) -> None:
+        base = Path(self.out.path)
+        atomic_write_text(base / "arch.csv", csv_text(self.rows))
+        atomic_write_text(base / "arch.md", markdown(self.rows, self.machine, self.samples, self.date))
+        atomic_write_text(base / "results.json", json_text({
+            "machine": self.machine, "date": self.date, "samples": self.samples,
+            "rows": [r.as_dict() for r in self.rows]}))
+
+    def write_figures(self) -> list[Path]:
+        if not self.figures:
+            return []
+        out = []
+        for bench, runs in self.by_bench.items():
+            p = figure(bench, runs, Path(self.out.path) / f"{bench}.png")
+            if p is not None:
+                out.append(p)
+        return out

@@ -1,0 +1,216 @@
+"""One ARCH-COMP instance: warm-up, timed guaranteed reachability, spec checks on the tubes,
+measures on the final sets, and the sampled-truth check (:mod:`ocreach.arch.truth`).
+
+The reported ``time`` is, as in the ARCH-COMP reports, the wall time of computing the reachable set
+and checking the specifications, after a warm-up run over the first grid steps that builds and
+compiles the model functions (the one-off cost a tool's start-up or JIT pays; it is reported apart
+as ``warmup_s``).  The truth check is not timed into it.
+"""
+from __future__ import annotations
+
+import dataclasses
+import platform
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ocreach.errors import OcreachError, ProblemError
+from ocreach.specs import check, overall
+
+#: the guaranteed method of the suite
+METHOD = "taylor"
+
+
+def arch_ids(only: str | None = None) -> list[str]:
+    """Ids of the bundled ARCH problems, in the order of ``problems/arch.py``; ``only`` keeps those
+    whose id, ARCH-COMP benchmark name or ``BENCHMARK-INSTANCE`` matches one of its
+    comma-separated names (case-insensitive)."""
+    from ocreach.registry import problem_factories
+
+    ids = [pid for pid in problem_factories() if pid.startswith("arch-")]
+    import ocreach.problems.arch as arch
+
+    order = list(arch.PROBLEMS)
+    ids.sort(key=lambda p: order.index(p) if p in order else len(order))
+    if not only:
+        return ids
+    wanted = [w.strip().lower() for w in only.split(",") if w.strip()]
+    out = []
+    for pid in ids:
+        bench = pid.split("-")[1]
+        keys = {pid, pid.removeprefix("arch-"), bench}
+        if any(w in keys for w in wanted):
+            out.append(pid)
+    if not out:
+        benches = sorted({p.split("-")[1].upper() for p in ids})
+        raise ProblemError(f"--only {only!r} matches no ARCH instance; benchmarks: {benches}; "
+                           f"instances: {[p.removeprefix('arch-') for p in ids]}")
+    return out
+
+
+@dataclass
+class InstanceRun:
+    """The row of one instance (ARCH-COMP format plus what the suite adds)."""
+
+    problem_id: str
+    benchmark: str
+    instance: str
+    method: str
+    result: str = "unknown"
+    time: float = float("nan")
+    reach_s: float = float("nan")
+    check_s: float = float("nan")
+    warmup_s: float = float("nan")
+    accuracy: float | None = None
+    accuracy_label: str = ""
+    measures: dict[str, float] = field(default_factory=dict)
+    timesteps: int = 0
+    specs: list[dict[str, Any]] = field(default_factory=list)
+    paths: dict[str, Any] = field(default_factory=dict)
+    error: str = ""
+    truth: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def machine() -> str:
+    """A one-line description of this machine (CPU model and count)."""
+    import os
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{cpu}, {n} cores available, Python {platform.python_version()}"
+
+
+def _short(problem):
+    """The problem over its first grid steps, same model objects (for the warm-up)."""
+    g = problem.grid
+    return dataclasses.replace(problem, grid=g[: min(3, g.size)])
+
+
+def _reach(problem, method: str):
+    from ocreach.reach.base import reach
+
+    return reach(problem, method)
+
+
+def _steps(problem, result) -> int:
+    if hasattr(result, "pieces"):
+        return int(result.meta.get("steps", 0))
+    return int(sum(result.meta.get("steps", {}).get("substeps", [])))
+
+
+def run_instance(pid: str, *, method: str = METHOD, samples: int = 2000, seed: int = 0,
+                 truth_stride: int = 1, warmup: bool = True) -> tuple[InstanceRun, Any, Any]:
+    """Run one instance; returns the row, the problem and the guaranteed result (None if it
+    failed).  A method failure (e.g. the remainder cannot be enclosed) is the row's ``error`` and
+    makes the result ``unknown``, with the reason."""
+    from ocreach.registry import get_problem
+
+    problem = get_problem(pid)
+    info = problem.extra["arch"]
+    run = InstanceRun(pid, info["benchmark"], info["instance"], method,
+                      options={**problem.options_for(method), "hybrid": problem.options_for("hybrid")})
+    if warmup:
+        t0 = time.perf_counter()
+        try:
+            _reach(_short(problem), method)
+        except OcreachError:
+            pass
+        run.warmup_s = time.perf_counter() - t0
+    ver = problem.extra["verification"]
+    names = problem.model.state_names
+    t0 = time.perf_counter()
+    try:
+        res = _reach(problem, method)
+    except OcreachError as exc:
+        run.reach_s = time.perf_counter() - t0
+        run.error = f"{type(exc).__name__}: {exc}"
+        run.result = "unknown"
+        return run, problem, None
+    run.reach_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    spec_results = [check(s, res, names) for s in ver.specs]
+    run.check_s = time.perf_counter() - t1
+    run.time = run.reach_s + run.check_s
+    run.specs = [r.as_dict() for r in spec_results]
+    run.result = _verdict(problem, res, spec_results, run)
+    finals = res.final_sets if hasattr(res, "pieces") else [res.sets[-1]]
+    fnames = res.names if hasattr(res, "pieces") else names
+    for m in ver.measures:
+        run.measures[m.label] = float(m.of_sets(finals, fnames))
+    if ver.measures:
+        run.accuracy_label = ver.measures[0].label
+        run.accuracy = run.measures[run.accuracy_label]
+    run.timesteps = _steps(problem, res)
+    if samples:
+        from ocreach.arch.truth import continuous_truth, hybrid_truth
+
+        fn = hybrid_truth if hasattr(res, "pieces") else continuous_truth
+        run.truth = fn(problem, res, samples=samples, seed=seed, stride=truth_stride).as_dict()
+        if run.result == "verified" and run.truth["violations"]:
+            # a verified instance whose samples break a spec would be a soundness defect: say so
+            run.error = ("sampled truth contradicts the verification: "
+                         + "; ".join(f"{k}: {v['detail']}" for k, v in run.truth["violations"].items()))
+    return run, problem, res
+
+
+def _verdict(problem, res, spec_results, run: InstanceRun) -> str:
+    """``overall`` of the specs; a hybrid instance with jump-count requirements (LOVO21) also
+    needs final sets with each of those jump counts; an instance without specs or requirements
+    is ``verified`` when the reachable set was computed (the report's convention for ROBE21)."""
+    need = problem.extra["verification"].extra.get("final_jump_counts")
+    if hasattr(res, "pieces"):
+        counts = sorted({len(p) for p in res.final_paths()})
+        run.paths = {"final_paths": [" -> ".join(p) for p in res.final_paths()],
+                     "final_jump_counts": counts, "branches": len(res.branches)}
+        if res.meta.get("truncated"):
+            return "unknown"
+        if need is not None and not set(need) <= set(counts):
+            return "unknown"
+    if not spec_results:
+        return "verified"
+    return overall(spec_results)
+
+
+def run_suite(ids: list[str], *, method: str = METHOD, samples: int = 2000, seed: int = 0,
+              truth_stride: int = 1, progress=None, on_done=None) -> list[InstanceRun]:
+    """Run ``ids`` in order; ``progress(text)`` is told each step, ``on_done(run, problem,
+    result)`` gets each finished instance (the report writes its files as they finish)."""
+    rows = []
+    for i, pid in enumerate(ids, 1):
+        if progress:
+            progress(f"[{i}/{len(ids)}] {pid} ...")
+        run, problem, res = run_instance(pid, method=method, samples=samples, seed=seed,
+                                         truth_stride=truth_stride)
+        rows.append(run)
+        if progress:
+            tr = run.truth
+            extra = (f", truth: {tr['escapes']} escapes / {tr['points_checked']} points, "
+                     f"{len(tr['violations'])} violated spec(s)") if tr else ""
+            acc = f", {run.accuracy_label} = {run.accuracy:.4g}" if run.accuracy is not None else ""
+            progress(f"    {run.result} in {run.time:.2f} s{acc}{extra}"
+                     + (f" -- {run.error[:200]}" if run.error else ""))
+        if on_done:
+            on_done(run, problem, res)
+    return rows
+
+
+def summary_line(rows: list[InstanceRun]) -> str:
+    n = len(rows)
+    v = sum(r.result == "verified" for r in rows)
+    esc = sum(r.truth.get("escapes", 0) for r in rows if r.truth)
+    t = float(np.nansum([r.time for r in rows]))
+    return f"{v}/{n} verified, total time {t:.1f} s, {esc} truth escapes"
