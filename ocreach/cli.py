@@ -424,7 +424,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "masses, the CR3BP as prediction model)")
     rp.add_argument("--reference", choices=["cr3bp", "ephemeris"],
                     help="station-keeping: reference orbit (default cr3bp; ephemeris: the orbit "
-                         "corrected in the DE421 plant, needs --plant ephemeris, controllers mpc,lqr)")
+                         "corrected in the DE421 plant, needs --plant ephemeris; every controller, the tube "
+                         "controllers on tubes about that orbit)")
     rp.add_argument("--runs", type=int, help="orbit-maintenance: Monte Carlo runs per controller "
                     "(default 100)")
     rp.add_argument("--years", type=float, help="orbit-maintenance: years per run (default 1)")
