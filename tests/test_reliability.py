@@ -445,3 +445,10 @@ def test_listing_into_a_closed_pipe_ends_quietly():
     err = proc.stderr.read().decode()
     assert first.startswith(b"mc:") and proc.wait(timeout=120) == 0, err
     assert "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+@pytest.mark.parametrize("method, options", [("mc", {"samples": 8}), ("ode", {"samples": 8}),
+                                             ("ffoe", {"samples": 8})])
+def test_an_estimate_says_it_is_not_guaranteed(method, options):
+    r = ocreach.reach("vdp", method, **options)
+    assert r.meta["guaranteed"] is False

@@ -133,8 +133,8 @@ class Method:
                 from ocreach.reach.coordinates import solve_in_coordinates
                 from ocreach.reach.guard import check_result
 
-                return check_result(solve_in_coordinates(self, problem, coords), problem,
-                                    self.divergence_factor)
+                return self._labelled(check_result(solve_in_coordinates(self, problem, coords),
+                                                   problem, self.divergence_factor))
             self.check_before(problem)
             self._solving = True
             try:
@@ -145,7 +145,7 @@ class Method:
             from ocreach.reach.guard import check_result
 
             check_interrupt()  # a Ctrl-C swallowed by native code is not lost
-            return check_result(result, problem, self.divergence_factor)
+            return self._labelled(check_result(result, problem, self.divergence_factor))
 
         solve._checked = True
         cls.solve = solve
@@ -153,6 +153,14 @@ class Method:
     def solve(self, problem: Problem) -> ReachResult:
         """The reachable-set estimate of ``problem`` (each method implements this)."""
         raise NotImplementedError
+
+    def _labelled(self, result: ReachResult) -> ReachResult:
+        """``result`` with ``meta["guaranteed"] = False`` when an estimate method left it out (a
+        guaranteed method must say it itself: the soundness harness checks that it does)."""
+        meta = getattr(result, "meta", None)
+        if not type(self).guaranteed and isinstance(meta, dict):
+            meta.setdefault("guaranteed", False)
+        return result
 
     # ------------------------------------------------------------------ checks before work
     @classmethod
