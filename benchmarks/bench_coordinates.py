@@ -29,8 +29,8 @@ import numpy as np
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.registry import get_problem
 from ocreach.fileio import replace_markdown_section
+from ocreach.registry import get_problem
 from ocreach.sets.union import union_gauge
 from ocreach.sets.zonotope import Zonotope
 

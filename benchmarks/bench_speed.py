@@ -25,6 +25,7 @@ memory`` section.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import statistics
@@ -386,7 +387,7 @@ def order3_markdown(o3: list[dict]) -> str:
 
     def growth(box: str, key) -> str:
         vals = [key(by[(h, box)]) for h in hs if (h, box) in by]
-        return " and ".join(f"x{b / a:.1f}" for a, b in zip(vals, vals[1:]))
+        return " and ".join(f"x{b / a:.1f}" for a, b in itertools.pairwise(vals))
 
     kept = lambda r: r["kept"] + r["order2"]  # noqa: E731 - products merged (all order-2, kept order-3)
     scaling = (f"From one h_max to the next (doubling): order-3 products formed "

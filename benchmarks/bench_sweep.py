@@ -16,6 +16,7 @@ docs/benchmarks.md is replaced.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import multiprocessing
 import os
@@ -113,7 +114,7 @@ def catalog_speedup(objects: int, tmp: Path, rounds: int = 4) -> dict:
     own = own_session_pool(2)
     start["own"] = time.perf_counter() - t0
     try:
-        for r, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        for r, (a, b) in enumerate(itertools.pairwise(bounds)):
             part = Spec(tasks=spec.tasks[a:b], raw={"slice": [int(a), int(b)]}, base_dir=spec.base_dir)
             for name, kw in (("serial", {"serial": True}), ("pool", {"executor": pool.executor}),
                              ("own", {"executor": own.executor})):

@@ -29,8 +29,21 @@ from ocreach.hybrid import CLOCK, HybridAutomaton, HybridProblem, Location, Tran
 from ocreach.model import Model
 from ocreach.problem import Problem, time_grid
 from ocreach.sets.interval import Interval
-from ocreach.specs import (Attains, BoxVolume, Maximum, Safe, Unsafe, Verification, Width, box, ge,
-                           in_ball, le, linear, out_ball)
+from ocreach.specs import (
+    Attains,
+    BoxVolume,
+    Maximum,
+    Safe,
+    Unsafe,
+    Verification,
+    Width,
+    box,
+    ge,
+    in_ball,
+    le,
+    linear,
+    out_ball,
+)
 
 #: The stored sources every constant below comes from.
 SOURCES = {

@@ -13,17 +13,36 @@ import math
 
 import numpy as np
 import pytest
-from _arch_truth import (SC_K1, SC_K2, batch, first_root, laub_loomis, lotka_volterra,
-                         spacecraft, states_at)
+from _arch_truth import (
+    SC_K1,
+    SC_K2,
+    batch,
+    first_root,
+    laub_loomis,
+    lotka_volterra,
+    spacecraft,
+    states_at,
+)
 
 import ocreach
 from ocreach.errors import ProblemError
-from ocreach.hybrid import HybridAutomaton, HybridProblem, Location, Transition
+from ocreach.hybrid import HybridAutomaton, HybridProblem, Transition
 from ocreach.reach.taylor import TaylorZonotope
 from ocreach.sets.union import gauge, union_gauge
 from ocreach.sets.zonotope import Zonotope
-from ocreach.specs import (InBall, OutBall, Safe, Samples, Unsafe, check, check_samples, contract,
-                           ge, le, surely_disjoint)
+from ocreach.specs import (
+    InBall,
+    OutBall,
+    Safe,
+    Samples,
+    Unsafe,
+    check,
+    check_samples,
+    contract,
+    ge,
+    le,
+    surely_disjoint,
+)
 
 TOL = 1 + 1e-9
 N_TRUTH = 2000

@@ -119,12 +119,11 @@ def _cli_cases(tmp: Path) -> list[tuple]:
 
 
 def _api_cases(tmp: Path) -> list[tuple]:
+    from ocreach.control.stationkeeping.runs import run_station_keeping
+    from ocreach.models.ephemeris import ephemeris_inertial
     from ocreach.problem import ControlSet, Problem, time_grid
     from ocreach.reach.result import ReachResult
     from ocreach.sets import Ellipsoid, Interval, MatrixZonotope, PolyZonotope, Zonotope
-
-    from ocreach.control.stationkeeping.runs import run_station_keeping
-    from ocreach.models.ephemeris import ephemeris_inertial
 
     vdp = ocreach.get_problem("vdp")
     nrho = ocreach.get_problem("nrho-9-2")

@@ -22,8 +22,8 @@ from ocreach.models import twobody
 from ocreach.models.coordinates import chart_for, parse
 from ocreach.models.coordinates.convert import MapEnclosure, slice_at
 from ocreach.problem import Problem, time_grid
-from ocreach.registry import get_problem
 from ocreach.reach.coordinates import transform
+from ocreach.registry import get_problem
 from ocreach.sets.union import union_gauge
 from ocreach.sets.zonotope import Zonotope
 

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.outdir import OutputDir
 from ocreach.fileio import atomic_write_text, json_text
+from ocreach.outdir import OutputDir
 from ocreach.specs import Linear, support_bound
 
 CSV_HEADER = ["benchmark", "instance", "result", "time", "accuracy", "timesteps"]

@@ -39,6 +39,7 @@ inverse-mass model of Patel & Scheeres Eq. 11 (:func:`thrust_law_expression`).
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -410,7 +411,7 @@ class BVPContinuation(FFOE):
                 raise SolverError(f"bvp: the first direction {dirs[first].tolist()} did not converge from "
                                   f"the {'FFOE' if guesses is None else 'given'} guess: {exc}") from None
             lam_sol[first] = lam
-            for a, b in zip(order[:-1], order[1:]):
+            for a, b in itertools.pairwise(order):
                 if guesses is not None:  # warm start: Newton from the given costate first
                     cand, ok, _err, Jb, Db = self._newton(problem, p, manifold, guesses[b], dirs[b], dims,
                                                           x_ref)

@@ -40,6 +40,7 @@ the grid times and before and after every jump.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -50,7 +51,6 @@ import numpy as np
 from ocreach.errors import OcreachError, ProblemError, SolverError, check_count
 from ocreach.hybrid import CLOCK, HybridProblem, Location, Transition, clocked
 from ocreach.problem import Problem
-from ocreach.sets.interval import Interval
 from ocreach.sets.rounding import rounding_radius
 from ocreach.sets.zonotope import Zonotope
 from ocreach.specs import Linear, Piece, Samples, complementary, cut_region, support_bound
@@ -209,7 +209,7 @@ def enclose(sets: Sequence[Zonotope], kind: str) -> Zonotope:
     D = np.hstack(data)
     if D.shape[1] == 0 or not np.all(np.isfinite(D)):
         return oriented_hull(sets, np.eye(n))
-    U, s, _ = np.linalg.svd(D, full_matrices=True)
+    U, _, _ = np.linalg.svd(D, full_matrices=True)
     B = scale[:, None] * U
     if np.linalg.cond(B) > 1e12:
         return oriented_hull(sets, np.eye(n))
@@ -240,7 +240,7 @@ def _groups(items: list[tuple[float, float, Zonotope]], k: int) -> list[list[Zon
     for run in runs:
         m = max(1, min(k, len(run)))
         edges = np.linspace(0, len(run), m + 1).round().astype(int)
-        out += [run[a:b] for a, b in zip(edges[:-1], edges[1:]) if b > a]
+        out += [run[a:b] for a, b in itertools.pairwise(edges) if b > a]
     return out
 
 

@@ -72,9 +72,11 @@ from ocreach.reach.taylor_step import (
     GROWTH,
     Context,
     StepFail,
+    bound_failed,
     eval_error,
     hessian_interval,
     inflate_box,
+    loop_not_closed,
     unflatten_hessian,
     z_symbol,
 )
@@ -405,12 +407,7 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         try:
             Tmag, Hblo, Hbhi = derivative_bounds(ctx, xlo, xhi, t_lo, t_hi)
         except OcreachError as exc:
-            msg = str(exc)
-            msg = msg if len(msg) < 300 else msg[:300] + " ..."
-            if it > 1:
-                msg = (f"the remainder loop diverged (iteration {it}, last bound "
-                       f"{np.array2string(need, precision=3)}) until: {msg}")
-            return StepFail("remainder bound failed: " + msg, need)
+            return bound_failed(exc, it, need)
         dz = np.concatenate([gx, dv])
         e3 = np.einsum("iabc,a,b,c->i", Tmag, dz, dz, dz) / 6.0
         emix = (np.einsum("a,iab,b->i", gx, Hmag[:, :n, n:], dv)
@@ -427,8 +424,7 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
             break
         Lbar = np.maximum(Lbar, need) * GROWTH + 1e-300
     else:
-        return StepFail(f"the remainder loop did not close in {ctx.opts.max_iter} iterations "
-                        f"(last bound {np.array2string(need, precision=3)})", need)
+        return loop_not_closed(ctx.opts.max_iter, need)
     ctx.last_terms = {"e3": e3, "ealt": ealt, "eq": eq, "emix": emix, "eh": eh, "elin": elin, "r_F": r_F, "r_g": r_g,
                       "r_RW": r_RWz, "gx": gx, "r_rho": r_rho}
     # sensitivity of the bound to the extent of the set in each state (for splitting)

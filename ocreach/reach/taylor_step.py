@@ -251,6 +251,24 @@ class StepFail:
     err_mag: np.ndarray | None = None
 
 
+def bound_failed(exc: Exception, iteration: int, need: np.ndarray | None) -> StepFail:
+    """The failure of a remainder bound that raised at ``iteration`` of the fixed-point loop
+    (e.g. IntervalDomainError: the guessed remainder grew until the tube's box reached a
+    singularity)."""
+    msg = str(exc)
+    msg = msg if len(msg) < 300 else msg[:300] + " ..."
+    if iteration > 1:
+        msg = (f"the remainder loop diverged (iteration {iteration}, last bound "
+               f"{np.array2string(need, precision=3)}) until: {msg}")
+    return StepFail("remainder bound failed: " + msg, need)
+
+
+def loop_not_closed(max_iter: int, need: np.ndarray) -> StepFail:
+    """The failure of a fixed-point loop whose bound still grew after ``max_iter`` iterations."""
+    return StepFail(f"the remainder loop did not close in {max_iter} iterations "
+                    f"(last bound {np.array2string(need, precision=3)})", need)
+
+
 class Context:
     """Everything a step needs: model functions, inputs, error model, options (the method's
     :class:`~ocreach.reach.taylor.ZonotopeOptions`; the step reads ``max_iter``)."""
@@ -341,12 +359,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
         try:
             err = ctx.err.bound(tube, xs, vs, Vbox, t_box, lin)
         except OcreachError as exc:  # e.g. IntervalDomainError: a singularity inside the box
-            msg = str(exc)
-            msg = msg if len(msg) < 300 else msg[:300] + " ..."
-            if it > 1:  # the guessed remainder grew until the tube's box reached a singularity
-                msg = (f"the remainder loop diverged (iteration {it}, last bound "
-                       f"{np.array2string(need, precision=3)}) until: {msg}")
-            return StepFail("remainder bound failed: " + msg, need)
+            return bound_failed(exc, it, need)
         # rounded up: the loop closes only if the error box surely lies in [-Lbar, Lbar]
         need = up(abs_extent(err), err.n_generators + 1)
         if not np.all(np.isfinite(need)):
@@ -355,8 +368,7 @@ def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray 
             break
         Lbar = np.maximum(Lbar, need) * GROWTH + 1e-300
     else:
-        return StepFail(f"the remainder loop did not close in {ctx.opts.max_iter} iterations "
-                        f"(last bound {np.array2string(need, precision=3)})", need)
+        return loop_not_closed(ctx.opts.max_iter, need)
     # final sets with the error set found on the tube (valid: every trajectory stays in the tube)
     u_c2 = u_c + err.c
     W2G = np.concatenate([Gu, err.G], axis=1)

@@ -37,8 +37,15 @@ import numpy as np
 from ocreach.errors import ProblemError, SolverError
 from ocreach.reach.base import Method, available_methods, method_class
 from ocreach.testing.containment import Verdict, check_flowpipe, check_points
-from ocreach.testing.truth import (HybridTruth, Rhs, Truth, hybrid_truth, integrate, model_rhs,
-                                  samples)
+from ocreach.testing.truth import (
+    HybridTruth,
+    Rhs,
+    Truth,
+    hybrid_truth,
+    integrate,
+    model_rhs,
+    samples,
+)
 
 #: statuses of an :class:`Outcome` that are not failures (escapes aside)
 PASSING = ("complete", "partial", "refused")

@@ -34,6 +34,7 @@ control.stationkeeping.maintenance_mc`).
 """
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
@@ -324,7 +325,7 @@ def _run_impulsive(sc: Scenario, ctl, settings: MaintenanceSettings, run: int, x
     apolunes = set(int(k) for k in apolunes)
     dv_total = dv_cmd_total = 0.0
     nu = sc.true_anomaly_deg
-    for k, k_next in zip(bounds[:-1], bounds[1:], strict=True):
+    for k, k_next in itertools.pairwise(bounds):
         if k in apolunes:
             states_at[k] = x.copy()
         if k in decisions:
