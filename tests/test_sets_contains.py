@@ -15,6 +15,8 @@ from ocreach.sets import (
     zonotope_in_interval,
     zonotope_in_zonotope,
 )
+from ocreach.sets.contains import certified_in_zonotope
+from ocreach.sets.union import ZonotopeUnion, gauge, union_gauge
 
 SET = settings(max_examples=30, deadline=None)
 
@@ -120,3 +122,37 @@ def test_thin_zonotope_acute_vertex_not_inside_by_tolerance():
     assert want.tolist() == [False, False, True, True, False]
     for method in ("auto", "halfspace", "lp"):
         assert points_in_zonotope(Z, pts, method=method).tolist() == want.tolist()
+
+
+@SET
+@given(st.integers(0, 10**6))
+def test_lp_free_certificates_and_union_gauge_match_linprog(seed):
+    """``certified_in_zonotope`` (and ``gauge(lp=False)``) never call a point inside that the
+    independent LP puts outside; ``gauge(lp="membership")`` decides like the LP; the union
+    gauge (certificates, membership in the parts whose box holds the point, exact gauges for
+    the rest) is <= 1 exactly for the points some part contains."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 5))
+    parts = [Zonotope(rng.normal(size=n), rng.normal(size=(n, int(rng.integers(n, 3 * n + 2)))))
+             for _ in range(int(rng.integers(1, 4)))]
+    pts = np.vstack([np.vstack([Z.sample(6, rng), boundary_points(Z, rng, 4, 1e-3),
+                                boundary_points(Z, rng, 4, -1e-3)]) for Z in parts]
+                    + [rng.normal(size=(6, n)) * 3])
+    want = np.array([[lp_in_zonotope(Z.c, Z.G, x) for x in pts] for Z in parts])
+    for Z, w in zip(parts, want):
+        cert = certified_in_zonotope(Z, pts)
+        assert not np.any(cert & ~w)
+        assert np.array_equal(np.atleast_1d(gauge(Z, pts, lp=False)) <= 1.0, cert)
+        assert np.array_equal(np.atleast_1d(gauge(Z, pts, lp="membership")) <= 1.0, w)
+    g = np.atleast_1d(union_gauge(ZonotopeUnion(parts), pts))
+    assert np.array_equal(g <= 1.0 + 1e-9, want.any(axis=0))
+
+
+def test_lp_free_certificates_with_many_generators():
+    """Beyond the facet limit the certificates decide alone: never inside for an outside point,
+    and most interior samples proven inside."""
+    rng = np.random.default_rng(3)
+    Z = Zonotope(rng.normal(size=5), rng.normal(size=(5, 30)))  # C(30, 4) > facet limit
+    pts = np.vstack([boundary_points(Z, rng, 40, 1e-3), Z.c + 0.5 * (Z.sample(40, rng) - Z.c)])
+    cert = certified_in_zonotope(Z, pts)
+    assert not cert[:40].any() and cert[40:].mean() > 0.9

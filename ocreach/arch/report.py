@@ -16,7 +16,10 @@ from ocreach.fileio import atomic_write_text, json_text
 from ocreach.outdir import OutputDir
 from ocreach.specs import Linear, support_bound
 
-CSV_HEADER = ["benchmark", "instance", "result", "time", "accuracy", "timesteps"]
+#: the ARCH-COMP result columns, then the suite's own: the method, how far the guaranteed sets
+#: were computed, and the sampled truth's escapes from them (expected 0) and states checked
+CSV_HEADER = ["benchmark", "instance", "result", "time", "accuracy", "timesteps", "method",
+              "computed_to", "truth_escapes", "truth_points"]
 
 #: per benchmark: ("time", coefficients of the plotted quantity, its label, reference lines) or
 #: ("plane", [(x name, y name), ...], reference lines); the axes of the reports' figures
@@ -46,24 +49,32 @@ def csv_text(rows) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_HEADER)
     for r in rows:
+        tr = r.truth or {}
         w.writerow([r.benchmark, r.instance, {"verified": 1, "violated": 0}.get(r.result, ""),
-                    fmt(r.time, 6), fmt(r.accuracy, 6), r.timesteps])
+                    fmt(r.time, 6), fmt(r.accuracy, 6), r.timesteps, r.method,
+                    fmt(r.computed_to, 6), tr.get("escapes", ""), tr.get("points_checked", "")])
     return buf.getvalue()
 
 
-def markdown(rows, machine: str, samples: int, date: str) -> str:
-    lines = [f"# ARCH-COMP NLN benchmarks (ocreach, method `{rows[0].method if rows else ''}`)", "",
+def markdown(rows, machine: str, samples: int, date: str, timing: dict | None = None) -> str:
+    lines = ["# ARCH-COMP NLN benchmarks (ocreach)", "",
              f"{date}; {machine}.  Times are wall seconds of the reachable set and the spec checks, "
-             "after a warm-up over the first grid steps (compilation, reported apart).", "",
-             "| benchmark | instance | result | time [s] | measure | value | steps | truth: "
-             "samples / escapes / counter-examples |",
-             "|---|---|---|---|---|---|---|---|"]
+             "after a warm-up over the first grid steps (compilation, reported apart).  "
+             "\"computed to\": the guaranteed sets enclose every run up to that time (the horizon, "
+             "or where the method stopped); the sampled truth is compared with them up to there.",
+             "", "| benchmark | instance | method | result | time [s] | measure | value | steps | "
+             "computed to | truth: samples / escapes / counter-examples |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         tr = r.truth or {}
         t = (f"{tr.get('samples', '')} / {tr.get('escapes', '')} / {len(tr.get('violations', {}))}"
              if tr else "not run")
-        lines.append(f"| {r.benchmark} | {r.instance or '-'} | {r.result} | {fmt(r.time)} | "
-                     f"{r.accuracy_label} | {fmt(r.accuracy)} | {r.timesteps} | {t} |")
+        lines.append(f"| {r.benchmark} | {r.instance or '-'} | {r.method} | {r.result} | "
+                     f"{fmt(r.time)} | {r.accuracy_label} | {fmt(r.accuracy)} | {r.timesteps} | "
+                     f"{fmt(r.computed_to)} | {t} |")
+    if timing:
+        lines += ["", "Where the time went (wall seconds): " + ", ".join(
+            f"{k} {fmt(float(v))}" for k, v in timing.items()) + "."]
     lines += ["", "## Details", ""]
     for r in rows:
         lines.append(f"### {r.benchmark} {r.instance}".rstrip())
@@ -85,8 +96,9 @@ def markdown(rows, machine: str, samples: int, date: str) -> str:
         if r.truth:
             tr = r.truth
             lines.append(f"- sampled truth: {tr['samples']} samples, {tr['points_checked']} states "
-                         f"checked, {tr['escapes']} outside the guaranteed sets (worst gauge "
-                         f"{fmt(tr['worst_gauge'], 12)}), {tr['time_s']:.1f} s")
+                         f"up to t = {fmt(tr.get('checked_to'))} checked, {tr['escapes']} outside "
+                         f"the guaranteed sets (worst gauge {fmt(tr['worst_gauge'], 12)}), "
+                         f"{tr['time_s']:.1f} s")
             for k, v in tr["violations"].items():
                 lines.append(f"  - counter-example of *{k}*: {v['detail']}")
             if tr.get("paths"):
@@ -196,25 +208,48 @@ class Writer:
     """Writes the suite's files into an :class:`~ocreach.outdir.OutputDir` as instances finish
     (``arch.csv`` and ``arch.md`` are rewritten each time, so a partial run keeps what finished)."""
 
-    def __init__(self, out: OutputDir, machine: str, samples: int, date: str, figures: bool = True):
+    def __init__(self, out: OutputDir, machine: str, samples: int, date: str, figures: bool = True,
+                 order: list[str] | None = None):
         self.out, self.machine, self.samples, self.date = out, machine, samples, date
         self.figures = figures
+        self.order = list(order or [])
         self.rows: list = []
         self.by_bench: dict[str, list] = {}
+        #: wall seconds per phase (set by the caller: suite, figures, total)
+        self.timing: dict[str, float] = {}
+
+    def _rank(self, row) -> int:
+        return self.order.index(row.problem_id) if row.problem_id in self.order else len(self.order)
 
     def add(self, row, problem, result) -> None:
+        """Add a finished instance (in any order; the tables keep the suite's order) and
+        rewrite the tables."""
         self.rows.append(row)
+        self.rows.sort(key=self._rank)
         self.write_tables()
         lst = self.by_bench.setdefault(row.benchmark, [])
         lst.append((row, problem, result))
+        lst.sort(key=lambda t: self._rank(t[0]))
+
+    def phase_totals(self) -> dict[str, float]:
+        """Summed wall seconds of the instances' phases (warm-up, reachable sets and spec
+        checks, sampled truth), with :attr:`timing` (the caller's wall clock) after them."""
+        f = (lambda v: 0.0 if v is None or not math.isfinite(v) else float(v))
+        tot = {"warm-up": sum(f(r.warmup_s) for r in self.rows),
+               "reachable sets": sum(f(r.reach_s) for r in self.rows),
+               "spec checks": sum(f(r.check_s) for r in self.rows),
+               "sampled truth": sum(f((r.truth or {}).get("time_s")) for r in self.rows)}
+        return {**{f"{k} (summed over instances)": v for k, v in tot.items()}, **self.timing}
 
     def write_tables(self) -> None:
         base = Path(self.out.path)
+        timing = self.phase_totals()
         atomic_write_text(base / "arch.csv", csv_text(self.rows))
-        atomic_write_text(base / "arch.md", markdown(self.rows, self.machine, self.samples, self.date))
+        atomic_write_text(base / "arch.md", markdown(self.rows, self.machine, self.samples,
+                                                     self.date, timing))
         atomic_write_text(base / "results.json", json_text({
             "machine": self.machine, "date": self.date, "samples": self.samples,
-            "rows": [r.as_dict() for r in self.rows]}))
+            "timing_s": timing, "rows": [r.as_dict() for r in self.rows]}))
 
     def write_figures(self) -> list[Path]:
         if not self.figures:

@@ -176,10 +176,32 @@ def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto") 
     return bool(out[0]) if single else out
 
 
-def _points_in_range_lp(G: np.ndarray, R: np.ndarray, atol: float, certify: bool) -> np.ndarray:
+def certified_in_zonotope(Z, points: Any, tol: float = 1e-7) -> np.ndarray:
+    """The points proven inside ``Z`` without an LP (bool array; False means *not proven*, the
+    point may still be inside): the facet test of :func:`points_in_zonotope` where ``Z`` has few
+    facet subsets (points within the tolerance band of a facet are left unproven), else the inside
+    certificates of its LP path (a factor vector in the unit box).  The cheap first pass of a
+    membership test of many points against many sets, each point inside few of them; ``tol`` as
+    in :func:`points_in_zonotope`."""
+    P, _ = as_points("points", points, Z.dim)
+    G = np.asarray(Z.G)
+    G = G[:, np.any(G != 0, axis=0)]
+    R = P - Z.c
+    atol = tol * max(1.0, float(np.abs(G).sum()), float(np.abs(Z.c).max(initial=0.0)))
+    if G.shape[1] == 0:
+        return np.all(np.abs(R) <= atol, axis=1)
+    hs = zonotope_halfspaces(Z)
+    if hs is not None:
+        H, b = hs
+        return (P @ H.T - b).max(axis=1) <= 0.0
+    return _points_in_range_lp(G, R, atol, certify=True, lp=False)
+
+
+def _points_in_range_lp(G: np.ndarray, R: np.ndarray, atol: float, certify: bool,
+                        lp: bool = True) -> np.ndarray:
     """Membership of the offsets ``R`` (N, n) in ``{G xi : |xi| <= 1}`` up to the l1 distance
     ``atol``: off-range points are outside; then (optionally) exact certificates; the rest by the
-    batched LP of :func:`_lp_residual`."""
+    batched LP of :func:`_lp_residual` (``lp=False``: left False, not proven inside)."""
     U, s, _ = np.linalg.svd(G, full_matrices=False)
     rank = int(np.sum(s > 1e-12 * s[0]))
     Ur = U[:, :rank]
@@ -190,6 +212,8 @@ def _points_in_range_lp(G: np.ndarray, R: np.ndarray, atol: float, certify: bool
     Rr = R @ Ur  # (N, rank)
     if certify:
         _certify(Gr, Rr, out, undecided, atol)
+    if not lp:
+        return out
     idx = np.flatnonzero(undecided)
     for s0 in range(0, idx.size, LP_CHUNK):
         blk = idx[s0: s0 + LP_CHUNK]
