@@ -81,8 +81,9 @@ def markdown(rows, machine: str, samples: int, date: str, timing: dict | None = 
         lines.append("")
         lines.append(f"- problem `{r.problem_id}`, method `{r.method}`, options "
                      f"`{ {k: v for k, v in r.options.items() if v} }`")
+        cpu = ", ".join(f"{k} {fmt(float(v))}" for k, v in r.cpu_s.items())
         lines.append(f"- reachable set {fmt(r.reach_s)} s, specs {fmt(r.check_s)} s, warm-up "
-                     f"{fmt(r.warmup_s)} s, {r.timesteps} steps")
+                     f"{fmt(r.warmup_s)} s (wall); CPU s: {cpu}; {r.timesteps} steps")
         for s in r.specs:
             m = f", margin {fmt(s['margin'])}" if s.get("margin") is not None else ""
             lines.append(f"- spec *{s['name']}*: **{s['status']}** ({s['detail']}{m})")
@@ -239,7 +240,12 @@ class Writer:
                "reachable sets": sum(f(r.reach_s) for r in self.rows),
                "spec checks": sum(f(r.check_s) for r in self.rows),
                "sampled truth": sum(f((r.truth or {}).get("time_s")) for r in self.rows)}
-        return {**{f"{k} (summed over instances)": v for k, v in tot.items()}, **self.timing}
+        cpu: dict[str, float] = {}
+        for r in self.rows:
+            for k, v in r.cpu_s.items():
+                cpu[k] = cpu.get(k, 0.0) + float(v)
+        return {**{f"{k} (summed over instances)": v for k, v in tot.items()},
+                **{f"CPU: {k} (summed)": v for k, v in cpu.items()}, **self.timing}
 
     def write_tables(self) -> None:
         base = Path(self.out.path)

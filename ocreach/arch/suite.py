@@ -75,6 +75,9 @@ class InstanceRun:
     #: the guaranteed sets enclose every run up to this time (the horizon, or where the method
     #: stopped)
     computed_to: float = float("nan")
+    #: CPU seconds of this process per phase (warm-up, reach with the spec checks, truth): the
+    #: cost apart from the machine's load
+    cpu_s: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -145,14 +148,16 @@ def run_instance(pid: str, *, method: str | None = None, samples: int = 2000, se
     run = InstanceRun(pid, info["benchmark"], info["instance"], method,
                       options={**problem.options_for(method), "hybrid": problem.options_for("hybrid")})
     if warmup:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             _reach(_short(problem), method)
         except OcreachError:
             pass
         run.warmup_s = time.perf_counter() - t0
+        run.cpu_s["warm-up"] = time.process_time() - c0
     ver = problem.extra["verification"]
     names = problem.model.state_names
+    c0 = time.process_time()
     t0 = time.perf_counter()
     try:
         res = _reach(problem, method)
@@ -179,13 +184,16 @@ def run_instance(pid: str, *, method: str | None = None, samples: int = 2000, se
         if ver.measures:
             run.accuracy_label = ver.measures[0].label
             run.accuracy = run.measures[run.accuracy_label]
+    run.cpu_s["reachable set and specs"] = time.process_time() - c0
     run.computed_to = _computed_to(problem, res)
     run.timesteps = _steps(problem, res)
     if samples:
         from ocreach.arch.truth import continuous_truth, hybrid_truth
 
         fn = hybrid_truth if hasattr(res, "pieces") else continuous_truth
+        c0 = time.process_time()
         run.truth = fn(problem, res, samples=samples, seed=seed, stride=truth_stride).as_dict()
+        run.cpu_s["sampled truth"] = time.process_time() - c0
         if run.result == "verified" and run.truth["violations"]:
             # a verified instance whose samples break a spec would be a soundness defect: say so
             run.error = ("sampled truth contradicts the verification: "

@@ -24,8 +24,6 @@ from ocreach.specs import Samples, check_samples
 
 #: a point is inside a set when its gauge is at most this
 GAUGE_TOL = 1 + 1e-9
-#: membership passes of the hybrid check: LP-free certificates, then the exact test
-PASSES = (False, "membership")
 
 
 @dataclass
@@ -163,7 +161,7 @@ def hybrid_truth(problem, result, samples: int = 2000, seed: int = 0, stride: in
     # membership in some piece of the point's location whose clock range holds its time: first
     # the LP-free certificates, then the exact test, each piece tried only on the points in its
     # time range and its box (a point outside a piece's box is not in the piece)
-    for lp in PASSES:
+    for lp in (False, "membership-lp"):
         for loc, pcs in by_loc.items():
             idx = np.flatnonzero((L == loc) & ~inside)
             if idx.size == 0:

@@ -137,7 +137,8 @@ def _certify(G: np.ndarray, R: np.ndarray, out: np.ndarray, undecided: np.ndarra
     undecided[idx[ins | outs]] = False
 
 
-def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto") -> np.ndarray | bool:
+def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto",
+                       certify: bool = True) -> np.ndarray | bool:
     """Exact membership of many points in a zonotope, in one call (bool array).
 
     ``method``: ``'auto'`` (halfspaces when there are at most ``MAX_FACET_SUBSETS`` facet subsets,
@@ -146,7 +147,8 @@ def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto") 
     ``max(1, sum|G|, |c|)``: a point is reported inside iff it lies within that distance.  The
     halfspace test alone cannot give this meaning (near an acute vertex a point far outside violates
     every facet by little), so points that pass the facets only thanks to the tolerance are
-    re-decided by the certificate/LP path.
+    re-decided by the certificate/LP path.  ``certify=False`` skips the certificates before the
+    LP (for points whose certificates already failed, :func:`certified_in_zonotope`).
     """
     n = Z.dim
     P, single = as_points("points", points, n)
@@ -170,9 +172,9 @@ def points_in_zonotope(Z, points: Any, tol: float = 1e-7, method: str = "auto") 
         out = viol <= 0.0
         band = np.flatnonzero((viol > 0.0) & (viol <= atol))
         if band.size:
-            out[band] = _points_in_range_lp(G, R[band], atol, certify=True)
+            out[band] = _points_in_range_lp(G, R[band], atol, certify=certify)
         return bool(out[0]) if single else out
-    out = _points_in_range_lp(G, R, atol, certify=method == "auto")
+    out = _points_in_range_lp(G, R, atol, certify=certify and method == "auto")
     return bool(out[0]) if single else out
 
 

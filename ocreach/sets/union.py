@@ -125,12 +125,15 @@ def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool | str = True) 
     ``CERT_TOL`` of the set's size) are reported with the upper bound ``1.0`` without a gauge LP;
     then the LP ``min t s.t. G xi = x - c, -t <= xi <= t`` for the remaining points,
     ``GAUGE_CHUNK`` of them per block-diagonal LP (HiGHS).  ``lp="membership"``: no gauge LP,
-    the points not inside get ``inf``; ``lp=False``: no LP at all, the points proven inside by
-    the LP-free certificates (:func:`ocreach.sets.contains.certified_in_zonotope`) get ``1.0``,
-    every other point ``inf`` (not proven inside, which is not proven outside).
+    the points not inside get ``inf`` (``"membership-lp"``: the same without the LP-free
+    certificates first, for points whose certificates already failed); ``lp=False``: no LP at
+    all, the points proven inside by the LP-free certificates
+    (:func:`ocreach.sets.contains.certified_in_zonotope`) get ``1.0``, every other point ``inf``
+    (not proven inside, which is not proven outside).
     """
-    if lp not in (True, False, "membership"):
-        raise SetError(f"gauge: lp must be True, False or 'membership'; got {lp!r}")
+    if lp not in (True, False, "membership", "membership-lp"):
+        raise SetError(f"gauge: lp must be True, False, 'membership' or 'membership-lp'; got "
+                       f"{lp!r}")
     P, single = as_points("points", points, Z.dim)
     G = np.asarray(Z.G)
     G = G[:, np.any(G != 0, axis=0)]
@@ -154,8 +157,12 @@ def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool | str = True) 
         from ocreach.sets.contains import certified_in_zonotope, points_in_zonotope
 
         # exact membership up to an l1 distance of ~6e-11 of the (row-scaled, unit-size) set
-        test = certified_in_zonotope if lp is False else points_in_zonotope
-        ok = ~off & np.asarray(test(Zonotope(np.zeros(G.shape[0]), G), R, tol=CERT_TOL), dtype=bool)
+        Zs = Zonotope(np.zeros(G.shape[0]), G)
+        if lp is False:
+            inside = certified_in_zonotope(Zs, R, tol=CERT_TOL)
+        else:
+            inside = points_in_zonotope(Zs, R, tol=CERT_TOL, certify=lp != "membership-lp")
+        ok = ~off & np.asarray(inside, dtype=bool)
         out[ok] = 1.0
     todo = np.flatnonzero(~ok & ~off) if lp is True else np.zeros(0, dtype=np.int64)
     for s0 in range(0, todo.size, GAUGE_CHUNK):
@@ -196,16 +203,16 @@ def union_gauge(S: Any, points: Any, exact: bool = False) -> np.ndarray:
     """Smallest gauge over the parts of a :class:`ZonotopeUnion` (or of one zonotope).
 
     Unless ``exact``, a point certified inside some part is reported as ``1.0`` (see :func:`gauge`):
-    first by the LP-free certificates, then by the exact membership test, each part tried only on
-    the points inside its interval hull (widened by ``1e-6`` of its magnitude); the exact LP
-    gauge over every part is computed only for points inside no part."""
+    first by the LP-free certificates, then by the LP of the exact membership test, each part
+    tried only on the points inside its interval hull (widened by ``1e-6`` of its magnitude); the
+    exact LP gauge over every part is computed only for points inside no part."""
     parts = S.parts if isinstance(S, ZonotopeUnion) else (S.to_zonotope(),)
     P, single = as_points("points", points, parts[0].dim)
     out = np.full(P.shape[0], np.inf)
     todo = np.ones(P.shape[0], dtype=bool)
     if not exact:
         boxes = [_box(p) for p in parts]
-        for lp in (False, "membership"):
+        for lp in (False, "membership-lp"):
             for p, (lo, hi) in zip(parts, boxes):
                 idx = np.flatnonzero(todo)
                 if idx.size == 0:
