@@ -23,8 +23,12 @@ tubes are zonotopes.  On a step ``[t, t + h]`` from the set ``R`` (local time ``
    curvature of the flow is carried, not boxed;
 4. the **dynamic error** ``1/2 [d(tau)^T H_xx d(tau) - d0^T H_xx d0]`` (the set moves during the
    step; Althoff 2013 Sec. 4.2) is bounded by ``1/2 |d(tau) - d0|^T |H_i| (|d(tau)| + |d0|)`` with
-   ``d(tau) - d0`` in the box of ``lambda (P - D0) + F D0 + F~ V_stat + R_W`` (``P`` the linear
-   image, ``lambda = tau / h``), added to ``rho``: the time-varying error box ``[-Lbar, Lbar]``;
+   ``d(tau) - d0`` in the box of ``lambda (P - D0)`` plus the deviation of the flow from that
+   chord (``P`` the linear image, ``lambda = tau / h``): the terms ``g1``, ``g2`` of the first
+   part of the error (linear and quadratic in ``lambda``) move the end point from ``P`` to
+   ``P_end``, so the deviation holds ``lambda (P_end - P)``, the curvature of the linear flow
+   ``F D0 + F~ V_stat`` and of the ``g`` terms' solutions, ``R_W`` and the response to the error
+   box itself; added to ``rho``: the time-varying error box ``[-Lbar, Lbar]``;
 5. the linear system ``d' = A d + V_stat + B dv(tau) + w(tau)``, ``w in [-Lbar, Lbar] (+ W)`` is
    stepped as in :mod:`ocreach.reach.linsys` (the exponential-matrix remainder ``E``, the
    curvature matrices ``F``, ``F~``; the input solution ``R_W`` of ``B dv`` and ``w``).  The
@@ -356,7 +360,11 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
     Dr = spz.reduce_for_map(Dd, ctx.h_err)
     g1 = spz.bilinear(Hxx, D0m, Dr, bits)                       # d0^T H D
     g2 = spz.quadratic(0.5 * Hxx, Dr, bits)                     # 1/2 D^T H D
-    Pend = spz.add(P, spz.add(spz.linear_map(G1, g1, G_rad), spz.linear_map(G2, g2, G_rad), bits), bits)
+    Pdyn = spz.add(spz.linear_map(G1, g1, G_rad), spz.linear_map(G2, g2, G_rad), bits)
+    Pend = spz.add(P, Pdyn, bits)
+    # the expansion's chord d0 + lambda D ends at P, the flow's near Pend: they differ by
+    # lambda (Pend - P), which the deviation r_rho of the true d(tau) from the chord must hold
+    mag_dyn = spz.magnitude(Pdyn)
     # the tube's polynomial part: CH(D0, P_end) with common factors
     lam = int(ctx.fid.new(1)[0])
     Dend = spz.add(Pend, spz.scale(-1.0, D0), bits)
@@ -403,7 +411,7 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         if not (np.all(np.isfinite(xlo)) and np.all(np.isfinite(xhi))):
             return StepFail("the tube is not finite", need)
         gx = up(np.maximum(np.abs(xlo - xs), np.abs(xhi - xs)), 1)
-        r_rho = up((r_rho0 + rL) * (1 + 1e-9) + 1e-300, 2)   # inflated like the box
+        r_rho = up((r_rho0 + mag_dyn + rL) * (1 + 1e-9) + 1e-300, 2)   # inflated like the box
         try:
             Tmag, Hblo, Hbhi = derivative_bounds(ctx, xlo, xhi, t_lo, t_hi)
         except OcreachError as exc:
@@ -415,7 +423,8 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         eh = 0.5 * np.einsum("a,iab,b->i", dz, eH, dz)
         # the same terms from the Hessian's variation over the box (second-order Lagrange form)
         ealt = 0.5 * np.einsum("a,iab,b->i", dz, np.maximum(Hbhi - Hs0, Hs0 - Hblo), dz)
-        eq = np.einsum("a,iab,b->i", r_rho, absHxx, gx)
+        # 1/2 |d - d'|^T |H| (|d| + |d'|), |d| <= gx on the tube's box, |d'| <= gx + mag_dyn
+        eq = np.einsum("a,iab,b->i", r_rho, absHxx, up(gx + 0.5 * mag_dyn, 2))
         elin = eval_error(pt[:3], (f0, A, Bv), gx, dv)
         need = up(np.minimum(e3 + emix + eh, ealt) + eq + elin, nz * nz * nz + 8)
         if not np.all(np.isfinite(need)):
