@@ -280,9 +280,15 @@ def run_suite(ids: list[str], *, method: str | None = None, samples: int = 2000,
     return [rows[pid] for pid in ids]
 
 
-#: relative cost of the instances (wall seconds of reachability and truth, 2026-12-03, 2 shared
-#: cores): the pool starts the longest first so that the two workers finish together
-COST: dict[str, float] = {}
+#: relative cost of the instances (wall seconds of reachable set and sampled truth with the suite
+#: definition, 2,000 samples, truth stride 10, 2026-12-03 on 2 shared cores under a load of
+#: about 6): the pool starts the longest first so that its workers finish close together
+COST: dict[str, float] = {
+    "arch-cvdp20-mu1": 430, "arch-prde20-ip": 350, "arch-prde20-p": 270, "arch-cvdp20-mu2": 256,
+    "arch-robe21-1": 180, "arch-spre22": 160, "arch-robe21-3": 122, "arch-lalo20-w001": 113,
+    "arch-robe21-2": 91, "arch-quad20-d04": 85, "arch-quad20-d08": 82, "arch-lalo20-w005": 78,
+    "arch-quad20-d01": 75, "arch-cvdp23": 66, "arch-prde20-i": 61, "arch-lalo20-w01": 59,
+    "arch-lovo21": 58}
 
 
 def summary_line(rows: list[InstanceRun]) -> str:
