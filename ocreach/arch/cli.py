@@ -25,6 +25,8 @@ def cmd_arch(args: argparse.Namespace) -> int:
     out = OutputDir(args.out or "out/arch")
     date = datetime.date.today().isoformat()
     writer = Writer(out, machine(), samples, date, figures=not args.no_figures, order=ids)
+    writer.workers = workers
+    writer.load["start"] = _load()
     try:
         rows = run_suite(ids, method=args.method, samples=samples, truth_stride=stride,
                          workers=workers, progress=lambda s: print(s, file=sys.stderr, flush=True),
@@ -34,7 +36,7 @@ def cmd_arch(args: argparse.Namespace) -> int:
         writer.write_figures()
         writer.timing["figures (wall)"] = time.perf_counter() - t_fig
         writer.timing["total (wall)"] = time.perf_counter() - t_start
-        writer.timing["workers"] = workers
+        writer.load["end"] = _load()
         writer.write_tables()
     except BaseException as exc:
         kept = out.keep_partial(f"{type(exc).__name__}: {exc}")
@@ -49,6 +51,12 @@ def cmd_arch(args: argparse.Namespace) -> int:
           f"worker(s)")
     print(f"wrote {target}/arch.csv, arch.md, results.json and {len(writer.by_bench)} figure(s)")
     return 0
+
+
+def _load() -> list[float]:
+    import os
+
+    return [round(x, 2) for x in os.getloadavg()] if hasattr(os, "getloadavg") else []
 
 
 def _cores() -> int:

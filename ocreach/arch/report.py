@@ -56,9 +56,13 @@ def csv_text(rows) -> str:
     return buf.getvalue()
 
 
-def markdown(rows, machine: str, samples: int, date: str, timing: dict | None = None) -> str:
+def markdown(rows, machine: str, samples: int, date: str, timing: dict | None = None,
+             workers: int = 1, load: dict | None = None) -> str:
+    la = "; load average (1, 5, 15 min) " + ", then ".join(
+        f"{' / '.join(f'{x:.2f}' for x in v)} at the {k}" for k, v in load.items()) if load else ""
     lines = ["# ARCH-COMP NLN benchmarks (ocreach)", "",
-             f"{date}; {machine}.  Times are wall seconds of the reachable set and the spec checks, "
+             f"{date}; {machine}; {workers} instance(s) at once{la}.  Times are wall seconds of "
+             "the reachable set and the spec checks, "
              "after a warm-up over the first grid steps (compilation, reported apart).  "
              "\"computed to\": the guaranteed sets enclose every run up to that time (the horizon, "
              "or where the method stopped); the sampled truth is compared with them up to there.",
@@ -73,7 +77,7 @@ def markdown(rows, machine: str, samples: int, date: str, timing: dict | None = 
                      f"{fmt(r.time)} | {r.accuracy_label} | {fmt(r.accuracy)} | {r.timesteps} | "
                      f"{fmt(r.computed_to)} | {t} |")
     if timing:
-        lines += ["", "Where the time went (wall seconds): " + ", ".join(
+        lines += ["", "Where the time went (seconds): " + ", ".join(
             f"{k} {fmt(float(v))}" for k, v in timing.items()) + "."]
     lines += ["", "## Details", ""]
     for r in rows:
@@ -218,6 +222,10 @@ class Writer:
         self.by_bench: dict[str, list] = {}
         #: wall seconds per phase (set by the caller: suite, figures, total)
         self.timing: dict[str, float] = {}
+        #: instances run at once (set by the caller)
+        self.workers = 1
+        #: the machine's load averages (1, 5, 15 min) at the start and end of the run
+        self.load: dict[str, list[float]] = {}
 
     def _rank(self, row) -> int:
         return self.order.index(row.problem_id) if row.problem_id in self.order else len(self.order)
@@ -244,18 +252,20 @@ class Writer:
         for r in self.rows:
             for k, v in r.cpu_s.items():
                 cpu[k] = cpu.get(k, 0.0) + float(v)
-        return {**{f"{k} (summed over instances)": v for k, v in tot.items()},
-                **{f"CPU: {k} (summed)": v for k, v in cpu.items()}, **self.timing}
+        return {**{f"{k} (wall, summed over instances)": v for k, v in tot.items()},
+                **{f"{k} (CPU, summed)": v for k, v in cpu.items()}, **self.timing}
 
     def write_tables(self) -> None:
         base = Path(self.out.path)
         timing = self.phase_totals()
         atomic_write_text(base / "arch.csv", csv_text(self.rows))
         atomic_write_text(base / "arch.md", markdown(self.rows, self.machine, self.samples,
-                                                     self.date, timing))
+                                                     self.date, timing, self.workers,
+                                                     self.load))
         atomic_write_text(base / "results.json", json_text({
             "machine": self.machine, "date": self.date, "samples": self.samples,
-            "timing_s": timing, "rows": [r.as_dict() for r in self.rows]}))
+            "workers": self.workers, "load_average": self.load, "timing_s": timing,
+            "rows": [r.as_dict() for r in self.rows]}))
 
     def write_figures(self) -> list[Path]:
         if not self.figures:
