@@ -130,9 +130,45 @@ def _parts(S):
     return list(S.parts) if hasattr(S, "parts") else [S]
 
 
+def _label(row, loc: str = "") -> str:
+    """``instance location (result)``, with how far a run that stopped got."""
+    stop = "" if row.result == "verified" or not row.error else \
+        f", stopped at t = {fmt(row.computed_to)}; the sets that blew up before are not drawn"
+    return " ".join(x for x in (row.instance, loc) if x) + f" ({row.result}{stop})"
+
+
+def _window(boxes: np.ndarray) -> np.ndarray | None:
+    """``[[x_lo, x_hi], [y_lo, y_hi]]`` of the figure from ``(t, lo_x, hi_x, lo_y, hi_y,
+    partial)`` rows of the drawn sets: the runs computed to the end and the first three quarters
+    of the time of the runs that stopped (whose last sets blew up before the stop), padded by 5 %."""
+    if boxes.size == 0:
+        return None
+    keep = boxes[:, 5] == 0
+    part = ~keep
+    if part.any():
+        t = boxes[part, 0]
+        keep |= part & (boxes[:, 0] <= t.min() + 0.75 * (t.max() - t.min()))
+    B = boxes[keep]
+    if B.size == 0 or not np.all(np.isfinite(B[:, 1:5])):
+        return None
+    W = np.array([[B[:, 1].min(), B[:, 2].max()], [B[:, 3].min(), B[:, 4].max()]])
+    pad = 0.05 * (W[:, 1] - W[:, 0]) + 1e-12 * (1 + np.abs(W).max(axis=1))
+    return W + np.column_stack([-pad, pad])
+
+
+def _inside(box, W: np.ndarray | None, factor: float = 3.0) -> bool:
+    """Whether a drawn set's box fits in the window grown ``factor`` times about its centre (a
+    set of a stopped run that blew up is not drawn; it would hide every other set)."""
+    if W is None:
+        return True
+    c, r = W.mean(axis=1), 0.5 * factor * (W[:, 1] - W[:, 0])
+    return bool(box[1] >= c[0] - r[0] and box[2] <= c[0] + r[0]
+                and box[3] >= c[1] - r[1] and box[4] <= c[1] + r[1])
+
+
 def figure(benchmark: str, runs: list[tuple[Any, Any, Any]], path: Path) -> Path | None:
-    """The benchmark's figure from ``[(row, problem, result), ...]`` (results that failed are
-    drawn as far as they got: nothing)."""
+    """The benchmark's figure from ``[(row, problem, result), ...]``: every guaranteed set drawn,
+    a run that stopped early as far as it got (the scale set by the runs computed to the end)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -150,44 +186,57 @@ def figure(benchmark: str, runs: list[tuple[Any, Any, Any]], path: Path) -> Path
     if kind == "time":
         _, coeffs, label, hlines = spec
         fig, ax = plt.subplots(figsize=(7, 4.5))
+        drawn = []
         for i, (row, prob, res) in enumerate(done):
             names = prob.model.state_names
-            rects = []
             for t0, t1, S, _loc, nm in _flow(res, names):
                 d = Linear(tuple(coeffs.items()), 0.0).vector(nm)
                 for Z in _parts(S):
                     hi, lo = support_bound(Z, d), -support_bound(Z, -d)
-                    rects.append([(t0, lo), (t1, lo), (t1, hi), (t0, hi)])
+                    drawn.append((i, [(t0, lo), (t1, lo), (t1, hi), (t0, hi)],
+                                  (t0, t0, t1, lo, hi, bool(row.error))))
+        W = _window(np.array([b for _, _, b in drawn], dtype=float).reshape(-1, 6))
+        for i, (row, _prob, _res) in enumerate(done):
+            rects = [q for k, q, b in drawn if k == i and (b[5] == 0 or _inside(b, W))]
             ax.add_collection(PolyCollection(rects, facecolor=COLOURS[i % 5], edgecolor="none",
-                                             alpha=0.6, label=f"{row.instance} ({row.result})"))
+                                             alpha=0.6, label=_label(row)))
         for h in hlines:
             ax.axhline(h, color="red", ls="--", lw=1)
         ax.autoscale_view()
+        if W is not None:
+            ax.set_ylim(*W[1])
         ax.set_xlabel("t")
         ax.set_ylabel(label)
     else:
         _, planes, extra = spec
         fig, axes = plt.subplots(1, len(planes), figsize=(6 * len(planes), 5.5), squeeze=False)
         for ax, (a, b) in zip(axes[0], planes):
+            drawn = []
             for i, (row, prob, res) in enumerate(done):
                 names = prob.model.state_names
                 flow = _flow(res, names)
                 step = max(1, len(flow) // 4000)
-                locs = sorted({f[3] for f in flow})
+                for t0, _t1, S, lc, nm in flow[::step]:
+                    ia, ib = nm.index(a), nm.index(b)
+                    for Z in _parts(S):
+                        P = Z.project([ia, ib])
+                        V = zonotope_polygon(P.c, P.G)
+                        lo, hi = V.min(axis=0), V.max(axis=0)
+                        drawn.append((i, lc, V, (t0, lo[0], hi[0], lo[1], hi[1], bool(row.error))))
+            W = _window(np.array([q[3] for q in drawn], dtype=float).reshape(-1, 6))
+            for i, (row, _prob, _res) in enumerate(done):
+                locs = sorted({lc for k, lc, _, _ in drawn if k == i})
                 for j, loc in enumerate(locs):
-                    polys = []
-                    for t0, t1, S, lc, nm in flow[::step]:
-                        if lc != loc:
-                            continue
-                        ia, ib = nm.index(a), nm.index(b)
-                        for Z in _parts(S):
-                            P = Z.project([ia, ib])
-                            polys.append(zonotope_polygon(P.c, P.G))
+                    polys = [V for k, lc, V, bx in drawn
+                             if k == i and lc == loc and (bx[5] == 0 or _inside(bx, W))]
                     col = COLOURS[(i + j) % 5]
-                    lab = (f"{row.instance} " if row.instance else "") + (loc or "") + f" ({row.result})"
                     ax.add_collection(PolyCollection(polys, facecolor=col, edgecolor=col,
-                                                     linewidth=0.2, alpha=0.5, label=lab.strip()))
+                                                     linewidth=0.2, alpha=0.5,
+                                                     label=_label(row, loc)))
             ax.autoscale_view()
+            if W is not None:
+                ax.set_xlim(*W[0])
+                ax.set_ylim(*W[1])
             ax.set_xlabel(a)
             ax.set_ylabel(b)
             for y in extra.get("y", []):
