@@ -1,10 +1,17 @@
 """One ARCH-COMP instance: warm-up, timed guaranteed reachability, spec checks on the tubes,
-measures on the final sets, and the sampled-truth check (:mod:`ocreach.arch.truth`).
+measures on the final sets, and the sampled-truth check (:mod:`ocreach.arch.truth`); the suite of
+instances, one after the other or on a process pool.
+
+Each instance's guaranteed method and its options are part of the suite definition
+(``problems/arch.py``: ``extra["arch"]["method"]`` and the problem's ``method_options``), the same
+for every run.  A run that stops early keeps its partial sets, which are checked against the
+sampled truth up to where they got (``computed_to``).
 
 The reported ``time`` is, as in the ARCH-COMP reports, the wall time of computing the reachable set
 and checking the specifications, after a warm-up run over the first grid steps that builds and
 compiles the model functions (the one-off cost a tool's start-up or JIT pays; it is reported apart
-as ``warmup_s``).  The truth check is not timed into it.
+as ``warmup_s``).  The truth check is not timed into it.  ``cpu_s`` holds the CPU seconds of each
+phase, which the machine's load does not inflate.
 """
 from __future__ import annotations
 

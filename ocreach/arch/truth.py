@@ -2,12 +2,15 @@
 escapes from the guaranteed sets and for counter-examples of the specifications.
 
 A continuous problem's samples (a quarter at vertices of the initial box, the rest uniform) are
-integrated by the batch DOP853 of :func:`ocreach.dynamics.flow.propagate` and compared, at every grid time,
-with the time-point set there.  A hybrid problem's samples come from
+integrated by the batch DOP853 of :func:`ocreach.dynamics.flow.propagate` and compared at the
+checked grid times with the time-point set there, and at the middle of the step after it with
+the step's tube.  A hybrid problem's samples come from
 :func:`ocreach.reach.hybrid.simulate_hybrid`; every sampled state (at grid times and before and
 after each jump) must lie in a flowpipe piece of its location whose clock range contains its time,
-as the point ``(x, t)``.  Membership is the exact gauge of :func:`ocreach.sets.union.gauge`
-(certificate first, LP for the rest), with tolerance ``1 + 1e-9``.
+as the point ``(x, t)``.  A guaranteed run that stopped early is checked up to where it got.
+Membership is the exact gauge of :func:`ocreach.sets.union.gauge` (LP-free certificates first,
+then the LP of the exact membership test, the exact gauge LP for points inside no set), with
+tolerance ``1 + 1e-9``.
 """
 from __future__ import annotations
 

@@ -389,7 +389,7 @@ def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, 
                               f"{' -> '.join(br.path) or 'initial'}, local step {k} "
                               f"[{grid[k]:.6g}, {grid[k + 1]:.6g}] cannot be enclosed: {fail.reason}")
             # the runs of this branch are enclosed up to the earliest clock of its parts
-            err.valid_until = min(_tau_range(_enclosure(reacher, p.Z), it)[0] for p in parts)
+            err.valid_until = min(_tau_range(_enclosure(p.Z), it)[0] for p in parts)
             err.candidates = [(tr, cands[tr.label]) for tr in outgoing]
             raise err
         br.steps += 1
@@ -424,7 +424,7 @@ def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, 
         if not parts:
             br.stop = "every run has left the location"
             break
-        if min(_tau_range(_enclosure(reacher, p.Z), it)[0] for p in parts) > T:
+        if min(_tau_range(_enclosure(p.Z), it)[0] for p in parts) > T:
             break
     for tr in outgoing:
         br.jumps[tr.label] = len(cands[tr.label])
@@ -449,7 +449,7 @@ def propagator(meth, problem: Problem):
     return PolyReach(meth, problem, meth.options)
 
 
-def _enclosure(reacher, S) -> Zonotope:
+def _enclosure(S) -> Zonotope:
     """A zonotope containing a part's set (the set itself for the zonotope methods, the sound
     enclosure of a polynomial zonotope of ``poly``)."""
     if isinstance(S, Zonotope):
@@ -466,7 +466,7 @@ def _cut_part(reacher, S, region, names):
     enclosure (a zonotope containing the set's part in the region, with fresh factors)."""
     if isinstance(S, Zonotope):
         return cut_region(S, region, names)
-    E = _enclosure(reacher, S)
+    E = _enclosure(S)
     C = cut_region(E, region, names)
     if C is None or C is E:
         return None if C is None else S

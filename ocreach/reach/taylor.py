@@ -393,14 +393,16 @@ class ZonotopeReach:
     def initial_parts(self) -> list[Part]:
         """The parts :meth:`run` starts from: the problem's initial set, split into
         ``initial_parts`` parts by :meth:`split_part` (the part with the largest extent, the sum
-        of its interval hull's widths relative to the initial set's, halved first; the halves of
-        a split cover the part, so the parts cover the initial set)."""
+        of its interval hull's widths relative to the initial set's in the states where that has
+        a width, halved first; the halves of a split cover the part, so the parts cover the
+        initial set)."""
         parts = [Part(Z=self.initial_set())]
         if self.opts.initial_parts == 1:
             return parts
-        scale = np.maximum(self._extent(parts[0].Z), 1e-300)
+        scale = self._extent(parts[0].Z)
+        inv = np.divide(1.0, scale, out=np.zeros_like(scale), where=scale > 0)
         while len(parts) < self.opts.initial_parts:
-            sizes = [float((self._extent(p.Z) / scale).sum()) if self.can_split_set(p.Z) else -1.0
+            sizes = [float(self._extent(p.Z) @ inv) if self.can_split_set(p.Z) else -1.0
                      for p in parts]
             i = int(np.argmax(sizes))
             if sizes[i] < 0:
