@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--years", type=float, default=0.25)
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--controllers", default="xaxis,target-point,tube-mpc,lqr")
+    ap.add_argument("--controllers", default="xaxis,target-point,corridor,tube-mpc,lqr")
     ap.add_argument("--monte-carlo", action="store_true")
     ap.add_argument("--mc-runs", type=int, default=100)
     ap.add_argument("--workers", type=int, default=2)
