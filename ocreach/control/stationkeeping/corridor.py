@@ -348,4 +348,4 @@ class CorridorControl:
                           "to go; a burn only when the plan cannot do without it"}
 
 
-__all__ = ["CorridorControl", "EXECUTION_QUANTILE", "PAPER_CORRIDOR", "execution_bound"]
+__all__ = ["EXECUTION_QUANTILE", "PAPER_CORRIDOR", "CorridorControl", "execution_bound"]

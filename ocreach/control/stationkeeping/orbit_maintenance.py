@@ -8,14 +8,17 @@ One run (:func:`run_maintenance`):
    uniform in ``+-srp uncertainty`` (:mod:`ocreach.control.stationkeeping.srp`);
 2. at every decision step the controller gets the estimate ``xhat = x + e``
    (:mod:`ocreach.control.stationkeeping.navigation`: a fresh Gaussian OD error at each fix):
-   * ``placement="anomaly"`` (x-axis control, target point): one burn per revolution where the
-     reference passes the true anomaly ``burn_anomaly_deg`` (180: apolune), with a fix there;
-   * ``placement="gauge"`` (the reachable-set controller): a fix every ``od_interval_h``; a burn
+   * ``placement="anomaly"`` (x-axis control, target point, corridor control): one burn
+     opportunity per revolution where the reference passes the true anomaly
+     ``burn_anomaly_deg`` (180: apolune), with a fix there; a burn at every opportunity, or
+     only where the controller's ``triggered`` says so (corridor control);
+   * ``placement="gauge"`` (the event-triggered tube MPC): a fix every ``od_interval_h``; a burn
      only when the controller's trigger fires on the estimate;
    * ``placement="continuous"`` (LQR, MPC): a thrust command every control step, on the estimate
      dead-reckoned from the last fix (``e_{k+1} = A_k e_k + B_k (u_cmd - u_executed)``);
 3. a burn is executed with magnitude and pointing errors, not at all below the minimum burn or
    when skipped (:mod:`ocreach.control.stationkeeping.execution`), and applied to the plant;
+   the burn record keeps what the controller says about it (its ``last_info``);
 4. the plant is propagated on the control grid; the run stops as **lost** when it leaves the
    NRHO: its distance from the Moon outside ``[d_min / loss_ratio, d_max * loss_ratio]``, ``d_min``
    and ``d_max`` the reference's closest and farthest grid distances (default ratio 1.25: below
@@ -24,7 +27,9 @@ One run (:func:`run_maintenance`):
    recorded, not a loss criterion: x-axis control leaves the phase along the orbit free, and a
    minute of phase is 100 km at perilune.  At every apolune the deviation is split into the
    phase offset ``dt = d . v_ref / |v_ref|^2`` and the rest ``|d - v_ref dt|`` (the deviation
-   from the orbit's path, valid while ``dt`` is small beside a revolution).
+   from the orbit's path, valid while ``dt`` is small beside a revolution).  For a controller
+   with a corridor (``corridor_half_widths``, per step) the true state's largest ratio to it
+   and the steps outside it are recorded.
 
 Random draws are keyed by (seed, run, stream, step): every controller of the same run index sees
 the same OD errors at the same fixes, the same execution-error draws at the same steps and the
