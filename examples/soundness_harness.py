@@ -4,8 +4,8 @@ and on every bundled problem with 10,000 truth samples; writes ``docs/validation
 The CI profile of the same harness is ``tests/test_soundness_harness.py``; the harness itself is
 ``ocreach.testing`` (what is checked and how: its module docstrings).  Here:
 
-* ``--systems`` (260) systems of the GENERAL population (seeds 0..N-1) and ``--dominated`` (60)
-  of the REMAINDER_DOMINATED population, each with ``--samples`` (90) truth trajectories, the
+* ``--systems`` (260) systems of the GENERAL population (seeds 0..N-1), ``--dominated`` (60)
+  of the REMAINDER_DOMINATED population and ``--quadratic`` (60) of the QUADRATIC one, each with ``--samples`` (90) truth trajectories, the
   tubes checked at a quarter, half and three quarters of every step and at both ends;
 * every bundled problem on its first ``--bundled-steps`` (4) grid steps with
   ``--bundled-samples`` (10,000) trajectories at the grid times and ``--tube-samples`` (2,000 of
@@ -21,7 +21,7 @@ The CI profile of the same harness is ``tests/test_soundness_harness.py``; the h
 0.1 and 0 on ``--power-systems`` (30) GENERAL systems, seeds 1000 on), which replaces its own
 section of the page.
 
-``--quick``: 12 + 6 systems, 2 bundled steps with 500 samples (a smoke run, about 5 minutes).
+``--quick``: 12 + 6 + 6 systems, 2 bundled steps with 500 samples (a smoke run, about 5 minutes).
 Progress (one line per finished system or problem) goes to stderr.
 """
 from __future__ import annotations
@@ -40,6 +40,7 @@ import numpy as np
 from ocreach.fileio import atomic_write_text, replace_markdown_section
 from ocreach.testing import (
     GENERAL,
+    QUADRATIC,
     REMAINDER_DOMINATED,
     bundled_cases,
     generated_case,
@@ -51,7 +52,8 @@ from ocreach.testing import (
 from ocreach.testing.mutants import scaled_remainder_taylor
 
 INNER = (0.25, 0.5, 0.75)
-POPULATIONS = {"GENERAL": GENERAL, "REMAINDER_DOMINATED": REMAINDER_DOMINATED}
+POPULATIONS = {"GENERAL": GENERAL, "REMAINDER_DOMINATED": REMAINDER_DOMINATED,
+               "QUADRATIC": QUADRATIC}
 TRAILER = """## A new guaranteed method
 
 Set the class attribute `guaranteed = True` on the method (`ocreach.reach.base.Method.guaranteed`:
@@ -186,6 +188,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--systems", type=int, default=260)
     ap.add_argument("--dominated", type=int, default=60)
+    ap.add_argument("--quadratic", type=int, default=60)
     ap.add_argument("--samples", type=int, default=90)
     ap.add_argument("--bundled-steps", type=int, default=4)
     ap.add_argument("--bundled-samples", type=int, default=10_000)
@@ -201,7 +204,7 @@ def main() -> None:
                                          / "soundness.md"))
     a = ap.parse_args()
     if a.quick:
-        a.systems, a.dominated, a.bundled_steps = 12, 6, 2
+        a.systems, a.dominated, a.quadratic, a.bundled_steps = 12, 6, 6, 2
         a.bundled_samples = a.tube_samples = 500
     t_start = time.perf_counter()
     if a.power:
@@ -220,7 +223,9 @@ def main() -> None:
 
     tasks = ([("GENERAL", s, a.samples, tuple(methods), with_mutant) for s in range(a.systems)]
              + [("REMAINDER_DOMINATED", s, a.samples, tuple(methods), with_mutant)
-                for s in range(a.dominated)])
+                for s in range(a.dominated)]
+             + [("QUADRATIC", s, a.samples, tuple(methods), with_mutant)
+                for s in range(a.quadratic)])
     done = _map(system_task, tasks, a.workers)
     t_gen = time.perf_counter() - t_start
     bundled = _map(bundled_task, [(pid, a.bundled_steps, a.bundled_samples, a.tube_samples,
@@ -228,7 +233,8 @@ def main() -> None:
                    a.workers)
     t_all = time.perf_counter() - t_start
 
-    run = (f"{'`--quick`, ' if a.quick else ''}{a.systems} + {a.dominated} systems, {a.samples} "
+    run = (f"{'`--quick`, ' if a.quick else ''}{a.systems} + {a.dominated} + {a.quadratic} "
+           f"systems, {a.samples} "
            f"samples each; bundled problems on {a.bundled_steps} grid steps with "
            f"{a.bundled_samples:,} samples, {min(a.tube_samples, a.bundled_samples):,} of them in "
            "the tubes")

@@ -23,8 +23,12 @@ tubes are zonotopes.  On a step ``[t, t + h]`` from the set ``R`` (local time ``
    curvature of the flow is carried, not boxed;
 4. the **dynamic error** ``1/2 [d(tau)^T H_xx d(tau) - d0^T H_xx d0]`` (the set moves during the
    step; Althoff 2013 Sec. 4.2) is bounded by ``1/2 |d(tau) - d0|^T |H_i| (|d(tau)| + |d0|)`` with
-   ``d(tau) - d0`` in the box of ``lambda (P - D0) + F D0 + F~ V_stat + R_W`` (``P`` the linear
-   image, ``lambda = tau / h``), added to ``rho``: the time-varying error box ``[-Lbar, Lbar]``;
+   ``d(tau) - d0`` in the box of ``lambda (P - D0)`` plus the deviation of the flow from that
+   chord (``P`` the linear image, ``lambda = tau / h``): the terms ``g1``, ``g2`` of the first
+   part of the error (linear and quadratic in ``lambda``) move the end point from ``P`` to
+   ``P_end``, so the deviation holds ``lambda (P_end - P)``, the curvature of the linear flow
+   ``F D0 + F~ V_stat`` and of the ``g`` terms' solutions, ``R_W`` and the response to the error
+   box itself; added to ``rho``: the time-varying error box ``[-Lbar, Lbar]``;
 5. the linear system ``d' = A d + V_stat + B dv(tau) + w(tau)``, ``w in [-Lbar, Lbar] (+ W)`` is
    stepped as in :mod:`ocreach.reach.linsys` (the exponential-matrix remainder ``E``, the
    curvature matrices ``F``, ``F~``; the input solution ``R_W`` of ``B dv`` and ``w``).  The
@@ -238,6 +242,11 @@ class PolyContext(Context):
         self.weights: np.ndarray | None = None
 
 
+def _magnitude_up(S: SoundPZ) -> np.ndarray:
+    """:func:`ocreach.sets.pz_sound.magnitude` rounded up for its sum of generators."""
+    return up(spz.magnitude(S), S.G.shape[1] + S.GI.shape[1] + 3)
+
+
 def _lo_hi_pad(lo: np.ndarray, hi: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """``[lo, hi]`` widened by the rounding of the sums that produced them (``k`` terms)."""
     r = rounding_radius(np.maximum(np.abs(lo), np.abs(hi)), k)
@@ -350,38 +359,44 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
     D0 = spz.translate(R, -xs)
     D0m = spz.reduce_for_map(D0, ctx.h_err)
     Vstat = spz.translate(spz.quadratic(0.5 * Hxx, D0m, bits), f0)   # f0 + 1/2 d0^T H d0
+    if ctx.W is not None:
+        # the disturbance's centre is a constant input like f0: Gamma w_c enters P exactly and
+        # F~ bounds it off the chord for tau < h (|Gamma(tau) w_c| can exceed |Gamma(h) w_c|)
+        Vstat = spz.translate(Vstat, ctx.W.c)
     P = spz.add(spz.linear_map(et.Phi, D0, et.E), spz.linear_map(G0, Vstat, G_rad), bits)
     Dd = spz.add(P, spz.scale(-1.0, D0), bits)                  # P - D0 = D(alpha) + boxes
     # the quadratic term along the segment d0 + lambda D: 1/2 Q(d0) + lambda g1 + lambda^2 g2
     Dr = spz.reduce_for_map(Dd, ctx.h_err)
     g1 = spz.bilinear(Hxx, D0m, Dr, bits)                       # d0^T H D
     g2 = spz.quadratic(0.5 * Hxx, Dr, bits)                     # 1/2 D^T H D
-    Pend = spz.add(P, spz.add(spz.linear_map(G1, g1, G_rad), spz.linear_map(G2, g2, G_rad), bits), bits)
+    Pdyn = spz.add(spz.linear_map(G1, g1, G_rad), spz.linear_map(G2, g2, G_rad), bits)
+    Pend = spz.add(P, Pdyn, bits)
+    # the expansion's chord d0 + lambda D ends at P, the flow's near Pend: they differ by
+    # lambda (Pend - P), which the deviation r_rho of the true d(tau) from the chord must hold
+    mag_dyn = _magnitude_up(Pdyn)
     # the tube's polynomial part: CH(D0, P_end) with common factors
     lam = int(ctx.fid.new(1)[0])
     Dend = spz.add(Pend, spz.scale(-1.0, D0), bits)
     seg = spz.add(spz.add(spz.scale(0.5, D0), spz.scale(0.5, Pend), bits),
                   spz.times_new_factor(spz.scale(0.5, Dend), lam, bits), bits)
     seg_lo, seg_hi = spz.box(seg)
-    magD0, magV = spz.magnitude(D0), spz.magnitude(Vstat)
+    magD0, magV = _magnitude_up(D0), _magnitude_up(Vstat)
     r_F = up((np.abs(et.F_mid) + et.F_rad) @ magD0 + (np.abs(et.Ft_mid) + et.Ft_rad) @ magV, n + 2)
-    r_g = up(C1 @ spz.magnitude(g1) + C2 @ spz.magnitude(g2), n + 2)   # y_k off the chord
+    r_g = up(C1 @ _magnitude_up(g1) + C2 @ _magnitude_up(g2), n + 2)   # y_k off the chord
     # ---- the uncertain input B (V - v_c) [x (t - t*)] (+ W): its input solution R_W
     Gv = ctx.V.G
     if ctx.td:
         Gv = np.zeros((ctx.V.dim + 1, ctx.V.n_generators + 1))
         Gv[:-1, :-1] = ctx.V.G
-        Gv[-1, -1] = 0.5 * h
+        Gv[-1, -1] = up(max(ts - t0, t0 + h - ts), 2)   # |t - t*| on the step (ts is rounded)
     Gu = Bv @ Gv
     r_Gu = rounding_radius(np.abs(Bv) @ np.abs(Gv).sum(axis=1), Gv.shape[0])
-    r_wc = np.zeros(n)
     if ctx.W is not None:
         Gu = np.hstack([Gu, ctx.W.G])
-        r_wc = up((np.abs(G0) + G_rad) @ np.abs(ctx.W.c), n + 2)   # Gamma w_c, boxed
     Gu = np.hstack([Gu, diag_columns(r_Gu)])
     RWG = input_generators(Gu, et)
     r_RW = rounding_radius(h * et.M @ np.abs(Gu).sum(axis=1), n + et.eta + 4)
-    RWz = Zonotope.trusted(np.zeros(n), np.hstack([RWG, diag_columns(up(r_RW + r_wc, 2))]))
+    RWz = Zonotope.trusted(np.zeros(n), np.hstack([RWG, diag_columns(r_RW)]))
     r_RWz = up(np.abs(RWz.G).sum(axis=1), RWz.n_generators + 1)
     # box response of the error box [-L, L]: |R_W(box(L))| <= S_L L
     S_L = weighted_sum(h / np.arange(1, et.eta + 2), np.abs(et.T).reshape(et.eta + 1, n * n), n) + et.E * h
@@ -403,7 +418,7 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         if not (np.all(np.isfinite(xlo)) and np.all(np.isfinite(xhi))):
             return StepFail("the tube is not finite", need)
         gx = up(np.maximum(np.abs(xlo - xs), np.abs(xhi - xs)), 1)
-        r_rho = up((r_rho0 + rL) * (1 + 1e-9) + 1e-300, 2)   # inflated like the box
+        r_rho = up((r_rho0 + mag_dyn + rL) * (1 + 1e-9) + 1e-300, 2)   # inflated like the box
         try:
             Tmag, Hblo, Hbhi = derivative_bounds(ctx, xlo, xhi, t_lo, t_hi)
         except OcreachError as exc:
@@ -415,7 +430,8 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
         eh = 0.5 * np.einsum("a,iab,b->i", dz, eH, dz)
         # the same terms from the Hessian's variation over the box (second-order Lagrange form)
         ealt = 0.5 * np.einsum("a,iab,b->i", dz, np.maximum(Hbhi - Hs0, Hs0 - Hblo), dz)
-        eq = np.einsum("a,iab,b->i", r_rho, absHxx, gx)
+        # 1/2 |d - d'|^T |H| (|d| + |d'|), |d| <= gx on the tube's box, |d'| <= gx + mag_dyn
+        eq = np.einsum("a,iab,b->i", r_rho, absHxx, up(gx + 0.5 * mag_dyn, 2))
         elin = eval_error(pt[:3], (f0, A, Bv), gx, dv)
         need = up(np.minimum(e3 + emix + eh, ealt) + eq + elin, nz * nz * nz + 8)
         if not np.all(np.isfinite(need)):

@@ -25,6 +25,7 @@ from ocreach.testing.harness import (
 )
 from ocreach.testing.strategies import (
     GENERAL,
+    QUADRATIC,
     REMAINDER_DOMINATED,
     GeneratedSystem,
     Ranges,
@@ -33,6 +34,6 @@ from ocreach.testing.strategies import (
     systems,
 )
 
-__all__ = ["GENERAL", "REMAINDER_DOMINATED", "Case", "GeneratedSystem", "Outcome", "Ranges",
+__all__ = ["GENERAL", "QUADRATIC", "REMAINDER_DOMINATED", "Case", "GeneratedSystem", "Outcome", "Ranges",
            "bundled_cases", "generate", "generated_case", "guaranteed_methods", "run_all",
            "run_method", "seeded_system", "summary", "systems"]
