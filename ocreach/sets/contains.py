@@ -77,7 +77,8 @@ def zonotope_halfspaces(Z, max_subsets: int = MAX_FACET_SUBSETS) -> tuple[np.nda
 def _lp_residual(Gr: np.ndarray, R: np.ndarray) -> np.ndarray:
     """For each column r_k of R: ``min ||e_k||_1 s.t. Gr xi_k + e_k = r_k, -1 <= xi_k <= 1``, all
     points in ONE block-diagonal LP (HiGHS dual simplex, bounded variables).  The point is in the
-    zonotope iff the optimal residual is 0.  Returns the residuals (K,)."""
+    zonotope iff the optimal residual is 0.  Returns the residuals (K,) of the solver's factor
+    vectors (clipped to the box), recomputed from ``Gr`` and ``R``."""
     from scipy.optimize import linprog
 
     k_rows, h = Gr.shape
@@ -88,10 +89,16 @@ def _lp_residual(Gr: np.ndarray, R: np.ndarray) -> np.ndarray:
     cost = np.tile(np.concatenate([np.zeros(h), np.ones(2 * k_rows)]), K)
     lb = np.tile(np.concatenate([-np.ones(h), np.zeros(2 * k_rows)]), K)
     ub = np.tile(np.concatenate([np.ones(h), np.full(2 * k_rows, np.inf)]), K)
-    res = linprog(cost, A_eq=A, b_eq=R.T.ravel(), bounds=np.column_stack([lb, ub]), method="highs-ds")
+    # HiGHS's default feasibility tolerance (1e-7) lets the optimum's residual be wrong by more than
+    # the callers' tolerances (points ~3x beyond the l1 tolerance were reported inside): 1e-10
+    res = linprog(cost, A_eq=A, b_eq=R.T.ravel(), bounds=np.column_stack([lb, ub]), method="highs-ds",
+                  options={"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10})
     if res.status != 0:
         raise SolverError(f"points_in_zonotope: HiGHS returned status {res.status} ({res.message}) for the batched LP")
-    return res.x.reshape(K, nv)[:, h:].sum(axis=1)
+    # the residual of the solver's factors, clipped to the box, recomputed here: an upper bound of
+    # the distance that does not rely on the solver's own feasibility tolerance
+    xi = np.clip(res.x.reshape(K, nv)[:, :h], -1.0, 1.0)
+    return np.abs(xi @ Gr.T - R.T).sum(axis=1)
 
 
 def _direction_set(n: int, G: np.ndarray, k: int = 256) -> np.ndarray:
