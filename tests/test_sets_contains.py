@@ -178,3 +178,74 @@ def test_lp_membership_rejects_points_beyond_its_tolerance(seed):
     assert not points_in_zonotope(Z, out, tol=tol, method="lp").any()
     inner = Z.c + (1 - 1e-6) * (V - Z.c)
     assert points_in_zonotope(Z, inner, tol=tol, method="lp").all()
+
+
+def _awkward_zonotope(rng, kind: str) -> Zonotope:
+    """Generators whose facet normals are hard to compute in floating point: a nearly parallel
+    pair, a tiny generator, or a flat zonotope made full-dimensional by a tiny generator."""
+    n = int(rng.integers(3, 5))
+    h = int(rng.integers(n, n + 4))
+    G = rng.normal(size=(n, h))
+    if kind == "parallel":
+        G[:, 1] = G[:, 0] * rng.uniform(0.2, 2) + 10.0 ** -rng.uniform(6, 15) * rng.normal(size=n)
+    elif kind == "tiny":
+        G[:, -1] *= 10.0 ** -rng.uniform(8, 16)
+    else:  # flat: the first n - 1 rows span the set, the tiny last generator the last axis
+        G[-1] = 0.0
+        G = np.hstack([G, 10.0 ** -rng.uniform(8, 16) * np.eye(n)[:, -1:]])
+        Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
+        G = Q @ G
+    return Zonotope(rng.normal(size=n) * 10.0 ** rng.uniform(-1, 3), G)
+
+
+@SET
+@given(st.integers(0, 10**6), st.sampled_from(["parallel", "tiny", "flat"]),
+       st.sampled_from([1e-7, 1e-11]))
+def test_facet_path_inside_is_a_proof_on_awkward_generators(seed, kind, tol):
+    """An inside verdict of the facet path (``points_in_zonotope``, ``certified_in_zonotope``,
+    the gauge's first pass) is a proof within the tolerance even where the facet normals are
+    ill-conditioned: no point outside by more than the tolerance (moved out from the support
+    point along its direction ``d``, so ``d.x - h(d)`` proves the distance) is called inside;
+    clearly interior points are inside by the independent LP (linprog at 1e-10), by
+    ``points_in_zonotope`` and by the union gauge."""
+    rng = np.random.default_rng(seed)
+    Z = _awkward_zonotope(rng, kind)
+    n = Z.dim
+    atol = tol * max(1.0, float(np.abs(Z.G).sum()), float(np.abs(Z.c).max()))
+    d = rng.normal(size=(40, n))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    V = Z.c + np.sign(d @ Z.G) @ Z.G.T
+    far = np.linalg.norm(Z.G, axis=0).sum()
+    out = V + d * (atol * 10.0 ** rng.uniform(0.5, 3, size=(40, 1)))
+    out = np.vstack([out, V + d * far])  # far out, e.g. along a flat set's plane
+    assert np.all(np.einsum("ij,ij->i", np.vstack([d, d]), out - Z.c)
+                  - np.abs(np.vstack([d, d]) @ Z.G).sum(axis=1) > atol)
+    inner = Z.c + (1 - 1e-3) * (V - Z.c)
+    assert not certified_in_zonotope(Z, out, tol=tol).any()
+    assert not np.atleast_1d(points_in_zonotope(Z, out, tol=tol)).any()
+    if tol == 1e-11:  # the gauge's own tolerance (CERT_TOL) on the row-scaled set
+        assert np.all(np.atleast_1d(gauge(Z, out, lp=False)) > 1.0)
+    # inside: by the LP, by the membership test at the LP's resolution (a set thinner than the
+    # facet test's margin leaves every point to the LP) and, unless the set is thinner than the
+    # rounding of the points (flat), by the truth checks' gauge (exact, no tolerance)
+    assert all(lp_in_zonotope(Z.c, Z.G, x) for x in inner)
+    assert np.atleast_1d(points_in_zonotope(Z, inner, tol=1e-7)).all()
+    if kind != "flat":
+        assert np.all(np.atleast_1d(union_gauge(Z, inner)) <= 1.0 + 1e-9)
+
+
+def test_flat_zonotope_with_a_tiny_generator_does_not_swallow_its_plane():
+    """A zonotope spanning a plane of R^3 plus a generator of 1e-14 across it: the facets through
+    the tiny generator have cross products ~1e-14 of the others; dropping them as degenerate left
+    only the two faces of the plane, and a point 20 times outside was reported inside (gauge 1)."""
+    Q = np.linalg.qr(np.random.default_rng(4).normal(size=(3, 3)))[0]
+    Z = Zonotope(np.zeros(3), Q @ np.array([[1.0, 0.3, -0.5, 0], [0.2, 1.0, 0.7, 0],
+                                            [0, 0, 0, 1e-14]]))
+    far = Q @ np.array([30.0, -20.0, 0.0])
+    assert not lp_in_zonotope(Z.c, Z.G, far)
+    assert not points_in_zonotope(Z, far) and not certified_in_zonotope(Z, far[None])[0]
+    assert gauge(Z, far) > 20 and union_gauge(ZonotopeUnion([Z]), far) > 20
+    # two generators at an angle of 1e-13: their facet's normal is not computable
+    Z2 = Zonotope(np.zeros(3), np.array([[1.0, 1.0, 0], [0, 1e-13, 0], [0, 0, 1.0]]))
+    top = np.array([0.0, 0.0, 5.0])
+    assert not points_in_zonotope(Z2, top) and not certified_in_zonotope(Z2, top[None])[0]
