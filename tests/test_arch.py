@@ -273,7 +273,7 @@ def _in_pieces(res, loc: str, X: np.ndarray, t: np.ndarray) -> np.ndarray:
         return idx[inb]
 
     for test in (_least_norm_inside,
-                 lambda Z, Q: np.atleast_1d(gauge(Z, Q, lp="membership")) <= 1.0):
+                 lambda Z, Q: np.atleast_1d(gauge(Z, Q, lp=False)) <= 1.0):
         for pc, I in zip(pcs, boxes):
             idx = candidates(pc, I)
             if idx.size:
@@ -291,7 +291,7 @@ def _in_sets(sets, P: np.ndarray) -> np.ndarray:
     for Z in sets:
         idx = np.flatnonzero(~ok)
         if idx.size:
-            ok[idx[np.atleast_1d(gauge(Z, P[idx], lp="membership")) <= 1.0]] = True
+            ok[idx[np.atleast_1d(gauge(Z, P[idx], lp=False)) <= 1.0]] = True
     for i in np.flatnonzero(~ok):
         ok[i] = min(float(union_gauge(Z, P[i], exact=True)) for Z in sets) <= TOL
     return ok

@@ -127,8 +127,8 @@ def test_thin_zonotope_acute_vertex_not_inside_by_tolerance():
 @SET
 @given(st.integers(0, 10**6))
 def test_lp_free_certificates_and_union_gauge_match_linprog(seed):
-    """``certified_in_zonotope`` (and ``gauge(lp=False)``) never call a point inside that the
-    independent LP puts outside; ``gauge(lp="membership")`` decides like the LP; the union
+    """``certified_in_zonotope`` (and ``gauge(lp="certificates")``) never call a point inside
+    that the independent LP puts outside; ``gauge(lp=False)`` decides like the LP; the union
     gauge (certificates, membership in the parts whose box holds the point, exact gauges for
     the rest) is <= 1 exactly for the points some part contains."""
     rng = np.random.default_rng(seed)
@@ -142,8 +142,9 @@ def test_lp_free_certificates_and_union_gauge_match_linprog(seed):
     for Z, w in zip(parts, want):
         cert = certified_in_zonotope(Z, pts)
         assert not np.any(cert & ~w)
-        assert np.array_equal(np.atleast_1d(gauge(Z, pts, lp=False)) <= 1.0, cert)
-        assert np.array_equal(np.atleast_1d(gauge(Z, pts, lp="membership")) <= 1.0, w)
+        assert np.array_equal(np.atleast_1d(gauge(Z, pts, lp="certificates")) <= 1.0, cert)
+        assert np.array_equal(np.atleast_1d(gauge(Z, pts, lp=False)) <= 1.0, w)
+        assert np.array_equal(np.atleast_1d(gauge(Z, pts, lp="membership-lp")) <= 1.0, w)
     g = np.atleast_1d(union_gauge(ZonotopeUnion(parts), pts))
     assert np.array_equal(g <= 1.0 + 1e-9, want.any(axis=0))
 
@@ -224,7 +225,8 @@ def test_facet_path_inside_is_a_proof_on_awkward_generators(seed, kind, tol):
     assert not certified_in_zonotope(Z, out, tol=tol).any()
     assert not np.atleast_1d(points_in_zonotope(Z, out, tol=tol)).any()
     if tol == 1e-11:  # the gauge's own tolerance (CERT_TOL) on the row-scaled set
-        assert np.all(np.atleast_1d(gauge(Z, out, lp=False)) > 1.0)
+        for lp in ("certificates", False):
+            assert np.all(np.atleast_1d(gauge(Z, out, lp=lp)) > 1.0)
     # inside: by the LP, by the membership test at the LP's resolution (a set thinner than the
     # facet test's margin leaves every point to the LP) and, unless the set is thinner than the
     # rounding of the points (flat), by the truth checks' gauge (exact, no tolerance)
@@ -249,3 +251,19 @@ def test_flat_zonotope_with_a_tiny_generator_does_not_swallow_its_plane():
     Z2 = Zonotope(np.zeros(3), np.array([[1.0, 1.0, 0], [0, 1e-13, 0], [0, 0, 1.0]]))
     top = np.array([0.0, 0.0, 5.0])
     assert not points_in_zonotope(Z2, top) and not certified_in_zonotope(Z2, top[None])[0]
+
+
+def test_gauge_lp_argument_is_checked():
+    """``lp=False`` is the exact membership test (no gauge LP), as it always was; an unknown
+    value is an error, not a silent weaker test."""
+    import pytest
+
+    from ocreach.errors import SetError
+
+    Z = Zonotope(np.zeros(2), np.array([[1.0, 0.5], [0.0, 1.0]]))
+    x = np.array([[0.2, 0.1], [3.0, 0.0]])
+    assert np.atleast_1d(gauge(Z, x, lp=False)).tolist() == [1.0, np.inf]
+    assert np.atleast_1d(gauge(Z, x))[1] == pytest.approx(3.0)
+    for bad in ("membership", 1, None):
+        with pytest.raises(SetError, match="lp must be True, False, 'membership-lp' or"):
+            gauge(Z, x, lp=bad)

@@ -164,7 +164,7 @@ def hybrid_truth(problem, result, samples: int = 2000, seed: int = 0, stride: in
     # membership in some piece of the point's location whose clock range holds its time: first
     # the LP-free certificates, then the exact test, each piece tried only on the points in its
     # time range and its box (a point outside a piece's box is not in the piece)
-    for lp in (False, "membership-lp"):
+    for lp in ("certificates", "membership-lp"):
         for loc, pcs in by_loc.items():
             idx = np.flatnonzero((L == loc) & ~inside)
             if idx.size == 0:

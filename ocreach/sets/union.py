@@ -124,15 +124,19 @@ def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool | str = True) 
     (:func:`ocreach.sets.contains.points_in_zonotope` on the row-scaled set, distance tolerance
     ``CERT_TOL`` of the set's size) are reported with the upper bound ``1.0`` without a gauge LP;
     then the LP ``min t s.t. G xi = x - c, -t <= xi <= t`` for the remaining points,
-    ``GAUGE_CHUNK`` of them per block-diagonal LP (HiGHS).  ``lp="membership"``: no gauge LP,
-    the points not inside get ``inf`` (``"membership-lp"``: the same without the LP-free
-    certificates first, for points whose certificates already failed); ``lp=False``: no LP at
-    all, the points proven inside by the LP-free certificates
-    (:func:`ocreach.sets.contains.certified_in_zonotope`) get ``1.0``, every other point ``inf``
-    (not proven inside, which is not proven outside).
+    ``GAUGE_CHUNK`` of them per block-diagonal LP (HiGHS).  ``lp`` chooses how far this goes:
+
+    * ``True``: membership test, then the gauge LP for the points not inside;
+    * ``False``: the exact membership test only (its certificates and LP); the points not inside
+      get ``inf``;
+    * ``"membership-lp"``: as ``False`` without the membership test's certificates first (for
+      points whose LP-free certificates already failed);
+    * ``"certificates"``: no LP at all: the points proven inside by the LP-free certificates
+      (:func:`ocreach.sets.contains.certified_in_zonotope`) get ``1.0``, every other point
+      ``inf`` (not proven inside, which is not proven outside).
     """
-    if lp not in (True, False, "membership", "membership-lp"):
-        raise SetError(f"gauge: lp must be True, False, 'membership' or 'membership-lp'; got "
+    if not (isinstance(lp, (bool, np.bool_)) or lp in ("membership-lp", "certificates")):
+        raise SetError(f"gauge: lp must be True, False, 'membership-lp' or 'certificates'; got "
                        f"{lp!r}")
     P, single = as_points("points", points, Z.dim)
     G = np.asarray(Z.G)
@@ -158,13 +162,14 @@ def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool | str = True) 
 
         # exact membership up to an l1 distance of ~6e-11 of the (row-scaled, unit-size) set
         Zs = Zonotope(np.zeros(G.shape[0]), G)
-        if lp is False:
+        if lp == "certificates":
             inside = certified_in_zonotope(Zs, R, tol=CERT_TOL)
         else:
             inside = points_in_zonotope(Zs, R, tol=CERT_TOL, certify=lp != "membership-lp")
         ok = ~off & np.asarray(inside, dtype=bool)
         out[ok] = 1.0
-    todo = np.flatnonzero(~ok & ~off) if lp is True else np.zeros(0, dtype=np.int64)
+    gauge_lp = isinstance(lp, (bool, np.bool_)) and bool(lp)
+    todo = np.flatnonzero(~ok & ~off) if gauge_lp else np.zeros(0, dtype=np.int64)
     for s0 in range(0, todo.size, GAUGE_CHUNK):
         blk = todo[s0: s0 + GAUGE_CHUNK]
         out[blk] = _gauge_lp(G, R[blk])
@@ -212,7 +217,7 @@ def union_gauge(S: Any, points: Any, exact: bool = False) -> np.ndarray:
     todo = np.ones(P.shape[0], dtype=bool)
     if not exact:
         boxes = [_box(p) for p in parts]
-        for lp in (False, "membership-lp"):
+        for lp in ("certificates", "membership-lp"):
             for p, (lo, hi) in zip(parts, boxes):
                 idx = np.flatnonzero(todo)
                 if idx.size == 0:
