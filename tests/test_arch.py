@@ -491,3 +491,33 @@ def test_soundness_harness_checks_hybrid_flowpipes_through_the_automaton():
     bad = Outcome("taylor", case.label, "bundled", "complete")
     check_hybrid(shrunk, truth, bad)
     assert bad.escapes > 0
+
+
+def test_hybrid_truth_checks_the_tubes_between_grid_times():
+    """A flowpipe that holds the runs at the grid times only (a small box around the sampled
+    states at each grid time, nothing between) is caught: the hybrid truth also checks every
+    run at the middle of each grid step."""
+    from ocreach.arch.truth import hybrid_truth
+    from ocreach.reach.hybrid import HybridResult, simulate_hybrid
+    from ocreach.specs import Piece
+
+    p = ocreach.get_problem("arch-lovo21", t_final=0.1)
+    hs = simulate_hybrid(p, samples=40, seed=3)
+    smp = hs.samples
+    G = p.grid.size
+    names = (*p.automaton.state_names, "t")
+    pieces = []
+    for k in range(G):
+        for loc in set(smp.locations[:, k]):
+            X = smp.states[smp.locations[:, k] == loc, k]
+            lo = np.r_[X.min(axis=0), p.grid[k]] - 1e-6
+            hi = np.r_[X.max(axis=0), p.grid[k]] + 1e-6
+            pieces.append(Piece(Zonotope((lo + hi) / 2, np.diag((hi - lo) / 2)), float(p.grid[k]),
+                                float(p.grid[k]), names, loc))
+    fake = HybridResult(names=names, pieces=pieces, finals=[], branches=[],
+                        meta={"valid_until": p.t_final})
+    tr = hybrid_truth(p, fake, samples=40, seed=3)
+    assert tr.points == 40 * (2 * G - 1) + (smp.times.shape[1] - G) * 40
+    assert tr.escapes == 40 * (G - 1)  # every midpoint state, no grid-time state
+    t = tr.escape_example["time"]
+    assert min(abs(t - 0.5 * (p.grid[:-1] + p.grid[1:]))) < 1e-12

@@ -5,12 +5,12 @@ A continuous problem's samples (a quarter at vertices of the initial box, the re
 integrated by the batch DOP853 of :func:`ocreach.dynamics.flow.propagate` and compared at the
 checked grid times with the time-point set there, and at the middle of the step after it with
 the step's tube.  A hybrid problem's samples come from
-:func:`ocreach.reach.hybrid.simulate_hybrid`; every sampled state (at grid times and before and
-after each jump) must lie in a flowpipe piece of its location whose clock range contains its time,
-as the point ``(x, t)``.  A guaranteed run that stopped early is checked up to where it got.
-Membership is the exact gauge of :func:`ocreach.sets.union.gauge` (LP-free certificates first,
-then the LP of the exact membership test, the exact gauge LP for points inside no set), with
-tolerance ``1 + 1e-9``.
+:func:`ocreach.reach.hybrid.simulate_hybrid`; every sampled state (at grid times, before and
+after each jump, and at the middle of the grid steps, inside the sub-step tubes) must lie in a
+flowpipe piece of its location whose clock range contains its time, as the point ``(x, t)``.
+A guaranteed run that stopped early is checked up to where it got.  Membership is the exact
+gauge of :func:`ocreach.sets.union.gauge` (LP-free certificates first, then the LP of the exact
+membership test, the exact gauge LP for points inside no set), with tolerance ``1 + 1e-9``.
 """
 from __future__ import annotations
 
@@ -133,21 +133,30 @@ def _zonotopes(S):
 
 def hybrid_truth(problem, result, samples: int = 2000, seed: int = 0, stride: int = 1) -> Truth:
     """Truth of a hybrid instance against the pieces of the guaranteed flowpipe ``result``: the
-    states at every ``stride``-th grid time and the last, and just before and after every jump,
-    up to the time the flowpipe encloses every run (``meta["valid_until"]``: the horizon, or
-    less for a flowpipe that stopped early)."""
+    states at every ``stride``-th grid time and the last, at the middle of the grid step after
+    each of those (inside the sub-step tubes, not only where they meet), and just before and
+    after every jump, up to the time the flowpipe encloses every run (``meta["valid_until"]``:
+    the horizon, or less for a flowpipe that stopped early).  The runs are simulated on the grid
+    with its midpoints added (which only refines the event search)."""
+    import dataclasses
+
     from ocreach.reach.hybrid import simulate_hybrid
 
     t0 = time.perf_counter()
-    hs = simulate_hybrid(problem, samples=samples, seed=seed)
+    grid = problem.grid
+    fine = np.empty(2 * grid.size - 1)
+    fine[0::2], fine[1::2] = grid, 0.5 * (grid[:-1] + grid[1:])
+    hs = simulate_hybrid(dataclasses.replace(problem, grid=fine), samples=samples, seed=seed)
     smp = hs.samples
     truth = Truth(samples=samples, blocked=len(hs.blocked))
     for p in hs.paths:
         key = " -> ".join(p) or "(no jump)"
         truth.paths[key] = truth.paths.get(key, 0) + 1
     S, K, n = smp.states.shape
-    G = problem.grid.size
-    cols = sorted(set(range(0, G, stride)) | {G - 1} | set(range(G, K)))
+    G = grid.size
+    ks = set(range(0, G, stride)) | {G - 1}
+    cols = sorted({2 * k for k in ks} | {2 * k + 1 for k in ks if k < G - 1}
+                  | set(range(fine.size, K)))
     T = smp.times[:, cols].ravel()
     X = smp.states[:, cols].reshape(-1, n)
     L = smp.locations[:, cols].ravel()
