@@ -521,3 +521,34 @@ def test_hybrid_truth_checks_the_tubes_between_grid_times():
     assert tr.escapes == 40 * (G - 1)  # every midpoint state, no grid-time state
     t = tr.escape_example["time"]
     assert min(abs(t - 0.5 * (p.grid[:-1] + p.grid[1:]))) < 1e-12
+
+
+def test_a_row_is_not_verified_when_cut_short_or_contradicted_by_the_truth():
+    """The verdict of a row: sets that stop short of the horizon prove nothing after it, and a
+    sampled state outside the guaranteed sets, or a sampled counter-example of a verified spec,
+    takes the row out of ``verified`` with the reason."""
+    import dataclasses
+
+    from ocreach.arch.suite import InstanceRun, _contradictions, _verdict
+    from ocreach.specs import check
+
+    p = ocreach.get_problem("arch-lalo20-w001", t_final=0.5)
+    r = ocreach.reach(p, "taylor")
+    specs = [check(s, r, p.model.state_names) for s in p.extra["verification"].specs]
+    row = InstanceRun(p.id, "LALO20", "W001", "taylor")
+    assert _verdict(p, r, specs, row) == "verified"
+    short = dataclasses.replace(r, times=r.times[:-1], sets=r.sets[:-1], tubes=r.tubes[:-1])
+    assert _verdict(p, short, specs, row) == "unknown"
+    cut = dataclasses.replace(r, meta={**r.meta, "truncated": True})
+    assert _verdict(p, cut, specs, row) == "unknown"
+    for truth, why in (({"escapes": 3, "escape_example": {"time": 0.1}, "violations": {}},
+                        "3 sampled state"),
+                       ({"escapes": 0, "violations": {"x4": {"detail": "x4 = 4.6"}}},
+                        "contradicts the verification: x4: x4 = 4.6")):
+        row = InstanceRun(p.id, "LALO20", "W001", "taylor", result="verified", truth=truth)
+        _contradictions(row)
+        assert row.result == "unknown" and why in row.error
+    ok = InstanceRun(p.id, "LALO20", "W001", "taylor", result="verified",
+                     truth={"escapes": 0, "violations": {}})
+    _contradictions(ok)
+    assert ok.result == "verified" and ok.error == ""

@@ -201,26 +201,41 @@ def run_instance(pid: str, *, method: str | None = None, samples: int = 2000, se
         c0 = time.process_time()
         run.truth = fn(problem, res, samples=samples, seed=seed, stride=truth_stride).as_dict()
         run.cpu_s["sampled truth"] = time.process_time() - c0
-        if run.result == "verified" and run.truth["violations"]:
-            # a verified instance whose samples break a spec would be a soundness defect: say so
-            run.error = ("sampled truth contradicts the verification: "
-                         + "; ".join(f"{k}: {v['detail']}" for k, v in run.truth["violations"].items()))
+        _contradictions(run)
     return run, problem, res
+
+
+def _contradictions(run: InstanceRun) -> None:
+    """A verified instance whose sampled truth breaks a spec, or leaves the guaranteed sets (which
+    then prove nothing), is a soundness defect: the row says so and is not reported verified."""
+    tr = run.truth
+    why = []
+    if tr.get("escapes"):
+        why.append(f"{tr['escapes']} sampled state(s) outside the guaranteed sets (e.g. "
+                   f"{tr['escape_example']})")
+    if run.result == "verified" and tr.get("violations"):
+        why.append("sampled truth contradicts the verification: "
+                   + "; ".join(f"{k}: {v['detail']}" for k, v in tr["violations"].items()))
+    if why:
+        run.result = "unknown"
+        run.error = "; ".join(why + ([run.error] if run.error else []))
 
 
 def _verdict(problem, res, spec_results, run: InstanceRun) -> str:
     """``overall`` of the specs; a hybrid instance with jump-count requirements (LOVO21) also
-    needs final sets with each of those jump counts; an instance without specs or requirements
-    is ``verified`` when the reachable set was computed (the report's convention for ROBE21)."""
+    needs final sets with each of those jump counts; a result cut short (``truncated``, or fewer
+    sets than grid times) is ``unknown``; an instance without specs or requirements is
+    ``verified`` when the reachable set was computed (the report's convention for ROBE21)."""
     need = problem.extra["verification"].extra.get("final_jump_counts")
     if hasattr(res, "pieces"):
         counts = sorted({len(p) for p in res.final_paths()})
         run.paths = {"final_paths": [" -> ".join(p) for p in res.final_paths()],
                      "final_jump_counts": counts, "branches": len(res.branches)}
-        if res.meta.get("truncated"):
-            return "unknown"
         if need is not None and not set(need) <= set(counts):
             return "unknown"
+    if res.meta.get("truncated") or (not hasattr(res, "pieces")
+                                     and len(res.sets) < problem.grid.size):
+        return "unknown"  # the sets stop short of the horizon: nothing is proven after that
     if not spec_results:
         return "verified"
     return overall(spec_results)
