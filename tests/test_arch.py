@@ -186,7 +186,7 @@ def test_a_run_that_stops_early_is_checked_against_the_truth_as_far_as_it_got():
 
     run, p, res = run_instance("arch-cvdp20-mu2", method="taylor", samples=N_TRUTH,
                                truth_stride=30, warmup=False)
-    assert run.result == "unknown" and "cannot be enclosed" in run.error
+    assert run.result == "unknown" and "cannot be enclosed" in run.error and run.stopped
     assert res.meta["truncated"] and 1.0 < run.computed_to < p.grid[-1]
     K = len(res.sets)
     assert run.computed_to == pytest.approx(p.grid[K - 1])
@@ -529,6 +529,7 @@ def test_a_row_is_not_verified_when_cut_short_or_contradicted_by_the_truth():
     takes the row out of ``verified`` with the reason."""
     import dataclasses
 
+    from ocreach.arch.report import _label
     from ocreach.arch.suite import InstanceRun, _contradictions, _verdict
     from ocreach.specs import check
 
@@ -548,6 +549,7 @@ def test_a_row_is_not_verified_when_cut_short_or_contradicted_by_the_truth():
         row = InstanceRun(p.id, "LALO20", "W001", "taylor", result="verified", truth=truth)
         _contradictions(row)
         assert row.result == "unknown" and why in row.error
+        assert _label(row) == "W001 (unknown)"  # not drawn as a run that stopped
     ok = InstanceRun(p.id, "LALO20", "W001", "taylor", result="verified",
                      truth={"escapes": 0, "violations": {}})
     _contradictions(ok)

@@ -132,7 +132,7 @@ def _parts(S):
 
 def _label(row, loc: str = "") -> str:
     """``instance location (result)``, with how far a run that stopped got."""
-    stop = "" if row.result == "verified" or not row.error else \
+    stop = "" if not row.stopped else \
         f", stopped at t = {fmt(row.computed_to)}; the sets that blew up before are not drawn"
     return " ".join(x for x in (row.instance, loc) if x) + f" ({row.result}{stop})"
 
@@ -194,7 +194,7 @@ def figure(benchmark: str, runs: list[tuple[Any, Any, Any]], path: Path) -> Path
                 for Z in _parts(S):
                     hi, lo = support_bound(Z, d), -support_bound(Z, -d)
                     drawn.append((i, [(t0, lo), (t1, lo), (t1, hi), (t0, hi)],
-                                  (t0, t0, t1, lo, hi, bool(row.error))))
+                                  (t0, t0, t1, lo, hi, row.stopped)))
         W = _window(np.array([b for _, _, b in drawn], dtype=float).reshape(-1, 6))
         for i, (row, _prob, _res) in enumerate(done):
             rects = [q for k, q, b in drawn if k == i and (b[5] == 0 or _inside(b, W))]
@@ -222,7 +222,7 @@ def figure(benchmark: str, runs: list[tuple[Any, Any, Any]], path: Path) -> Path
                         P = Z.project([ia, ib])
                         V = zonotope_polygon(P.c, P.G)
                         lo, hi = V.min(axis=0), V.max(axis=0)
-                        drawn.append((i, lc, V, (t0, lo[0], hi[0], lo[1], hi[1], bool(row.error))))
+                        drawn.append((i, lc, V, (t0, lo[0], hi[0], lo[1], hi[1], row.stopped)))
             W = _window(np.array([q[3] for q in drawn], dtype=float).reshape(-1, 6))
             for i, (row, _prob, _res) in enumerate(done):
                 locs = sorted({lc for k, lc, _, _ in drawn if k == i})

@@ -85,6 +85,8 @@ class InstanceRun:
     #: CPU seconds of this process per phase (warm-up, reach with the spec checks, truth): the
     #: cost apart from the machine's load
     cpu_s: dict[str, float] = field(default_factory=dict)
+    #: the guaranteed method stopped before the horizon (its partial sets are what was computed)
+    stopped: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -174,6 +176,7 @@ def run_instance(pid: str, *, method: str | None = None, samples: int = 2000, se
         run.error = f"{type(exc).__name__}: {exc}"
         run.result = "unknown"
         res, partial = getattr(exc, "partial", None), True
+        run.stopped = True
         if res is None:
             return run, problem, None
     if not partial:
