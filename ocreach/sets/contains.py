@@ -84,7 +84,10 @@ def _lp_residual(Gr: np.ndarray, R: np.ndarray) -> np.ndarray:
     cost = np.tile(np.concatenate([np.zeros(h), np.ones(2 * k_rows)]), K)
     lb = np.tile(np.concatenate([-np.ones(h), np.zeros(2 * k_rows)]), K)
     ub = np.tile(np.concatenate([np.ones(h), np.full(2 * k_rows, np.inf)]), K)
-    res = linprog(cost, A_eq=A, b_eq=R.T.ravel(), bounds=np.column_stack([lb, ub]), method="highs-ds")
+    # HiGHS's default feasibility tolerance (1e-7) lets the optimum's residual be wrong by more than
+    # the callers' tolerances (points ~3x beyond the l1 tolerance were reported inside): 1e-10
+    res = linprog(cost, A_eq=A, b_eq=R.T.ravel(), bounds=np.column_stack([lb, ub]), method="highs-ds",
+                  options={"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10})
     if res.status != 0:
         raise SolverError(f"points_in_zonotope: HiGHS returned status {res.status} ({res.message}) for the batched LP")
     return res.x.reshape(K, nv)[:, h:].sum(axis=1)
