@@ -109,6 +109,11 @@ def _zonotope_verdicts(Z: Zonotope, X: np.ndarray, eps: float, pad: float | np.n
         D[np.arange(N), j] = np.sign((X - c)[np.arange(N), j])
         outside[:] = ~inside & verified_outside(c, G, D, X, eps, pad)
         return inside, outside
+    # the box of the zonotope first: a point beyond it in one coordinate is outside
+    j = np.argmax(np.abs(X - c) - np.abs(G).sum(axis=1), axis=1)
+    Dbox = np.zeros((N, n))
+    Dbox[np.arange(N), j] = np.sign((X - c)[np.arange(N), j])
+    outside[:] = verified_outside(c, G, Dbox, X, eps, pad)
     # rows scaled to unit l1 norm (the solve's conditioning; the verdicts use the original rows),
     # the eps box appended as generators so that points in the band around the set are interior
     row = np.abs(G).sum(axis=1)
@@ -116,22 +121,30 @@ def _zonotope_verdicts(Z: Zonotope, X: np.ndarray, eps: float, pad: float | np.n
     Gs = np.hstack([G[live], eps * np.eye(n)[live]]) / row[live, None]
     Rs = (X - c)[:, live] / row[live]
     h = G.shape[1]
-    sol = box_min_norm(Gs, Rs, -1.0, 1.0, iters=50, tol=0.25 * eps / row.max())
-    xi, nu = sol.dz, sol.nu
-    inside[:] = verified_inside(c, G, xi[:, :h], X, eps, pad)
-    todo = np.flatnonzero(~inside)
-    if todo.size:                        # not verified at the loose stop: on towards F = 0
-        more = box_min_norm(Gs, Rs[todo], -1.0, 1.0, nu=nu[todo], iters=50, tol=0.0)
-        xi[todo], nu[todo] = more.dz, more.nu
-        inside[todo] = verified_inside(c, G, xi[todo, :h], X[todo], eps, pad)
-        todo = todo[~inside[todo]]
-    if todo.size:                        # outside: the multipliers' direction, the residual's
-        for D in (nu[todo], Rs[todo] - xi[todo] @ Gs.T):
+
+    def separated(todo, xi, nu):         # outside: the multipliers' direction, the residual's
+        out = np.zeros(todo.size, bool)
+        for D in (nu, Rs[todo] - xi @ Gs.T):
             Dfull = np.zeros((todo.size, n))
             Dfull[:, live] = D / row[live]
-            outside[todo] |= verified_outside(c, G, Dfull, X[todo], eps, pad)
+            out |= verified_outside(c, G, Dfull, X[todo], eps, pad)
         if not live.all():               # rows the generators do not move
-            outside[todo] |= verified_outside(c, G, np.sign(X[todo] - c) * ~live, X[todo], eps, pad)
+            out |= verified_outside(c, G, np.sign(X[todo] - c) * ~live, X[todo], eps, pad)
+        return out
+
+    todo = np.flatnonzero(~outside)
+    sol = box_min_norm(Gs, Rs[todo], -1.0, 1.0, iters=50, tol=0.25 * eps / row.max())
+    inside[todo] = verified_inside(c, G, sol.dz[:, :h], X[todo], eps, pad)
+    keep = ~inside[todo]
+    todo, xi, nu = todo[keep], sol.dz[keep], sol.nu[keep]
+    outside[todo] = separated(todo, xi, nu)
+    keep = ~outside[todo]
+    todo, xi, nu = todo[keep], xi[keep], nu[keep]
+    if todo.size:                        # not decided at the loose stop: on towards F = 0
+        more = box_min_norm(Gs, Rs[todo], -1.0, 1.0, nu=nu, iters=50, tol=0.0)
+        ins = verified_inside(c, G, more.dz[:, :h], X[todo], eps, pad)
+        inside[todo] = ins
+        outside[todo[~ins]] = separated(todo[~ins], more.dz[~ins], more.nu[~ins])
     todo = np.flatnonzero(~inside & ~outside)
     if lp:
         for s0 in range(0, todo.size, LP_CHUNK):
@@ -184,18 +197,29 @@ def classify_zonotope(S, P: np.ndarray, eps: float, lp: bool = True) -> Classifi
 
 def _classify_parts(parts: list[Zonotope], P: np.ndarray, eps: float, lp: bool,
                     pads: list | None = None) -> Classified:
+    """Inside some part / outside every part: the batched solve on every part first, the LP
+    only for the points still open and only against the parts that have not excluded them."""
     N = P.shape[0]
+    pads = [0.0] * len(parts) if pads is None else pads
     inside = np.zeros(N, bool)
-    out_all = np.ones(N, bool)
+    excluded = np.zeros((len(parts), N), bool)
     for j, Z in enumerate(parts):
-        idx = np.flatnonzero(~inside & out_all) if len(parts) > 1 else np.arange(N)
+        idx = np.flatnonzero(~inside)
         if idx.size == 0:
             break
-        ins, outs = _zonotope_verdicts(Z, P[idx], eps, 0.0 if pads is None else pads[j], lp)
+        ins, outs = _zonotope_verdicts(Z, P[idx], eps, pads[j], lp=False)
         inside[idx[ins]] = True
-        out_all[idx[~outs]] = False
-    out_all &= ~inside
-    return Classified(out_all, inside, ~inside & ~out_all)
+        excluded[j, idx[outs]] = True
+    if lp:
+        for j, Z in enumerate(parts):
+            idx = np.flatnonzero(~inside & ~excluded.all(axis=0) & ~excluded[j])
+            if idx.size == 0:
+                continue
+            ins, outs = _zonotope_verdicts(Z, P[idx], eps, pads[j], lp=True)
+            inside[idx[ins]] = True
+            excluded[j, idx[outs]] = True
+    outside = excluded.all(axis=0) & ~inside
+    return Classified(outside, inside, ~inside & ~outside)
 
 
 # ------------------------------------------------------------------------------------------------
