@@ -7,21 +7,25 @@ For every case the script runs ``poly`` and ``taylor`` (keeping the sets of a me
 models or integrators): half of the initial states at vertices of the initial set, half uniform
 inside, the controls constant, bang-bang (a new unit direction / box corner every grid step) or
 uniform random per step.  Every state at every grid time must lie in that time's set, and the
-states at the step midpoints (of the first ``--tube-samples``) in the step's time-interval tube:
-
-* zonotope sets (``taylor``, tubes): the scaled gauge (exact membership certificate, else the LP);
-* polynomial zonotopes (``poly``'s sets): :func:`ocreach.sets.pz_witness.classify` -- outside the
-  zonotope enclosure or a certified exclusion (support bound) is an escape, a witness (factors in
-  the box mapping within the tolerance) proves the point inside, the rest is reported as
-  undecided (neither proved in nor out).
+states at the step midpoints (of the first ``--tube-samples``) in the step's time-interval tube,
+decided by the verified three-way membership of :mod:`ocreach.sets.pz_witness`
+(:func:`~ocreach.sets.pz_witness.classify` for polynomial zonotopes, warm-started from the same
+trajectory's witness at the previous grid time; :func:`~ocreach.sets.pz_witness.classify_zonotope`
+for zonotopes and their unions): a verified witness proves a point inside, a verified certificate
+(a direction beyond the support) outside -- an escape --, and a point neither is reported as
+undecided, never counted as inside.
 
 A point escapes when it is outside the set enlarged by ``1e-9 (1 + |x|)`` (the truth's own
 error is far below).  Tightness at the last time both reached and at each method's last time: the
 ratio of the set's width to the samples' width in 50 random position directions (for a polynomial
 zonotope the rigorous upper support bound of :func:`ocreach.sets.pz_exact.support_bounds`).
 
-    python examples/poly_validation.py [--cases vdp,dro,nrho24,nrho76,nrho76sun,halo200,em200,em200mee] [--samples 10000]
+    python examples/poly_validation.py [--cases vdp,dro,nrho24,nrho76,nrho76sun,halo80,em200,em200mee]
+        [--samples 10000] [--tube-samples 2000] [--pz-every 1] [--methods poly,taylor]
         [--out out/poly_validation]
+
+Progress and every escape are printed as they are found; ``summary.json`` is rewritten
+(atomically) after every case, so an interrupted run keeps the cases it finished.
 """
 from __future__ import annotations
 

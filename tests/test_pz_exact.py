@@ -176,6 +176,13 @@ def _exact_residual_ok(pz, a, x, eps):
     return True
 
 
+def _assert_witnesses_exact(pz, v, X, eps):
+    """The witnesses of (up to 10 of) the points ``v`` classified inside map within ``eps``."""
+    cols = np.searchsorted(v.ids, pz.id)
+    for i in np.flatnonzero(v.inside)[:10]:
+        assert _exact_residual_ok(pz, v.witness[i, cols], X[i], eps)
+
+
 @settings(max_examples=10, deadline=None)
 @given(st.integers(0, 10_000), st.floats(0.0, 1.0))
 def test_classify_witnesses_points_built_from_known_factors(seed, face):
@@ -204,9 +211,7 @@ def test_classify_witnesses_points_built_from_known_factors(seed, face):
     assert not v.outside.any()
     if face <= 0.5:   # with most factors on faces the witness may be a corner only: undecided
         assert v.inside.mean() >= 0.95, f"{int((~v.inside).sum())} of 30 not witnessed"
-    cols = np.searchsorted(v.ids, pz.id)
-    for i in np.flatnonzero(v.inside)[:10]:
-        assert _exact_residual_ok(pz, v.witness[i, cols], X[i], eps)
+    _assert_witnesses_exact(pz, v, X, eps)
 
 
 @settings(max_examples=8, deadline=None)
@@ -234,9 +239,7 @@ def test_classify_outside_verdicts_are_outside(seed):
     grid = grid_points(pz)
     for i in np.flatnonzero(v.outside):
         assert np.abs(grid - X[i]).max(axis=1).min() > eps
-    cols = np.searchsorted(v.ids, pz.id)
-    for i in np.flatnonzero(v.inside)[:10]:
-        assert _exact_residual_ok(pz, v.witness[i, cols], X[i], eps)
+    _assert_witnesses_exact(pz, v, X, eps)
 
 
 @settings(max_examples=15, deadline=None)
