@@ -183,7 +183,8 @@ def cmd_problem(args: argparse.Namespace) -> int:
 
     pid, factory = problem_factory(args.problem)
     doc = inspect.getdoc(factory) or ""
-    print(f"{pid}: {doc.splitlines()[0] if doc else ''}")
+    summary = " ".join(doc.split("\n\n")[0].split())   # the docstring's first paragraph
+    print(f"{pid}: {summary}")
     print(format_fields(describe_fields(factory)))
     from ocreach.models.coordinates import COORDINATES
 

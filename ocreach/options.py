@@ -133,12 +133,19 @@ def strict_bools(target: Any, values: dict[str, Any], where: str = "") -> dict[s
 
 
 def _doc_for(doc: str, name: str) -> str:
-    """The sentence(s) of ``doc`` that document ``name`` (from its ````name```` mention to the next
-    option's mention or the end of the paragraph)."""
+    """The sentence(s) of ``doc`` that document ``name``: from its ````name```` mention (in an
+    ``Options:`` paragraph if there is one; the first mention followed by ``(`` or ``:``, else the
+    first) to the next option's mention or the end of the paragraph."""
     if not doc:
         return ""
     text = " ".join(doc.split())
-    m = re.search(rf"``{re.escape(name)}``", text)
+    at = text.find("Options:")
+    m = None
+    for start in ((at, 0) if at >= 0 else (0,)):
+        m = (re.compile(rf"``{re.escape(name)}``\s*[(:]").search(text, start)
+             or re.compile(rf"``{re.escape(name)}``").search(text, start))
+        if m:
+            break
     if not m:
         return ""
     rest = text[m.start():]

@@ -484,6 +484,21 @@ def spre22(t_final: float = 200.0, dt: float = 0.2, dt_attempt: float = 0.05,
 
 
 # =============================================================================== registry
+#: the options paragraph of every instance's docstring (read by ``ocreach problem ID``)
+OPTIONS_DOC = ("Options: ``t_final`` (the benchmark's time unit{unit}; default the instance's "
+               "horizon T), ``dt`` (the grid step, same unit{dt}){more}.")
+SPRE_MORE = (", ``dt_attempt`` (min, the grid step in the attempt mode), ``x_lo`` (m, the lower "
+             "x of the initial box), ``x_hi`` (m, its upper x), ``y_lo`` (m, its lower y), "
+             "``y_hi`` (m, its upper y), ``abort_lo`` (min, the earliest abort), ``abort_hi`` "
+             "(min, the latest abort)")
+for _f, _unit, _dt, _more in ((cvdp20, "", "", ""), (cvdp23, "", "", ""), (lalo20, "", "", ""),
+                              (quad20, "", "", ""), (prde20, "", "", ""),
+                              (robe21, "", "; default 0.05", ""),
+                              (lovo21, "", "", ", ``eps`` (the half-width of the initial x interval)"),
+                              (spre22, ": min", "", SPRE_MORE)):
+    _f.__doc__ += "\n\n    " + OPTIONS_DOC.format(unit=_unit, dt=_dt, more=_more)
+
+
 def _fix(factory, **kw):
     def make(**over):
         return factory(**{**kw, **over})

@@ -19,7 +19,12 @@ MASS_KG = 14.0
 
 
 def vdp(t_final: float = 3.0, dt: float = 0.1, gain: float = 0.05) -> Problem:
-    """Van der Pol oscillator with input 0.05 u, |u| <= 1, x1 = [0.5, 0], grid 0:0.1:3 (Foss Sec. 3.1)."""
+    """Van der Pol oscillator with input 0.05 u, |u| <= 1, x1 = [0.5, 0], grid 0:0.1:3 (Foss Sec. 3.1).
+
+    Options (nondimensional, as in the paper): ``t_final`` (time units, default 3; a multiple of
+    ``dt``), ``dt`` (time units, default 0.1), ``gain`` (the input gain b in x2' = ... + b u,
+    default 0.05).
+    """
     return Problem(
         id="vdp", model=vanderpol(gain=gain), x0=np.array([0.5, 0.0]), grid=time_grid(t_final, dt),
         description="Van der Pol oscillator with bounded input (Foss et al. Sec. 3.1)",
@@ -37,7 +42,13 @@ def dro_orbit() -> PeriodicOrbit:
 
 def dro(t_final: float = 3.0, dt: float = 0.1, thrust: float = T_MAX_N, mass: float = MASS_KG,
         input_set: str = "box") -> Problem:
-    """Low-thrust spacecraft on a planar CR3BP DRO, 1.1 mN on 14 kg, 3 TU (Foss Sec. 4.1)."""
+    """Low-thrust spacecraft on a planar CR3BP DRO, 1.1 mN on 14 kg, 3 TU (Foss Sec. 4.1).
+
+    Options: ``t_final`` (TU of the Earth-Moon system, default 3; a multiple of ``dt``), ``dt``
+    (TU, default 0.1), ``thrust`` (N, default 1.1e-3), ``mass`` (kg, default 14; a_max = thrust /
+    mass), ``input_set`` (``"box"`` or ``"ball"``: the thrust set of the ``stt`` method, Foss
+    Eq. 16).
+    """
     if input_set not in ("box", "ball"):  # the STT input set (Foss Eq. 16)
         raise ProblemError(f"input_set must be 'box' or 'ball'; got {input_set!r}")
     units = EARTH_MOON_FOSS

@@ -62,6 +62,9 @@ def nrho_flyby(t_final: float = 1.0, dt: float = 0.05, thrust: float = T_MAX_N, 
                input_set: str = "ball", x0: Sequence[float] | None = None, epoch: str = EPOCH) -> Problem:
     """NRHO Moon flyby in the Sun-Earth-Moon-Venus ephemeris synodic model, 1 TU (Foss Sec. 4.2).
 
+    Options: ``t_final`` (TU, default 1; a multiple of ``dt``), ``dt`` (TU, default 0.05),
+    ``thrust`` (N), ``mass`` (kg; a_max = thrust / mass), ``input_set`` (``"box"`` or ``"ball"``:
+    the thrust set of the ``stt`` method, Foss Eq. 16);
     ``x0``: initial state [x, y, z, vx, vy, vz] (DU, DU/TU; default the paper's two-digit x1);
     ``epoch``: TDB date of t = 0 (default the paper's 2024-05-01 12:00:00).
     """

@@ -61,6 +61,9 @@ def shuttle_reentry(t_final: float = 2000.0, dt: float = 1.0, alpha_deg: float =
     Nominal controls: ``alpha = alpha_deg``, bank linear from ``bank0_deg`` at t = 0 to
     ``bank1_deg`` at ``t_final`` (evaluated at each segment's start), both with sigma
     ``sigma_u_deg``.  Forward-Euler step ``dt`` s.
+    Options: ``t_final`` (s, default 2000; a multiple of ``dt``), ``dt`` (s, the Euler step,
+    default 1), ``alpha_deg`` (deg, the angle of attack), ``bank0_deg`` (deg), ``bank1_deg`` (deg),
+    ``psi0_deg`` (deg), ``sigma_u_deg`` (deg).
     """
     grid = time_grid(t_final, dt, unit="s")
     t = grid[:-1]
@@ -85,6 +88,9 @@ def glider_reentry(t_final: float = 120.0, dt: float = 0.1, alpha_deg: float = 1
     (about the maximum L/D of Table 4, 10.8 deg), bank 0 until ``bank_t0`` (pull-up from the
     steep dive), ramping linearly to ``bank_deg`` at ``bank_t1`` and held (the banked lift stops
     the skip and turns the vehicle).  sigma ``sigma_u_deg`` on both; Euler step ``dt`` s.
+    Options: ``t_final`` (s, default 120; a multiple of ``dt``), ``dt`` (s, default 0.1),
+    ``alpha_deg`` (deg, the angle of attack), ``bank_deg`` (deg), ``bank_t0`` (s), ``bank_t1`` (s),
+    ``sigma_u_deg`` (deg).
     """
     if not 0 <= bank_t0 <= bank_t1:
         raise ProblemError(f"need 0 <= bank_t0 <= bank_t1; got bank_t0={bank_t0!r}, bank_t1={bank_t1!r}")

@@ -22,6 +22,11 @@ from ocreach.errors import ProblemError, check_positive
 from ocreach.problem import Problem
 
 CITATION = "Patel & Scheeres 2022"
+#: the options paragraph of every case's docstring (read by ``ocreach problem ID``)
+OPTIONS_DOC = ("Options: ``thrust`` (N, the maximum thrust T_max), ``epoch_s`` (TDB seconds past "
+               "J2000 of t = 0), ``segments`` (the number of grid steps), ``segment_s`` (s, the "
+               "step; negative for a controllable set){sigma}.")
+SIGMA_DOC = ", ``sigma_km`` (km, the radius of the initial position sphere)"
 ISP_S = 3000.0
 MASS_KG = 1000.0
 SEGMENTS = 200
@@ -119,6 +124,11 @@ def lunar_flyby_backward_uncertain(thrust: float = 0.02, sigma_km: float = 5000.
                  description=f"case 5: backward lunar flyby, position on a {sigma_km:g} km sphere",
                  figures="Sec. 6.5, Fig. 9-11")
 
+
+for _f in (elliptic_earth, lunar_flyby, lunar_flyby_backward):
+    _f.__doc__ += "\n\n    " + OPTIONS_DOC.format(sigma="")
+for _f in (lunar_flyby_uncertain, lunar_flyby_backward_uncertain):
+    _f.__doc__ += "\n\n    " + OPTIONS_DOC.format(sigma=SIGMA_DOC)
 
 PROBLEMS = {
     "elliptic-earth": elliptic_earth,

@@ -123,8 +123,11 @@ def nrho_9_2_problem(t_final: float = 76.0 * HOUR_TU, dt: float = HOUR_TU,
     The paper's method comparison runs 76 h (apolune to just before perilune, which is at half the
     157.5 h period).  Note: the paper's text quotes the halo state [1.1720, 0, -0.0862, ...] for this
     case too; here the actual 9:2 NRHO (period = 2/9 synodic month) is used, as its title and the
-    157 h station-keeping period indicate.  Options as for ``l2-halo`` (``t_final`` default 76 h;
-    ``initial_set`` ``"paper"`` is the paper's G_pos = 1e-4 I_3 DU, G_vel = 5e-4 I_3 DU/TU).
+    157 h station-keeping period indicate.  Options: ``t_final`` (TU, default 76 h = 0.7292 TU; a
+    multiple of ``dt``), ``dt`` (TU, default 1 h = 3600/375200 TU), ``thrust`` (N), ``mass``
+    (kg), ``isp`` (s; recorded in ``extra``, the model keeps the mass constant), ``initial_set``
+    (``"paper"``: the paper's box G_pos = 1e-4 I_3 DU, G_vel = 5e-4 I_3 DU/TU; ``"point"``: ``x0``
+    only).
     """
     orbit = nrho_orbit()
     prob = _cislunar(
@@ -146,8 +149,9 @@ def earth_mars(t_days: float = 200.0, dt_days: float = 1.0, thrust: float = EM_T
     """Heliocentric Earth-Mars transfer, 0.3 N on 1000 kg, departure 2007-04-10, 200 d daily grid (Patel & Subbarao Eq. 29).
 
     Two-body model with mu_sun = 1 in AU and TU = sqrt(AU^3 / GM_sun) (``units.SUN_AU``); the
-    Eq. 29 state (km, km/s) is converted to those units.  Options: ``t_days`` (200; the paper also
-    uses 300), ``dt_days`` (1), ``thrust`` (N), ``mass`` (kg), ``isp`` (s, recorded in ``extra``).
+    Eq. 29 state (km, km/s) is converted to those units.  Options: ``t_days`` (days, default 200;
+    the paper also uses 300), ``dt_days`` (days, default 1), ``thrust`` (N), ``mass`` (kg),
+    ``isp`` (s, recorded in ``extra``).
     """
     check_positive("thrust", thrust)
     check_positive("mass", mass)

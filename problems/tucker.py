@@ -98,6 +98,14 @@ def _problem(pid: str, x0: np.ndarray, where: str, horizons: tuple[float, ...], 
     )
 
 
+#: the options paragraph of every custody problem's docstring (read by ``ocreach problem ID``)
+OPTIONS_DOC = ("Options: ``t_days`` (days, {t_days}), ``dt_hours`` (hours, default 2), "
+               "``control_set`` (``'box'`` or ``'ball'`` thrust), ``thrust`` (N), ``mass`` (kg), "
+               "``uncertain`` (True: the initial ellipsoid of Eq. 6 instead of a point), "
+               "``sigma_pos_km`` (km, that ellipsoid's position semi-axis), ``sigma_vel_mps`` "
+               "(m/s, its velocity semi-axis).")
+
+
 def _lagrange(i: int):
     def factory(t_days: float | None = None, dt_hours: float = 2.0, control_set: str = "box",
                 thrust: float = THRUST_N, mass: float = MASS_KG, uncertain: bool = False,
@@ -108,8 +116,7 @@ def _lagrange(i: int):
 
     factory.__doc__ = (f"Lunar IceCube (0.8 mN, 14 kg, box thrust) at rest at Earth-Moon L{i}, horizons 1 "
                        f"and 5 d (Tucker et al. Sec. 4.1, Figs. {3 + 2 * (i - 1)}-{4 + 2 * (i - 1)}).\n\n"
-                       "Options: t_days (default 5), dt_hours (2), control_set ('box' or 'ball'), thrust (N), "
-                       "mass (kg), uncertain (initial ellipsoid of Eq. 6), sigma_pos_km, sigma_vel_mps.")
+                       + OPTIONS_DOC.format(t_days="default 5 d"))
     factory.__name__ = f"custody_l{i}"
     return factory
 
@@ -119,7 +126,7 @@ def custody_gateway(t_days: float | None = None, dt_hours: float = 2.0, control_
                     sigma_pos_km: float = 1.0, sigma_vel_mps: float = 0.01) -> Problem:
     """Lunar IceCube (0.8 mN, 14 kg, box thrust) at apolune of the 9:2 NRHO (Gateway), horizons 1, 2, 3 d (Tucker et al. Sec. 4.2, Figs. 13-15).
 
-    Options as for custody-l1 (t_days default 3 d; the NRHO period is 6.56 d, perilune at 3.28 d).
+    The NRHO period is 6.56 d, perilune at 3.28 d.
     """
     orb = gateway_orbit()
     return _problem("custody-gateway", orb.x0.copy(), "at apolune of the southern L2 9:2 NRHO (Gateway)",
@@ -127,5 +134,6 @@ def custody_gateway(t_days: float | None = None, dt_hours: float = 2.0, control_
                     sigma_pos_km, sigma_vel_mps, reference=orb.to_reference(orb.family))
 
 
+custody_gateway.__doc__ += "\n    " + OPTIONS_DOC.format(t_days="default 3 d") + "\n"
 PROBLEMS = {f"custody-l{i}": _lagrange(i) for i in range(1, 6)}
 PROBLEMS["custody-gateway"] = custody_gateway

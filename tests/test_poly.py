@@ -264,3 +264,36 @@ def test_poly_contains_the_escape_found_by_the_harness():
         notes={})
     out = run_method("poly", generated_case(system), n_samples=60)
     assert out.status == "complete" and out.escapes == 0, out.line()
+
+
+@pytest.mark.parametrize("opts", [{}, {"growth_tol": None, "max_halvings": 0}])
+def test_poly_contains_the_flow_of_a_disturbance_with_a_nonzero_centre(opts):
+    """x1' = x2 + w1, x2' = -x1, x3' = x1^2 with w = (1, 0, 0) exactly, one step of pi: the
+    centre's input solution Gamma(tau) w_c is larger for tau < h than at h (the rotation turns
+    it), so boxing it by |Gamma(h) w_c| missed the flow (tube and time-point set).  Truth:
+    SciPy DOP853 from x(0) = 0 (the centre of the initial box), checked at 4 times."""
+    from scipy.integrate import solve_ivp
+
+    from ocreach.testing.containment import check_points
+    from ocreach.testing.strategies import GeneratedSystem, Term
+
+    A = np.zeros((3, 3))
+    A[0, 1], A[1, 0] = 1.0, -1.0
+    system = GeneratedSystem(
+        label="disturbance-centre", A=A, B=np.zeros((3, 1)), control="box",
+        terms=(Term(row=2, coef=1.0, powers=(2, 0, 0)),), x0=np.zeros(3),
+        generators=np.eye(3) * 1e-3, initial="box", t_final=np.pi, steps=1, notes={})
+    wc = np.array([1.0, 0.0, 0.0])
+    res = ocreach.reach(system.problem(), "poly", disturbance=Zonotope(wc, np.zeros((3, 0))), **opts)
+
+    def rhs(t, x):
+        return system.rhs(t, x[None], np.zeros((1, 1)))[0] + wc
+
+    sol = solve_ivp(rhs, (0.0, np.pi), np.zeros(3), method="DOP853", rtol=1e-12, atol=1e-15,
+                    dense_output=True)
+    for k, (t0, t1) in enumerate(zip(res.times[:-1], res.times[1:])):
+        for tau in (t0, 0.5 * (t0 + t1), t1):
+            assert not check_points(res.tubes[k], sol.sol(tau)[None]).escaped[0], (k, tau)
+    for k, t in enumerate(res.times):
+        verdict = check_points(res.sets[k], sol.sol(t)[None])
+        assert not verdict.escaped[0] and not verdict.undecided[0], (k, t)

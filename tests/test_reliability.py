@@ -452,3 +452,15 @@ def test_listing_into_a_closed_pipe_ends_quietly():
 def test_an_estimate_says_it_is_not_guaranteed(method, options):
     r = ocreach.reach("vdp", method, **options)
     assert r.meta["guaranteed"] is False
+
+
+def test_every_problem_parameter_is_described():
+    """``ocreach problem ID`` describes every parameter of every bundled problem from its
+    factory's docstring (an ``Options:`` paragraph), with the parameter's own sentence."""
+    from ocreach.options import describe_fields
+    from ocreach.registry import problem_factories, problem_factory
+
+    for pid in sorted(problem_factories()):
+        _, factory = problem_factory(pid)
+        for row in describe_fields(factory):
+            assert row["doc"].startswith(f"``{row['name']}``"), (pid, row)

@@ -242,6 +242,11 @@ class PolyContext(Context):
         self.weights: np.ndarray | None = None
 
 
+def _magnitude_up(S: SoundPZ) -> np.ndarray:
+    """:func:`ocreach.sets.pz_sound.magnitude` rounded up for its sum of generators."""
+    return up(spz.magnitude(S), S.G.shape[1] + S.GI.shape[1] + 3)
+
+
 def _lo_hi_pad(lo: np.ndarray, hi: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """``[lo, hi]`` widened by the rounding of the sums that produced them (``k`` terms)."""
     r = rounding_radius(np.maximum(np.abs(lo), np.abs(hi)), k)
@@ -354,6 +359,10 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
     D0 = spz.translate(R, -xs)
     D0m = spz.reduce_for_map(D0, ctx.h_err)
     Vstat = spz.translate(spz.quadratic(0.5 * Hxx, D0m, bits), f0)   # f0 + 1/2 d0^T H d0
+    if ctx.W is not None:
+        # the disturbance's centre is a constant input like f0: Gamma w_c enters P exactly and
+        # F~ bounds it off the chord for tau < h (|Gamma(tau) w_c| can exceed |Gamma(h) w_c|)
+        Vstat = spz.translate(Vstat, ctx.W.c)
     P = spz.add(spz.linear_map(et.Phi, D0, et.E), spz.linear_map(G0, Vstat, G_rad), bits)
     Dd = spz.add(P, spz.scale(-1.0, D0), bits)                  # P - D0 = D(alpha) + boxes
     # the quadratic term along the segment d0 + lambda D: 1/2 Q(d0) + lambda g1 + lambda^2 g2
@@ -364,32 +373,30 @@ def poly_step(ctx: PolyContext, R: SoundPZ, t0: float, h: float,
     Pend = spz.add(P, Pdyn, bits)
     # the expansion's chord d0 + lambda D ends at P, the flow's near Pend: they differ by
     # lambda (Pend - P), which the deviation r_rho of the true d(tau) from the chord must hold
-    mag_dyn = spz.magnitude(Pdyn)
+    mag_dyn = _magnitude_up(Pdyn)
     # the tube's polynomial part: CH(D0, P_end) with common factors
     lam = int(ctx.fid.new(1)[0])
     Dend = spz.add(Pend, spz.scale(-1.0, D0), bits)
     seg = spz.add(spz.add(spz.scale(0.5, D0), spz.scale(0.5, Pend), bits),
                   spz.times_new_factor(spz.scale(0.5, Dend), lam, bits), bits)
     seg_lo, seg_hi = spz.box(seg)
-    magD0, magV = spz.magnitude(D0), spz.magnitude(Vstat)
+    magD0, magV = _magnitude_up(D0), _magnitude_up(Vstat)
     r_F = up((np.abs(et.F_mid) + et.F_rad) @ magD0 + (np.abs(et.Ft_mid) + et.Ft_rad) @ magV, n + 2)
-    r_g = up(C1 @ spz.magnitude(g1) + C2 @ spz.magnitude(g2), n + 2)   # y_k off the chord
+    r_g = up(C1 @ _magnitude_up(g1) + C2 @ _magnitude_up(g2), n + 2)   # y_k off the chord
     # ---- the uncertain input B (V - v_c) [x (t - t*)] (+ W): its input solution R_W
     Gv = ctx.V.G
     if ctx.td:
         Gv = np.zeros((ctx.V.dim + 1, ctx.V.n_generators + 1))
         Gv[:-1, :-1] = ctx.V.G
-        Gv[-1, -1] = 0.5 * h
+        Gv[-1, -1] = up(max(ts - t0, t0 + h - ts), 2)   # |t - t*| on the step (ts is rounded)
     Gu = Bv @ Gv
     r_Gu = rounding_radius(np.abs(Bv) @ np.abs(Gv).sum(axis=1), Gv.shape[0])
-    r_wc = np.zeros(n)
     if ctx.W is not None:
         Gu = np.hstack([Gu, ctx.W.G])
-        r_wc = up((np.abs(G0) + G_rad) @ np.abs(ctx.W.c), n + 2)   # Gamma w_c, boxed
     Gu = np.hstack([Gu, diag_columns(r_Gu)])
     RWG = input_generators(Gu, et)
     r_RW = rounding_radius(h * et.M @ np.abs(Gu).sum(axis=1), n + et.eta + 4)
-    RWz = Zonotope.trusted(np.zeros(n), np.hstack([RWG, diag_columns(up(r_RW + r_wc, 2))]))
+    RWz = Zonotope.trusted(np.zeros(n), np.hstack([RWG, diag_columns(r_RW)]))
     r_RWz = up(np.abs(RWz.G).sum(axis=1), RWz.n_generators + 1)
     # box response of the error box [-L, L]: |R_W(box(L))| <= S_L L
     S_L = weighted_sum(h / np.arange(1, et.eta + 2), np.abs(et.T).reshape(et.eta + 1, n * n), n) + et.E * h
