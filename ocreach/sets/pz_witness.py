@@ -244,7 +244,6 @@ class _Residual:
     def __init__(self, S: PolyZonotope):
         from scipy import sparse
 
-        self.S = S
         self.p, self.q, self.h, self.n = S.n_factors, S.n_independent, S.n_dependent, S.dim
         self.sl = factor_slots(np.asarray(S.E))
         self.d = self.sl.shape[1]
