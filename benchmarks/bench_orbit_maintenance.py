@@ -12,7 +12,9 @@
    revolution, after one warm-up run (the scenario, the STTs and the tubes are built once per
    process and excluded).
 3. ``--monte-carlo``: the year-long Monte Carlo, ``--mc-runs`` runs (default 100) of each of
-   ``--controllers`` on ``--workers`` processes (default 2), timed (wall and CPU); what
+   ``--controllers`` on ``--workers`` processes (default 2), timed (wall and CPU); or
+   ``--from-report DIR`` (with ``--report-when "DATE, MACHINE, LOAD"``): the timing and
+   Delta-V of an ``ocreach report orbit-maintenance`` folder that ran it; what
    docs/validation/orbit-maintenance.md records.
 
 Usage: ``python benchmarks/bench_orbit_maintenance.py [--write] [--monte-carlo]``; ``--write``
@@ -95,7 +97,7 @@ def bench_monte_carlo(controllers: list[str], runs: int, workers: int) -> dict:
         mc = run_monte_carlo(settings, {c: {} for c in controllers}, runs, Path(tmp) / "store",
                              workers=workers, progress=False)
         driver_cpu = time.process_time() - c0
-    return {"runs": runs, "workers": workers, "controllers": controllers,
+    return {"runs": runs, "workers": f"{workers} worker processes", "controllers": controllers,
             "timing": mc.timing, "driver_cpu_s": driver_cpu,
             "summary": {n: {"dv_mean": s["delta_v_per_year_mps"]["mean"],
                             "dv_p95": s["delta_v_per_year_mps"]["p95"], "lost": s["lost"],
@@ -103,7 +105,20 @@ def bench_monte_carlo(controllers: list[str], runs: int, workers: int) -> dict:
                         for n, s in mc.summary.items()}}
 
 
-def markdown(plant: dict, loop: dict, mc: dict | None) -> str:
+def mc_from_report(folder: str | Path, when: str) -> dict:
+    """The Monte Carlo record of an ``ocreach report orbit-maintenance`` folder (its
+    ``metrics.json``) in the shape of :func:`bench_monte_carlo`, ``when`` the date and machine
+    load it was measured at."""
+    data = json.loads((Path(folder) / "metrics.json").read_text())
+    return {"runs": data["runs"], "workers": data["timing"]["executor"],
+            "controllers": list(data["summary"]), "timing": data["timing"], "when": when,
+            "summary": {n: {"dv_mean": s["delta_v_per_year_mps"]["mean"],
+                            "dv_p95": s["delta_v_per_year_mps"]["p95"], "lost": s["lost"],
+                            "cpu_ms_per_revolution": s["cpu_ms_per_revolution"]}
+                        for n, s in data["summary"].items()}}
+
+
+def markdown(plant: dict, loop: dict, mcs: list[dict]) -> str:
     load = os.getloadavg()
     lines = ["## Orbit maintenance", "",
              f"`python benchmarks/bench_orbit_maintenance.py` ({datetime.date.today()}, 2 cores "
@@ -117,12 +132,18 @@ def markdown(plant: dict, loop: dict, mc: dict | None) -> str:
              f"(CPU, median of the runs, preparation excluded):", "",
              "| controller | CPU per revolution (ms) |", "|---|---:|"]
     lines += [f"| {n} | {v['cpu_ms_per_revolution']:.0f} |" for n, v in loop.items()]
-    if mc is not None:
+    for mc in mcs:
         t = mc["timing"]
-        lines += ["", f"Year-long Monte Carlo: {mc['runs']} runs of each of "
-                  f"{', '.join(mc['controllers'])} on {mc['workers']} workers: "
-                  f"{t['total_wall_s'] / 60:.1f} min wall ({t['driver_prepare_wall_s']:.0f} s "
-                  f"preparing in the driver), {t['runs_cpu_s'] / 60:.1f} min CPU in the runs."]
+        when = f" (measured {mc['when']})" if mc.get("when") else ""
+        lines += ["", (f"Year-long Monte Carlo{when}: {mc['runs']} runs of each of "
+                       f"{', '.join(mc['controllers'])} on {mc['workers']}: "
+                       f"{t['total_wall_s'] / 60:.1f} min wall "
+                       f"({t['driver_prepare_wall_s'] / 60:.1f} min preparing in the driver), "
+                       f"{t['runs_cpu_s'] / 60:.1f} min CPU in the runs."), "",
+                  "| controller | Delta-V per year, mean / p95 (m/s) | lost | CPU per revolution (ms) |",
+                  "|---|---:|---:|---:|"]
+        lines += [f"| {n} | {v['dv_mean']:.3g} / {v['dv_p95']:.3g} | {v['lost']} | "
+                  f"{v['cpu_ms_per_revolution']:.0f} |" for n, v in mc["summary"].items()]
     return "\n".join(lines) + "\n"
 
 
@@ -131,10 +152,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--write", action="store_true")
     ap.add_argument("--years", type=float, default=0.25)
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--controllers", default="xaxis,target-point,tube-mpc,lqr")
+    ap.add_argument("--controllers", default="xaxis,target-point,corridor,tube-mpc,lqr")
     ap.add_argument("--monte-carlo", action="store_true")
     ap.add_argument("--mc-runs", type=int, default=100)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--from-report", action="append", default=[], metavar="DIR",
+                    help="add the Monte Carlo of an `ocreach report orbit-maintenance` folder "
+                         "(instead of --monte-carlo; repeatable)")
+    ap.add_argument("--report-when", action="append", default=[], metavar="TEXT",
+                    help="date and machine load of each --from-report measurement")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
@@ -142,10 +168,12 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps(plant))
     loop = bench_loop(controllers, args.years, args.runs)
     print(json.dumps(loop))
-    mc = bench_monte_carlo(controllers, args.mc_runs, args.workers) if args.monte_carlo else None
-    if mc is not None:
+    mcs = [bench_monte_carlo(controllers, args.mc_runs, args.workers)] if args.monte_carlo else []
+    whens = args.report_when + [""] * len(args.from_report)
+    mcs += [mc_from_report(d, w) for d, w in zip(args.from_report, whens, strict=False)]
+    for mc in mcs:
         print(json.dumps(mc, default=str))
-    text = markdown(plant, loop, mc)
+    text = markdown(plant, loop, mcs)
     print(text)
     if args.write:
         replace_markdown_section(benchmarks_doc(DOCS), text)

@@ -418,7 +418,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--out")
     rp.add_argument("--set", action="append", metavar="KEY=VALUE")
     rp.add_argument("--controllers", help="station-keeping: e.g. event-mpc,tube-mpc,mpc,lqr; "
-                    "orbit-maintenance: e.g. xaxis,target-point,tube-mpc,lqr")
+                    "orbit-maintenance: e.g. xaxis,target-point,corridor,tube-mpc,lqr")
     rp.add_argument("--revolutions", type=float, help="station-keeping: revolutions (default 10)")
     rp.add_argument("--plant", choices=["cr3bp", "ephemeris"],
                     help="station-keeping: true plant (default cr3bp; ephemeris: DE421 point "

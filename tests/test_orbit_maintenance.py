@@ -51,6 +51,14 @@ def short():
     (lambda: MaintenanceSettings.from_options(no_such_option=1), "no_such_option"),
     (lambda: make_controller("xaxis", {"target_revolutions": 0}), "target_revolutions"),
     (lambda: make_controller("nope"), "controller"),
+    (lambda: make_controller("corridor", {"corridor_position_km": -5.0}), "corridor_position_km"),
+    (lambda: make_controller("corridor", {"corridor_velocity_mps": 0.0}),
+     "corridor_velocity_mps"),
+    (lambda: make_controller("corridor", {"horizon_revolutions": 0}), "horizon_revolutions"),
+    (lambda: make_controller("corridor", {"horizon_revolutions": 1.5}), "horizon_revolutions"),
+    (lambda: make_controller("corridor", {"execution_in_tube": "yes"}), "execution_in_tube"),
+    (lambda: make_controller("corridor", {"null_unstable": 1}), "null_unstable"),
+    (lambda: make_controller("corridor", {"beta": 0.5}), "beta"),
 ])
 def test_bad_input_is_refused_with_the_parameter_named(make, word):
     with pytest.raises(ProblemError, match=word):
@@ -81,7 +89,10 @@ def test_bad_input_fails_before_any_work(tmp_path, monkeypatch):
                  ["--set", "area_to_mass=-0.1"], ["--set", "burn_anomaly_deg=360"],
                  ["--set", "burn_anomaly_deg=-5"], ["--set", "nav_position_sigma_km=-1"],
                  ["--set", "magnitude_sigma=-0.01"], ["--set", "pointing_sigma_deg=-1"],
-                 ["--controllers", "xaxis,bogus"]):
+                 ["--controllers", "xaxis,bogus"],
+                 ["--set", "corridor.corridor_position_km=-5"],
+                 ["--set", "corridor.corridor_velocity_mps=0"],
+                 ["--set", "corridor.horizon_revolutions=0"]):
         assert main(["report", "orbit-maintenance", "--problem", "nrho-9-2", *argv,
                      "--out", str(out)]) == 2, argv
     assert not any(tmp_path.iterdir())
@@ -227,7 +238,8 @@ def test_target_point_second_order_prediction_beats_the_first(short):
 
 # ------------------------------------------------------------------------------ the loop
 @pytest.mark.parametrize("name, options", [("xaxis", {}), ("target-point", {}), ("lqr", {}),
-                                           ("tube-mpc", {"tube_source": "linear"})])
+                                           ("tube-mpc", {"tube_source": "linear"}),
+                                           ("corridor", {"horizon_revolutions": 2})])
 def test_short_runs_keep_the_orbit(short, name, options):
     settings, sc = short
     r = run_maintenance(settings, make_controller(name, options), 0)
@@ -237,7 +249,61 @@ def test_short_runs_keep_the_orbit(short, name, options):
     assert r["srp_scale"] == run_maintenance(settings, make_controller("xaxis"), 0)["srp_scale"]
     if name in ("xaxis", "target-point"):  # one burn opportunity per revolution, at apolune
         assert r["burns_planned"] == len(sc.anomaly_steps(180.0))
+    if name in ("xaxis", "target-point", "corridor"):
+        assert r["opportunities"] == len(sc.anomaly_steps(180.0))
         assert all(170 < b["anomaly_deg"] < 190 for b in r["burns"])
+    if name == "corridor":  # the true state never left the corridor; no burn below the minimum
+        assert r["corridor_exit_steps"] == 0 and 0 < r["corridor_max_ratio"] < 1
+        assert all(b["status"] == "executed" for b in r["burns"])
+
+
+def test_execution_bound_holds_for_the_drawn_burns():
+    """The execution-error ball of the corridor's sets: an executed burn lies within c_e |dv|
+    of its command in all but 0.1 % of the draws (at most), and the bound is not loose: the
+    0.999 quantile of the drawn errors is above 0.75 c_e."""
+    from ocreach.control.stationkeeping.corridor import execution_bound
+
+    exe = ExecutionErrors(magnitude_sigma=0.01, pointing_sigma_deg=1 / 3, min_burn_mps=0.0)
+    ce = execution_bound(exe)
+    rng = np.random.default_rng(3)
+    dv = np.array([0.02, 0.01, -0.03])
+    err = np.array([np.linalg.norm(exe.execute(dv, i, rng)[0] - dv)
+                    for i in range(10000)]) / np.linalg.norm(dv)
+    assert np.mean(err > ce) < 0.0015
+    assert np.quantile(err, 0.999) > 0.75 * ce
+
+
+def test_corridor_sets_contain_the_sampled_true_states(short):
+    """The set box of the corridor's gauge at the next opportunity (predicted deviation, mapped
+    navigation ellipsoid, SRP dispersion tube) contains the true deviation of every sampled
+    navigation error and SRP scale, propagated in the nonlinear plant; a deviation that needs
+    a burn gets one, at least the minimum burn, and the set after it (with the execution
+    ball) is back inside the corridor."""
+    settings, sc = short
+    ctl = make_controller("corridor", {"horizon_revolutions": 2})
+    ctl.prepare(sc, settings)
+    k = int(ctl._opp[1])
+    a = ctl._index[k]
+    k1 = int(ctl._opp[a + 1])
+    rng = np.random.default_rng(5)
+    sigma = settings.navigation.sigma(sc.units)
+    d = np.r_[np.array([12.0, -9.0, 7.0]) * 1e3 / sc.units.length,
+              np.array([0.02, -0.015, 0.01]) / sc.units.velocity]
+    xhat = sc.X[k] + d
+    box = np.abs(ctl._Phi[a] @ d) + ctl._nav[a] + ctl._srp[a]
+    for _ in range(300):
+        p = sc.params_with(1.0 + settings.scenario.srp.uncertainty * (2 * rng.random() - 1))
+        x1 = sc.propagate(xhat - sigma * rng.standard_normal(6), k, k1, p)[-1]
+        assert np.all(np.abs(x1 - sc.X[k1]) <= box)
+    assert ctl.gauge(sc, k, xhat) > 1.0 and ctl.triggered(sc, k, xhat)
+    dv = ctl.burn(sc, k, xhat)
+    assert np.linalg.norm(dv) * sc.units.velocity >= settings.execution.min_burn_mps
+    z = d.copy()
+    z[3:] += dv
+    after = (np.abs(ctl._Phi[a] @ z) + ctl._nav[a] + ctl._srp[a]
+             + ctl._exe[a] * np.linalg.norm(dv)) / ctl._C
+    assert after.max() <= 1.0 + 1e-6
+    assert not ctl.triggered(sc, k, sc.X[k])  # on the reference: no burn
 
 
 def test_skipped_burn_scenario(short):
@@ -295,15 +361,20 @@ def test_report_writes_the_folder_as_a_unit(tmp_path, short):
 
     out = tmp_path / "om"
     res = orbit_maintenance_report(ocreach.get_problem("nrho-9-2"), out, runs=2,
-                                   controllers="xaxis,lqr", serial=True, progress=False,
-                                   **SHORT)
+                                   controllers="xaxis,corridor,lqr", serial=True,
+                                   progress=False, **SHORT,
+                                   **{"corridor.horizon_revolutions": 2})
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(["metrics.json", "report.md", *FIGURES])
     data = json.loads((out / "metrics.json").read_text())
-    assert set(data["summary"]) == {"xaxis", "lqr"} and data["runs"] == 2
+    assert set(data["summary"]) == {"xaxis", "corridor", "lqr"} and data["runs"] == 2
     assert data["summary"]["xaxis"]["lost"] == 0
+    corridor = data["summary"]["corridor"]
+    assert corridor["corridor_exit_steps"] == 0 and corridor["opportunities"] > 0
+    assert "corridor_max_ratio" not in data["summary"]["xaxis"]
     md = (out / "report.md").read_text()
     assert "Delta-V per year, 95th percentile" in md and "CAPSTONE" in md
+    assert "corridor: worst ratio" in md
     assert res["store"] == str(tmp_path / "om.runs")
     assert not list(tmp_path.glob(".om.tmp-*"))
 

@@ -148,3 +148,25 @@ def test_classify_zonotope_decides_points_of_known_membership(seed, rel):
     far = Zonotope(Z.c + 10 * np.abs(Z.G).sum(), Z.G)
     v_u = classify_zonotope(ZonotopeUnion([far, Z]), np.vstack([inner, outer]), eps)
     assert v_u.inside[: len(inner)].all() and v_u.outside[len(inner):].all()
+
+
+@SET
+@given(st.integers(0, 10_000))
+def test_lp_membership_rejects_points_beyond_its_tolerance(seed):
+    """The LP path reports inside only points within its tolerance: support points of zonotopes
+    of many generators and large coordinates, moved out along ``sign(d)`` so that their Euclidean
+    distance to the set exceeds the tolerance (at HiGHS's default feasibility tolerance the LP
+    accepted such points, up to ~3x beyond it)."""
+    rng = np.random.default_rng(seed)
+    n, h = int(rng.integers(2, 8)), int(rng.integers(8, 120))
+    G = rng.normal(size=(n, h)) * rng.uniform(1e-3, 1, h) * 10 ** rng.uniform(-2, 4)
+    Z = Zonotope(rng.normal(size=n) * 10 ** rng.uniform(-2, 6), G)
+    tol = 10 ** rng.uniform(-11, -7)
+    atol = tol * max(1.0, float(np.abs(G).sum()), float(np.abs(Z.c).max()))
+    d = rng.normal(size=(40, n))
+    V = Z.c + np.sign(d @ G) @ G.T
+    # d.(x - V) = k atol |d|_1 >= k atol |d|_2: the Euclidean distance to Z is at least k atol
+    out = V + rng.uniform(1.05, 4, (40, 1)) * atol * np.sign(d)
+    assert not points_in_zonotope(Z, out, tol=tol, method="lp").any()
+    inner = Z.c + (1 - 1e-6) * (V - Z.c)
+    assert points_in_zonotope(Z, inner, tol=tol, method="lp").all()

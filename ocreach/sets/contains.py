@@ -73,7 +73,8 @@ def zonotope_halfspaces(Z, max_subsets: int = MAX_FACET_SUBSETS) -> tuple[np.nda
 def _lp_residual(Gr: np.ndarray, R: np.ndarray) -> np.ndarray:
     """For each column r_k of R: ``min ||e_k||_1 s.t. Gr xi_k + e_k = r_k, -1 <= xi_k <= 1``, all
     points in ONE block-diagonal LP (HiGHS dual simplex, bounded variables).  The point is in the
-    zonotope iff the optimal residual is 0.  Returns the residuals (K,)."""
+    zonotope iff the optimal residual is 0.  Returns the residuals (K,) of the solver's factor
+    vectors (clipped to the box), recomputed from ``Gr`` and ``R``."""
     from scipy.optimize import linprog
 
     k_rows, h = Gr.shape
@@ -90,7 +91,10 @@ def _lp_residual(Gr: np.ndarray, R: np.ndarray) -> np.ndarray:
                   options={"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10})
     if res.status != 0:
         raise SolverError(f"points_in_zonotope: HiGHS returned status {res.status} ({res.message}) for the batched LP")
-    return res.x.reshape(K, nv)[:, h:].sum(axis=1)
+    # the residual of the solver's factors, clipped to the box, recomputed here: an upper bound of
+    # the distance that does not rely on the solver's own feasibility tolerance
+    xi = np.clip(res.x.reshape(K, nv)[:, :h], -1.0, 1.0)
+    return np.abs(xi @ Gr.T - R.T).sum(axis=1)
 
 
 def _direction_set(n: int, G: np.ndarray, k: int = 256) -> np.ndarray:

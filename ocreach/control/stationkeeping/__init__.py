@@ -22,6 +22,7 @@
   :mod:`~ocreach.control.stationkeeping.scenario` (plant, reference, shared data),
   :mod:`~ocreach.control.stationkeeping.xaxis` (x-axis crossing control),
   :mod:`~ocreach.control.stationkeeping.target_point` (STT target point),
+  :mod:`~ocreach.control.stationkeeping.corridor` (reachable-set corridor control),
   :mod:`~ocreach.control.stationkeeping.impulsive_tube` (event-triggered impulsive tube MPC),
   :mod:`~ocreach.control.stationkeeping.continuous` (LQR, MPC),
   :mod:`~ocreach.control.stationkeeping.orbit_maintenance` (the loop),

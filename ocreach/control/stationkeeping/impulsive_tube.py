@@ -1,4 +1,4 @@
-"""The reachable-set controller on the orbit-maintenance loop: event-triggered tube MPC (Patel &
+"""A reachable-set controller on the orbit-maintenance loop: event-triggered tube MPC (Patel &
 Subbarao, "Station-keeping in the near rectilinear halo orbit", the controller of
 :mod:`ocreach.control.stationkeeping.event_mpc`) with impulsive execution, its trigger fed the OD estimate and
 its tubes enclosing the navigation error.

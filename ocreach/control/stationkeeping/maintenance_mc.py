@@ -180,8 +180,11 @@ def summarize(records: dict[str, list[dict]]) -> dict[str, dict]:
     kept the orbit (mean / p95 / max / min, m/s), burns per revolution (executed; planned,
     below the minimum, skipped and not converged in total), the maximum position deviation
     (km; per-run max: mean / p95 / max), the phase offset and the deviation from the orbit's
-    path at apolune, and the CPU time per run and per revolution (the per-process preparation,
-    the reference's STMs, tensors or tubes, excluded; it is in ``runs_cpu_s`` of the timing)."""
+    path at apolune, the CPU time per run and per revolution (the per-process preparation,
+    the reference's STMs, tensors or tubes, excluded; it is in ``runs_cpu_s`` of the timing),
+    the burn opportunities, and for a controller with a corridor the largest ratio of the true
+    deviation to it (per run: mean / p95 / max), the steps outside it and the burns whose plan
+    could not keep the sets in it."""
     out = {}
     for name, rs in records.items():
         kept = [r for r in rs if not r["lost"]]
@@ -207,7 +210,15 @@ def summarize(records: dict[str, list[dict]]) -> dict[str, dict]:
             "cpu_s_per_run": _stats([r["cpu_s"] for r in rs]),
             "cpu_ms_per_revolution": (1e3 * sum(r["cpu_s"] for r in rs) / revs) if revs else None,
             "loss_reasons": sorted({r["loss"]["reason"] for r in rs if r["lost"]}),
+            "opportunities": (sum(r["opportunities"] for r in rs)
+                              if all(r.get("opportunities") is not None for r in rs) else None),
         }
+        if rs and all("corridor_max_ratio" in r for r in rs):  # a controller with a corridor
+            out[name]["corridor_max_ratio"] = _stats([r["corridor_max_ratio"] for r in rs
+                                                      if r["corridor_max_ratio"] is not None])
+            out[name]["corridor_exit_steps"] = sum(r["corridor_exit_steps"] for r in rs)
+            out[name]["burns_corridor_not_met"] = sum(
+                not b.get("corridor_met", True) for r in rs for b in r["burns"])
     return out
 
 

@@ -3,7 +3,7 @@
 ::
 
     ocreach report orbit-maintenance --problem nrho-9-2 [--runs 100] [--years 1]
-        [--controllers xaxis,target-point,tube-mpc,lqr] [--workers N | --dask-local N]
+        [--controllers xaxis,target-point,corridor,tube-mpc,lqr] [--workers N | --dask-local N]
         [--out DIR] [--set KEY=VALUE ...]
 
 runs :func:`~ocreach.control.stationkeeping.maintenance_mc.run_monte_carlo` (its store, the
@@ -40,7 +40,7 @@ from ocreach.control.stationkeeping.published import (
 )
 from ocreach.errors import ProblemError, check_count
 
-DEFAULT_CONTROLLERS = ("xaxis", "target-point", "tube-mpc", "lqr")
+DEFAULT_CONTROLLERS = ("xaxis", "target-point", "corridor", "tube-mpc", "lqr")
 FIGURES = ("delta_v_histogram.png", "deviation_envelope.png", "burns_on_orbit.png")
 
 
@@ -218,6 +218,15 @@ ROWS = [
     ("max deviation (km), 95th percentile", lambda s: _f(s["max_deviation_km"]["p95"])),
     ("max deviation (km), worst run", lambda s: _f(s["max_deviation_km"]["max"])),
     ("max velocity deviation (m/s), worst run", lambda s: _f(s["max_deviation_mps"]["max"])),
+    ("max phase offset at apolune (min), worst run",
+     lambda s: _f(s["max_phase_offset_min"]["max"])),
+    ("max deviation from the orbit's path at apolune (km), worst run",
+     lambda s: _f(s["max_path_deviation_km"]["max"])),
+    ("burn opportunities taken", lambda s: "-" if s.get("opportunities") is None else
+     f"{s['burns_planned']} of {s['opportunities']}"),
+    ("corridor: worst ratio of the true deviation / steps outside",
+     lambda s: "-" if "corridor_max_ratio" not in s else
+     f"{_f(s['corridor_max_ratio']['max'])} / {s['corridor_exit_steps']}"),
     ("CPU per revolution (ms)", lambda s: _f(s["cpu_ms_per_revolution"])),
 ]
 

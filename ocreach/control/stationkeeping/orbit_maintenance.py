@@ -8,14 +8,17 @@ One run (:func:`run_maintenance`):
    uniform in ``+-srp uncertainty`` (:mod:`ocreach.control.stationkeeping.srp`);
 2. at every decision step the controller gets the estimate ``xhat = x + e``
    (:mod:`ocreach.control.stationkeeping.navigation`: a fresh Gaussian OD error at each fix):
-   * ``placement="anomaly"`` (x-axis control, target point): one burn per revolution where the
-     reference passes the true anomaly ``burn_anomaly_deg`` (180: apolune), with a fix there;
-   * ``placement="gauge"`` (the reachable-set controller): a fix every ``od_interval_h``; a burn
+   * ``placement="anomaly"`` (x-axis control, target point, corridor control): one burn
+     opportunity per revolution where the reference passes the true anomaly
+     ``burn_anomaly_deg`` (180: apolune), with a fix there; a burn at every opportunity, or
+     only where the controller's ``triggered`` says so (corridor control);
+   * ``placement="gauge"`` (the event-triggered tube MPC): a fix every ``od_interval_h``; a burn
      only when the controller's trigger fires on the estimate;
    * ``placement="continuous"`` (LQR, MPC): a thrust command every control step, on the estimate
      dead-reckoned from the last fix (``e_{k+1} = A_k e_k + B_k (u_cmd - u_executed)``);
 3. a burn is executed with magnitude and pointing errors, not at all below the minimum burn or
    when skipped (:mod:`ocreach.control.stationkeeping.execution`), and applied to the plant;
+   the burn record keeps what the controller says about it (its ``last_info``);
 4. the plant is propagated on the control grid; the run stops as **lost** when it leaves the
    NRHO: its distance from the Moon outside ``[d_min / loss_ratio, d_max * loss_ratio]``, ``d_min``
    and ``d_max`` the reference's closest and farthest grid distances (default ratio 1.25: below
@@ -24,7 +27,9 @@ One run (:func:`run_maintenance`):
    recorded, not a loss criterion: x-axis control leaves the phase along the orbit free, and a
    minute of phase is 100 km at perilune.  At every apolune the deviation is split into the
    phase offset ``dt = d . v_ref / |v_ref|^2`` and the rest ``|d - v_ref dt|`` (the deviation
-   from the orbit's path, valid while ``dt`` is small beside a revolution).
+   from the orbit's path, valid while ``dt`` is small beside a revolution).  For a controller
+   with a corridor (``corridor_half_widths``, per step) the true state's largest ratio to it
+   and the steps outside it are recorded.
 
 Random draws are keyed by (seed, run, stream, step): every controller of the same run index sees
 the same OD errors at the same fixes, the same execution-error draws at the same steps and the
@@ -143,16 +148,18 @@ class MaintenanceSettings:
 
 def _controllers() -> dict[str, type]:
     from ocreach.control.stationkeeping.continuous import ContinuousLQR, ContinuousMPC
+    from ocreach.control.stationkeeping.corridor import CorridorControl
     from ocreach.control.stationkeeping.impulsive_tube import ImpulsiveTubeMPC
     from ocreach.control.stationkeeping.target_point import TargetPointControl
     from ocreach.control.stationkeeping.xaxis import XAxisControl
 
     return {"xaxis": XAxisControl, "target-point": TargetPointControl,
-            "tube-mpc": ImpulsiveTubeMPC, "lqr": ContinuousLQR, "mpc": ContinuousMPC}
+            "tube-mpc": ImpulsiveTubeMPC, "corridor": CorridorControl, "lqr": ContinuousLQR,
+            "mpc": ContinuousMPC}
 
 
 #: controller names (:func:`make_controller`)
-CONTROLLERS = ("xaxis", "target-point", "tube-mpc", "lqr", "mpc")
+CONTROLLERS = ("xaxis", "target-point", "corridor", "tube-mpc", "lqr", "mpc")
 
 
 def make_controller(name: str, options: dict | None = None):
@@ -202,9 +209,11 @@ def decision_steps(sc: Scenario, placement: str, settings: MaintenanceSettings) 
 class _Track:
     """Per-step deviations and Moon distances of one run, and the loss test."""
 
-    def __init__(self, sc: Scenario, ratio: float) -> None:
+    def __init__(self, sc: Scenario, ratio: float, corridor: np.ndarray | None = None) -> None:
         self.sc = sc
         K = sc.steps
+        self.corridor = corridor
+        self.corridor_ratio = np.full(K + 1, np.nan)
         self.pos = np.full(K + 1, np.nan)
         self.vel = np.full(K + 1, np.nan)
         self.dist = np.full(K + 1, np.nan)
@@ -220,6 +229,9 @@ class _Track:
         d = states - sc.X[k0:k0 + n]
         self.pos[k0:k0 + n] = sc.km(np.linalg.norm(d[:, :3], axis=1))
         self.vel[k0:k0 + n] = sc.mps(np.linalg.norm(d[:, 3:], axis=1))
+        if self.corridor is not None and n > 1:  # the last state is the next segment's first
+            h = self.corridor[k0:k0 + n - 1]
+            self.corridor_ratio[k0:k0 + n - 1] = np.max(np.abs(d[:-1]) / h, axis=1)
         r = np.linalg.norm(states[:, :3] - self._moon(), axis=1)
         self.dist[k0:k0 + n] = r
         out = np.flatnonzero((r < self.band[0]) | (r > self.band[1]))
@@ -246,7 +258,7 @@ def run_maintenance(settings: MaintenanceSettings, controller, run: int) -> dict
         2.0 * _rng(settings, run, 2, -1).random() - 1.0)
     p = sc.params_with(srp_scale)
     x = sc.X[0] + settings.navigation.draw(_rng(settings, run, 0, -1), units)
-    track = _Track(sc, settings.loss_ratio)
+    track = _Track(sc, settings.loss_ratio, getattr(controller, "corridor_half_widths", None))
     track.record(0, x[None])
     burns: list[dict] = []
     states_at: dict[int, np.ndarray] = {}
@@ -275,6 +287,8 @@ def run_maintenance(settings: MaintenanceSettings, controller, run: int) -> dict
         "srp_scale": srp_scale, "steps": int(k_end), "days": days, "revolutions": revs,
         "dv_total_mps": dv_total, "dv_commanded_mps": dv_cmd_total,
         "dv_per_year_mps": dv_total * 365.25 / days,
+        "opportunities": (None if controller.placement == "continuous" else int(np.sum(
+            decision_steps(sc, controller.placement, settings) < max(k_end, 1)))),
         "burns_planned": len(burns), "burns_executed": len(executed),
         "burns_below_minimum": sum(b["status"] == "below_minimum" for b in burns),
         "burns_skipped": sum(b["status"] == "skipped" for b in burns),
@@ -288,6 +302,7 @@ def run_maintenance(settings: MaintenanceSettings, controller, run: int) -> dict
         "final_phase_offset_min": phase["final_phase_offset_min"],
         "max_path_deviation_km": phase["max_path_deviation_km"],
         "lost": loss is not None, "loss": loss,
+        **_corridor_metrics(track, k_end),
         "deviation_window_steps": DEVIATION_WINDOW,
         "deviation_km": [float(np.nanmax(pos[w])) for w in windows],
         "deviation_mps": [float(np.nanmax(vel[w])) for w in windows],
@@ -295,6 +310,17 @@ def run_maintenance(settings: MaintenanceSettings, controller, run: int) -> dict
         "cpu_s": time.process_time() - t_cpu, "wall_s": time.perf_counter() - t_wall,
         "prepare_cpu_s": t_cpu - t_prep,
     }
+
+
+def _corridor_metrics(track: _Track, k_end: int) -> dict[str, Any]:
+    """For a controller with a corridor (``corridor_half_widths``): the largest ratio of the
+    true deviation to the corridor over the run and the steps outside it (ratio > 1)."""
+    if track.corridor is None:
+        return {}
+    r = track.corridor_ratio[:k_end]
+    r = r[np.isfinite(r)]
+    return {"corridor_max_ratio": float(r.max()) if r.size else None,
+            "corridor_exit_steps": int(np.sum(r > 1.0))}
 
 
 def _phase_at_apolunes(sc: Scenario, states_at: dict[int, np.ndarray]) -> dict[str, Any]:
@@ -330,7 +356,8 @@ def _run_impulsive(sc: Scenario, ctl, settings: MaintenanceSettings, run: int, x
             states_at[k] = x.copy()
         if k in decisions:
             xhat = x + nav.draw(_rng(settings, run, 0, k), units)
-            if ctl.placement == "anomaly" or ctl.triggered(sc, k, xhat):
+            trigger = getattr(ctl, "triggered", None)
+            if trigger is None or trigger(sc, k, xhat):
                 dv_cmd = sc.mps(ctl.burn(sc, k, xhat))
                 dv, status = exe.execute(dv_cmd, len(burns), _rng(settings, run, 1, k))
                 x = x.copy()
@@ -341,7 +368,8 @@ def _run_impulsive(sc: Scenario, ctl, settings: MaintenanceSettings, run: int, x
                               "anomaly_deg": float(nu[k]),
                               "dv_cmd_mps": float(np.linalg.norm(dv_cmd)),
                               "dv_mps": float(np.linalg.norm(dv)), "status": status,
-                              "targeting_converged": getattr(ctl, "last_converged", True)})
+                              "targeting_converged": getattr(ctl, "last_converged", True),
+                              **getattr(ctl, "last_info", {})})
         X = sc.propagate(x, k, k_next, p)
         loss = track.record(k, X)
         if loss is not None:
