@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ocreach.errors import SetError
 from ocreach.sets.box_lsq import box_min_norm
 from ocreach.sets.interval import Interval
 from ocreach.sets.polyzonotope import PolyZonotope
@@ -71,6 +72,17 @@ def _zonotope_parts(S) -> list[Zonotope]:
     if isinstance(S, Zonotope):
         return [S]
     raise TypeError(f"classify_zonotope: expected a Zonotope, Interval or ZonotopeUnion; got {type(S).__name__}")
+
+
+def _checked(P, n: int, eps) -> tuple[np.ndarray, float]:
+    """The points ``P`` as (N, n), finite, and the tolerance ``eps``, finite and >= 0 (a negative
+    one would shrink the set and certify points of it outside)."""
+    from ocreach.sets._base import as_points
+
+    e = float(eps) if np.ndim(eps) == 0 else float("nan")
+    if not (np.isfinite(e) and e >= 0.0):
+        raise SetError(f"classify: eps must be a finite number >= 0; got {eps!r}")
+    return as_points("P", P, n)[0], e
 
 
 def verified_inside(c: np.ndarray, G: np.ndarray, xi: np.ndarray, X: np.ndarray, eps: float,
@@ -191,8 +203,9 @@ def classify_zonotope(S, P: np.ndarray, eps: float, lp: bool = True) -> Classifi
     enlarged by the box of radius ``eps`` (module docstring): inside when some part has a
     witness, outside when every part has a certificate.  With ``lp=False`` the points the
     minimum-norm solve leaves stay undecided."""
-    P = np.atleast_2d(np.asarray(P, dtype=float))
-    return _classify_parts(_zonotope_parts(S), P, eps, lp)
+    parts = _zonotope_parts(S)
+    P, eps = _checked(P, parts[0].dim, eps)
+    return _classify_parts(parts, P, eps, lp)
 
 
 def _classify_parts(parts: list[Zonotope], P: np.ndarray, eps: float, lp: bool,
@@ -417,9 +430,9 @@ def classify(S: PolyZonotope | PZUnion, P: np.ndarray, eps: float, start: Classi
     SciPy's bounded least squares for the points still left."""
     from ocreach.sets.pz_exact import membership
 
-    P = np.atleast_2d(np.asarray(P, dtype=float))
-    N = P.shape[0]
     parts = list(S.parts) if isinstance(S, PZUnion) else [S]
+    P, eps = _checked(P, parts[0].dim, eps)
+    N = P.shape[0]
     ids = np.unique(np.concatenate([np.asarray(p.id) for p in parts]))
     W = np.zeros((N, ids.size))
     inside = np.zeros(N, bool)

@@ -1,0 +1,210 @@
+"""Adversarial checks of the verified three-way membership of ``ocreach.sets.pz_witness``.
+
+Points are placed on the boundary of the set enlarged by the tolerance box, to the last few
+units in the last place, and every verdict is compared with an oracle in exact rational
+arithmetic (``fractions``) on the floating-point inputs: a zonotope enlarged by a box is a
+zonotope, and a full-dimensional zonotope in 2-D or 3-D is the intersection of the slabs normal
+to every (n - 1)-subset of its generators.  A verdict "inside" where the oracle says outside (an
+escape hidden) or "outside" where it says inside fails.
+"""
+from __future__ import annotations
+
+import itertools
+from fractions import Fraction as Fr
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ocreach.errors import SetError
+from ocreach.sets import PolyZonotope, new_ids
+from ocreach.sets.interval import Interval
+from ocreach.sets.union import ZonotopeUnion
+from ocreach.sets.zonotope import Zonotope
+
+SET = settings(max_examples=12, deadline=None)
+
+
+def _cross(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def exact_inside(c, G, x, eps) -> bool:
+    """``x in (c, G) + [-eps, eps]^n`` exactly (n = 2 or 3), every float read as the rational it
+    is."""
+    return exact_in_zonotope(G, [Fr(float(xi)) - Fr(float(ci)) for xi, ci in zip(x, c)], eps)
+
+
+def exact_in_zonotope(G, r, eps) -> bool:
+    """The rational vector ``r`` in ``G [-1, 1]^h + [-eps, eps]^n`` (n = 2 or 3): inside every
+    slab normal to an (n - 1)-subset of the generators and the box's edges."""
+    n = len(r)
+    cols = [[Fr(float(v)) for v in g] for g in np.asarray(G, float).reshape(n, -1).T]
+    cols += [[Fr(float(eps)) if i == k else Fr(0) for i in range(n)] for k in range(n)]
+    for sub in itertools.combinations(cols, n - 1):
+        nv = [-sub[0][1], sub[0][0]] if n == 2 else _cross(sub[0], sub[1])
+        if not any(nv):
+            continue
+        lhs = abs(sum(a * b for a, b in zip(nv, r)))
+        rhs = sum(abs(sum(a * b for a, b in zip(nv, g))) for g in cols)
+        if lhs > rhs:
+            return False
+    return True
+
+
+def boundary_points(rng, c, G, eps, k):
+    """Points ``c + G xi + eps s + delta w``: most factors ``xi`` on the faces, ``s`` in
+    {-1, 0, 1}^n, ``delta`` from 0 to a few units of the last place of the coordinates' scale
+    (or of eps) up to 1e-12 of it, either sign."""
+    n, h = G.shape
+    xi = rng.uniform(-1, 1, (k, h))
+    face = rng.uniform(size=xi.shape) < 0.7
+    xi[face] = np.sign(xi[face])
+    s = rng.integers(-1, 2, (k, n)).astype(float)
+    scale = 1.0 + np.abs(c).max() + np.abs(G).sum()
+    delta = rng.choice([0.0, 1e-16, 4e-16, 3e-15, 1e-13, 1e-12], size=(k, 1)) \
+        * rng.choice([scale, eps], size=(k, 1)) * rng.choice([-1.0, 1.0], size=(k, 1))
+    return c + xi @ G.T + eps * s + delta * rng.normal(size=(k, n))
+
+
+def rand_zonotope(rng, n):
+    h = int(rng.integers(0, 5))
+    c = rng.normal(size=n) * 10.0 ** rng.integers(-1, 4)
+    G = rng.normal(size=(n, h)) * 10.0 ** rng.uniform(-2, 1, h)
+    if h >= 2 and rng.uniform() < 0.3:          # parallel generators (degenerate facets)
+        G[:, 1] = G[:, 0] * rng.uniform(0.1, 2)
+    return c, G
+
+
+@SET
+@given(st.integers(0, 100_000), st.sampled_from([2, 3]), st.sampled_from([1e-15, 1e-12, 1e-9, 1e-3]))
+def test_classify_zonotope_verdicts_agree_with_exact_arithmetic(seed, n, rel_eps):
+    """Zonotopes (also with parallel or no generators) and intervals: every verdict at points on
+    the boundary of the enlarged set, to a few ulps either side, agrees with the exact oracle."""
+    from ocreach.sets.pz_witness import classify_zonotope
+
+    rng = np.random.default_rng(seed)
+    c, G = rand_zonotope(rng, n)
+    eps = rel_eps * (1.0 + np.abs(c).max())
+    X = boundary_points(rng, c, G, eps, 25)
+    lo = c - np.abs(G).sum(axis=1) * rng.uniform(0, 2)
+    hi = c + np.abs(G).sum(axis=1) * rng.uniform(0, 2)
+    for S in (Zonotope(c, G), Interval(lo, hi)):
+        v = classify_zonotope(S, X, eps)
+        assert not (v.inside & v.outside).any()
+        for i in np.flatnonzero(v.inside | v.outside):
+            if isinstance(S, Interval):     # exactly: lo - eps <= x <= hi + eps
+                truth = all(Fr(float(lo[j])) - Fr(eps) <= Fr(float(X[i, j])) <= Fr(float(hi[j])) + Fr(eps)
+                            for j in range(n))
+            else:
+                truth = exact_inside(c, G, X[i], eps)
+            assert truth == bool(v.inside[i]), (type(S).__name__, i, X[i].tolist(), eps, bool(v.inside[i]))
+
+
+@SET
+@given(st.integers(0, 100_000), st.sampled_from([2, 3]))
+def test_classify_zonotope_union_verdicts_agree_with_exact_arithmetic(seed, n):
+    """Unions: inside iff inside some part, outside only if outside every part (exact oracle per
+    part), at points on the boundaries of all parts."""
+    from ocreach.sets.pz_witness import classify_zonotope
+
+    rng = np.random.default_rng(seed)
+    parts = [rand_zonotope(rng, n) for _ in range(int(rng.integers(2, 4)))]
+    # overlapping parts: the others' centres moved near the first
+    parts = [parts[0]] + [(parts[0][0] + 0.5 * rng.normal(size=n) * (1 + np.abs(G).sum()), G)
+                          for _, G in parts[1:]]
+    eps = 1e-9 * (1.0 + np.abs(parts[0][0]).max())
+    X = np.vstack([boundary_points(rng, c, G, eps, 12) for c, G in parts])
+    v = classify_zonotope(ZonotopeUnion([Zonotope(c, G) for c, G in parts]), X, eps)
+    assert not (v.inside & v.outside).any()
+    for i in np.flatnonzero(v.inside | v.outside):
+        truth = any(exact_inside(c, G, X[i], eps) for c, G in parts)
+        assert truth == bool(v.inside[i]), (i, X[i].tolist(), bool(v.inside[i]))
+
+
+def exact_pz_value(pz, a, b, x):
+    """``c + G m(a) + GI b - x`` in exact rational arithmetic."""
+    out = []
+    for i in range(pz.dim):
+        v = Fr(float(pz.c[i])) - Fr(float(x[i]))
+        for j in range(pz.n_dependent):
+            m = Fr(1)
+            for k in range(pz.n_factors):
+                m *= Fr(float(a[k])) ** int(pz.E[k, j])
+            v += Fr(float(pz.G[i, j])) * m
+        for j in range(pz.n_independent):
+            v += Fr(float(pz.GI[i, j])) * Fr(float(b[j]))
+        out.append(v)
+    return out
+
+
+@SET
+@given(st.integers(0, 100_000), st.sampled_from([1e-12, 1e-9, 1e-4]))
+def test_classify_pz_verdicts_at_points_of_known_preimage(seed, rel_eps):
+    """Polynomial zonotopes (dependent factors of degree up to 3, constant monomials, no or some
+    independent generators): points ``c + G m(a0) + eps s + delta w`` with most of ``a0`` on the
+    faces.  Every witness of a point classified inside is in the factor box and maps within eps
+    in every coordinate in exact arithmetic (the independent part checked by the exact zonotope
+    oracle); a point whose offset from its preimage's image is within eps exactly is never
+    classified outside."""
+    from ocreach.sets.pz_witness import classify
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 4))
+    p, h, q = int(rng.integers(1, 4)), int(rng.integers(1, 6)), int(rng.integers(0, 2))
+    E = rng.integers(0, 4, size=(p, h))
+    E[:, rng.uniform(size=h) < 0.15] = 0                  # constant monomials
+    pz = PolyZonotope(rng.normal(size=n) * 10.0 ** rng.integers(-1, 3), rng.normal(size=(n, h)),
+                      rng.normal(size=(n, q)) * 0.1 if q else None, E, new_ids(p))
+    eps = rel_eps * (1.0 + np.abs(pz.c).max())
+    k = 20
+    A = rng.uniform(-1, 1, (k, p))
+    face = rng.uniform(size=A.shape) < 0.6
+    A[face] = np.sign(A[face])
+    B = np.sign(rng.uniform(-1, 1, (k, q)))
+    base = np.atleast_2d(pz.evaluate(A, B if q else None))
+    s = rng.integers(-1, 2, (k, n)).astype(float)
+    delta = rng.choice([0.0, 1e-16, 1e-14, 1e-12], size=(k, 1)) * (1 + np.abs(base).max()) \
+        * rng.choice([-1.0, 1.0], size=(k, 1))
+    X = base + eps * s + delta * rng.normal(size=(k, n))
+    v = classify(pz, X, eps, lsq=False)
+    assert not (v.inside & v.outside).any()
+    cols = np.searchsorted(v.ids, pz.id)
+    for i in np.flatnonzero(v.inside):
+        a = v.witness[i, cols]
+        assert np.all(np.abs(a) <= 1.0)
+        r = exact_pz_value(pz, a, np.zeros(q), X[i])
+        if q == 0:
+            assert max(abs(t) for t in r) <= Fr(eps), (i, X[i].tolist())
+        else:       # some b in the box with GI b within eps of -r
+            assert exact_in_zonotope(pz.GI, [-t for t in r], eps), (i, X[i].tolist())
+    for i in np.flatnonzero(v.outside):
+        # the constructing preimage's offset: within eps exactly means the point is inside
+        r = exact_pz_value(pz, A[i], B[i] if q else [], X[i])
+        assert max(abs(t) for t in r) > Fr(eps), (i, X[i].tolist(), eps)
+
+
+@pytest.mark.parametrize("eps", [-0.5, float("nan"), float("inf")])
+def test_classify_rejects_a_bad_tolerance(eps):
+    """A negative tolerance shrinks the set (a point inside it was certified outside); NaN or
+    inf decides nothing: each is a clear error naming ``eps``."""
+    from ocreach.sets.pz_witness import classify, classify_zonotope
+
+    Z = Zonotope(np.zeros(2), np.eye(2))
+    with pytest.raises(SetError, match="eps"):
+        classify_zonotope(Z, np.array([[0.9, 0.0]]), eps)
+    with pytest.raises(SetError, match="eps"):
+        classify(PolyZonotope.from_zonotope(Z), np.array([[0.9, 0.0]]), eps)
+
+
+@pytest.mark.parametrize("P", [np.array([[0.5], [3.0]]), np.array([[0.5, 0.1, 0.0]]),
+                               np.array([[np.nan, 0.0]]), np.array([[np.inf, 0.0]])])
+def test_classify_rejects_points_of_the_wrong_shape_or_not_finite(P):
+    from ocreach.sets.pz_witness import classify, classify_zonotope
+
+    Z = Zonotope(np.zeros(2), np.eye(2))
+    with pytest.raises(SetError, match="P"):
+        classify_zonotope(Z, P, 1e-9)
+    with pytest.raises(SetError, match="P"):
+        classify(PolyZonotope.from_zonotope(Z), P, 1e-9)
