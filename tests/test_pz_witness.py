@@ -185,6 +185,18 @@ def test_classify_pz_verdicts_at_points_of_known_preimage(seed, rel_eps):
         assert max(abs(t) for t in r) > Fr(eps), (i, X[i].tolist(), eps)
 
 
+def test_pz_without_dependent_factors_is_classified():
+    """A polynomial zonotope with constant dependent monomials and no dependent factors (a
+    zonotope with a shifted centre) is classified like that zonotope."""
+    from ocreach.sets.pz_witness import classify
+
+    pz = PolyZonotope(np.zeros(2), np.array([[1.0], [0.0]]), np.eye(2), np.zeros((0, 1), dtype=int), [])
+    X = np.array([[1.5, 0.5], [0.0, -1.0], [3.0, 0.0], [-0.5, 0.0]])     # the set: [0, 2] x [-1, 1]
+    v = classify(pz, X, 1e-9)
+    assert v.inside.tolist() == [True, True, False, False]
+    assert v.outside.tolist() == [False, False, True, True]
+
+
 @pytest.mark.parametrize("eps", [-0.5, float("nan"), float("inf")])
 def test_classify_rejects_a_bad_tolerance(eps):
     """A negative tolerance shrinks the set (a point inside it was certified outside); NaN or

@@ -269,6 +269,8 @@ class _Residual:
         self.absGI = np.abs(self.GI)
 
     def monomials(self, A: np.ndarray, grad: bool):
+        if self.p == 0:             # no dependent factors: every monomial is the constant 1
+            A = np.ones((A.shape[0], 1))
         V = np.where(self.sl[None] >= 0, A[:, np.maximum(self.sl, 0)], 1.0)       # (N, h, d)
         M = V.prod(axis=2)
         if not grad:
