@@ -220,3 +220,47 @@ def test_classify_rejects_points_of_the_wrong_shape_or_not_finite(P):
         classify_zonotope(Z, P, 1e-9)
     with pytest.raises(SetError, match="P"):
         classify(PolyZonotope.from_zonotope(Z), P, 1e-9)
+
+
+def test_support_certificate_counts_the_bound_s_own_rounding():
+    """A zonotope written as a polynomial zonotope (centre ~100, vertex near the origin): the two
+    points, exactly in the set, were certified outside at eps = 0 and 1e-14 by the
+    branch-and-bound support bound, which lies below the exact support by its rounding (~1e-14
+    here, against a comparison padded only by that of ``d^T x``, ~1e-27)."""
+    from ocreach.sets.pz_witness import classify
+
+    c = [99.7972774737739, -107.5858924189239]
+    G = [[-15.817321864274168, 13.050291128014512, 35.08947899840664, 7.153075971541025,
+          5.750461444927422, 34.437570956464995],
+         [-0.41958803071520034, -5.720635275418194, -26.155469981314052, -9.494560976645403,
+          40.32216864501901, -26.31264557124219]]
+    X = np.array([[-6.389824472838945e-15, -2.6532533779768564e-13],
+                  [-1.4210854715202004e-14, -2.5579538487363607e-13]])
+    assert all(exact_inside(c, G, x, 0.0) for x in X)
+    pz = PolyZonotope(c, G, None, np.eye(6, dtype=int), new_ids(6))
+    for eps in (0.0, 1e-14):
+        assert not classify(pz, X, eps, lsq=False).outside.any()
+
+
+@settings(max_examples=6, deadline=None)
+@given(st.integers(0, 100_000))
+def test_classify_pz_support_certificates_at_vertices_agree_with_exact_arithmetic(seed):
+    """Zonotopes as polynomial zonotopes with large centres and a vertex near the origin, points
+    a few ulps of the set's scale either side of it along the direction it supports, eps = 0:
+    no witness can be verified, so every verdict is a certificate, and each must agree with the
+    exact oracle."""
+    from ocreach.sets.pz_witness import classify
+
+    rng = np.random.default_rng(seed)
+    h = int(rng.integers(2, 7))
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    d = np.array([np.cos(t), np.sin(t)])[:, rng.integers(0, 64)]
+    scale = 10.0 ** rng.uniform(0, 8)
+    G = rng.normal(size=(2, h)) * scale
+    s = np.sign(G.T @ d)
+    c = -(G @ s) + rng.normal(size=2) * 1e-14 * scale
+    X = c + G @ s + rng.integers(-40, 5, size=(8, 1)) * 2.0**-52 * scale * d
+    v = classify(PolyZonotope(c, G, None, np.eye(h, dtype=int), new_ids(h)), X, 0.0, lsq=False)
+    assert not v.inside.any()
+    for i in np.flatnonzero(v.outside):
+        assert not exact_inside(c, G, X[i], 0.0), (X[i].tolist(), c.tolist(), G.tolist())

@@ -11,7 +11,8 @@ within ``eps`` of ``x`` in every coordinate.  :func:`classify` (polynomial zonot
 * **outside**: a *certificate*, a direction ``d`` with ``d^T x`` above an upper bound of the
   set's support in ``d`` by more than ``eps |d|_1`` plus the rounding of that comparison -- the
   support of a zonotope exactly, of a polynomial zonotope its zonotope enclosure's or the
-  rigorous branch-and-bound bound of :func:`ocreach.sets.pz_exact.support_bounds`;
+  branch-and-bound bound of :func:`ocreach.sets.pz_exact.support_bounds` raised by the rigorous
+  bound of its own rounding (:func:`ocreach.sets.pz_exact.upper_rounding`);
 * **undecided**: neither (reported, never counted as inside).
 
 The searches only propose candidates; a verdict is the verification above.  Witnesses of a
@@ -430,7 +431,7 @@ def classify(S: PolyZonotope | PZUnion, P: np.ndarray, eps: float, start: Classi
     points at an earlier time, when given); for the rest the zonotope enclosure (a certificate
     against it is an exclusion), the support-bound certificates, a longer search and with ``lsq``
     SciPy's bounded least squares for the points still left."""
-    from ocreach.sets.pz_exact import membership
+    from ocreach.sets.pz_exact import membership, upper_rounding
 
     parts = list(S.parts) if isinstance(S, PZUnion) else [S]
     P, eps = _checked(P, parts[0].dim, eps)
@@ -463,9 +464,15 @@ def classify(S: PolyZonotope | PZUnion, P: np.ndarray, eps: float, start: Classi
         excluded = np.ones(rest.size, bool)
         for part in parts:
             mem = membership(part, P[rest], tol=eps, witness_iters=5)
-            pad = rounding_radius(np.abs(P[rest]) @ np.ones(part.dim), 2 * part.dim + 2)
-            excess = np.einsum("ij,ij->i", P[rest], mem.direction) - mem.bound
-            excluded &= mem.outside & (excess > eps * np.abs(mem.direction).sum(axis=1) + pad)
+            # d^T x > bound + eps |d|_1 + the bound's own rounding (its support may exceed it by
+            # that), with the rounding of this comparison
+            D = np.where(mem.outside[:, None], mem.direction, 0.0)
+            bound = np.where(mem.outside, mem.bound, 0.0)
+            slack = upper_rounding(part, D)
+            eps_d = eps * np.abs(D).sum(axis=1)
+            val = np.einsum("ij,ij->i", P[rest], D) - bound - eps_d - slack
+            absval = np.abs(P[rest] * D).sum(axis=1) + np.abs(bound) + eps_d + slack
+            excluded &= mem.outside & (val > rounding_radius(absval, part.dim + 4))
         outside[rest[excluded]] = True
         rest = rest[~excluded]
     if rest.size:                   # the few left: a longer search, then SciPy one at a time
