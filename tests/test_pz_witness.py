@@ -139,6 +139,30 @@ def exact_pz_value(pz, a, b, x):
     return out
 
 
+def known_preimage_points(seed, rel_eps, k=20):
+    """A random polynomial zonotope (dependent factors of degree up to 3, constant monomials, no
+    or one independent generator) and points ``c + G m(a0) + GI b0 + eps s + delta w`` with most
+    of ``a0`` on the faces, ``b0`` at the corners: ``(pz, X, eps, a0, b0)``."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 4))
+    p, h, q = int(rng.integers(1, 4)), int(rng.integers(1, 6)), int(rng.integers(0, 2))
+    E = rng.integers(0, 4, size=(p, h))
+    E[:, rng.uniform(size=h) < 0.15] = 0                  # constant monomials
+    pz = PolyZonotope(rng.normal(size=n) * 10.0 ** rng.integers(-1, 3), rng.normal(size=(n, h)),
+                      rng.normal(size=(n, q)) * 0.1 if q else None, E, new_ids(p))
+    eps = rel_eps * (1.0 + np.abs(pz.c).max())
+    A = rng.uniform(-1, 1, (k, p))
+    face = rng.uniform(size=A.shape) < 0.6
+    A[face] = np.sign(A[face])
+    B = np.sign(rng.uniform(-1, 1, (k, q)))
+    base = np.atleast_2d(pz.evaluate(A, B if q else None))
+    s = rng.integers(-1, 2, (k, n)).astype(float)
+    delta = rng.choice([0.0, 1e-16, 1e-14, 1e-12], size=(k, 1)) * (1 + np.abs(base).max()) \
+        * rng.choice([-1.0, 1.0], size=(k, 1))
+    X = base + eps * s + delta * rng.normal(size=(k, n))
+    return pz, X, eps, A, B
+
+
 @SET
 @given(st.integers(0, 100_000), st.sampled_from([1e-12, 1e-9, 1e-4]))
 def test_classify_pz_verdicts_at_points_of_known_preimage(seed, rel_eps):
@@ -150,24 +174,8 @@ def test_classify_pz_verdicts_at_points_of_known_preimage(seed, rel_eps):
     classified outside."""
     from ocreach.sets.pz_witness import classify
 
-    rng = np.random.default_rng(seed)
-    n = int(rng.integers(2, 4))
-    p, h, q = int(rng.integers(1, 4)), int(rng.integers(1, 6)), int(rng.integers(0, 2))
-    E = rng.integers(0, 4, size=(p, h))
-    E[:, rng.uniform(size=h) < 0.15] = 0                  # constant monomials
-    pz = PolyZonotope(rng.normal(size=n) * 10.0 ** rng.integers(-1, 3), rng.normal(size=(n, h)),
-                      rng.normal(size=(n, q)) * 0.1 if q else None, E, new_ids(p))
-    eps = rel_eps * (1.0 + np.abs(pz.c).max())
-    k = 20
-    A = rng.uniform(-1, 1, (k, p))
-    face = rng.uniform(size=A.shape) < 0.6
-    A[face] = np.sign(A[face])
-    B = np.sign(rng.uniform(-1, 1, (k, q)))
-    base = np.atleast_2d(pz.evaluate(A, B if q else None))
-    s = rng.integers(-1, 2, (k, n)).astype(float)
-    delta = rng.choice([0.0, 1e-16, 1e-14, 1e-12], size=(k, 1)) * (1 + np.abs(base).max()) \
-        * rng.choice([-1.0, 1.0], size=(k, 1))
-    X = base + eps * s + delta * rng.normal(size=(k, n))
+    pz, X, eps, A, B = known_preimage_points(seed, rel_eps)
+    q = pz.n_independent
     v = classify(pz, X, eps, lsq=False)
     assert not (v.inside & v.outside).any()
     cols = np.searchsorted(v.ids, pz.id)
@@ -183,6 +191,22 @@ def test_classify_pz_verdicts_at_points_of_known_preimage(seed, rel_eps):
         # the constructing preimage's offset: within eps exactly means the point is inside
         r = exact_pz_value(pz, A[i], B[i] if q else [], X[i])
         assert max(abs(t) for t in r) > Fr(eps), (i, X[i].tolist(), eps)
+
+
+def test_witness_search_returns_the_verified_witness():
+    """The factors returned for a point found inside are its verified witness: here a later
+    start's witness (within eps in every coordinate) was found, but the factors of an earlier
+    start, closer in the 2-norm and not within eps, were returned (and became ``Classified.witness``
+    and the next grid time's warm start)."""
+    from ocreach.sets.pz_witness import _Residual, witness_search
+
+    pz, X, eps, _, _ = known_preimage_points(0, 1e-4)
+    found, best = witness_search(pz, X, eps)
+    assert found[6]
+    assert _Residual(pz).verified(best[found], X[found], eps).all()
+    for i in np.flatnonzero(found):
+        r = exact_pz_value(pz, best[i, : pz.n_factors], best[i, pz.n_factors:], X[i])
+        assert max(abs(t) for t in r) <= Fr(eps)
 
 
 def test_pz_without_dependent_factors_is_classified():

@@ -363,7 +363,9 @@ def witness_search(S: PolyZonotope, P: np.ndarray, eps: float, iters: int = 40, 
                 live[a[~up]] &= lam[a[~up]] < 1e8                  # no progress at the largest damping
             ok = ~live & fn.verified(Z, X, eps)
             found[idx[ok]] = True
-            imp = r < best_r[idx]
+            # a verified witness is the point's best, even where an earlier start came closer in
+            # the 2-norm without being within eps in every coordinate
+            imp = ok | (r < best_r[idx])
             best_r[idx[imp]] = r[imp]
             best[idx[imp]] = Z[imp]
     return found, best
