@@ -288,3 +288,17 @@ def test_classify_pz_support_certificates_at_vertices_agree_with_exact_arithmeti
     assert not v.inside.any()
     for i in np.flatnonzero(v.outside):
         assert not exact_inside(c, G, X[i], 0.0), (X[i].tolist(), c.tolist(), G.tolist())
+
+
+def test_witness_lsq_returns_its_witnesses():
+    """The last-resort search returns the witnesses it verified (``classify`` stores them in
+    ``Classified.witness``; those points had zeros there): each maps within eps exactly."""
+    from ocreach.sets.pz_witness import witness_lsq
+
+    pz, X, eps, _, _ = known_preimage_points(3, 1e-9)
+    guess = np.zeros((X.shape[0], pz.n_factors + pz.n_independent))
+    found, wit = witness_lsq(pz, X, eps, guess)
+    assert found.any()
+    for i in np.flatnonzero(found):
+        r = exact_pz_value(pz, wit[i, : pz.n_factors], wit[i, pz.n_factors:], X[i])
+        assert np.all(np.abs(wit[i]) <= 1.0) and max(abs(t) for t in r) <= Fr(eps)

@@ -372,16 +372,18 @@ def witness_search(S: PolyZonotope, P: np.ndarray, eps: float, iters: int = 40, 
 
 
 def witness_lsq(S: PolyZonotope, P: np.ndarray, eps: float, guess: np.ndarray,
-                starts: int = 3, max_nfev: int = 200) -> np.ndarray:
-    """Points of ``P`` for which SciPy's bounded least squares (``trf``, from ``guess`` and
-    random starts, analytic Jacobian, at most ``max_nfev`` evaluations per start) finds a verified
-    witness: one point at a time, the last resort for points close to the set's boundary."""
+                starts: int = 3, max_nfev: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """``(found, witness)``: the points of ``P`` for which SciPy's bounded least squares (``trf``,
+    from ``guess`` and random starts, analytic Jacobian, at most ``max_nfev`` evaluations per
+    start) finds a verified witness, and those witnesses (N, p + q; ``guess`` where none was
+    found): one point at a time, the last resort for points close to the set's boundary."""
     from scipy.optimize import least_squares
 
     fn = _Residual(S)
     m = fn.p + fn.q
     rng = np.random.default_rng(1)
     found = np.zeros(P.shape[0], bool)
+    witness = np.array(guess, dtype=float, copy=True)
 
     class _Witnessed(Exception):
         """Raised by the residual as soon as a factor vector is a verified witness."""
@@ -393,7 +395,7 @@ def witness_lsq(S: PolyZonotope, P: np.ndarray, eps: float, guess: np.ndarray,
             Z = np.clip(z[None], -1.0, 1.0)
             R, _ = fn.value(Z, X)
             if fn.verified(Z, X, eps)[0]:
-                raise _Witnessed
+                raise _Witnessed(Z[0])
             return R[0]
 
         def jac(z, X=X):
@@ -404,10 +406,11 @@ def witness_lsq(S: PolyZonotope, P: np.ndarray, eps: float, guess: np.ndarray,
             try:
                 least_squares(fun, z0, jac=jac, bounds=(-1.0, 1.0), xtol=1e-15, ftol=1e-15,
                               gtol=1e-15, max_nfev=max_nfev)
-            except _Witnessed:
+            except _Witnessed as w:
                 found[i] = True
+                witness[i] = w.args[0]
                 break
-    return found
+    return found, witness
 
 
 def carry_witnesses(prev: Classified | None, S: PolyZonotope) -> np.ndarray | None:
@@ -487,6 +490,8 @@ def classify(S: PolyZonotope | PZUnion, P: np.ndarray, eps: float, start: Classi
             inside[todo[ok]] = True
             W[np.ix_(todo[ok], np.searchsorted(ids, part.id))] = more[ok][:, : part.n_factors]
             if lsq and not ok.all():
-                left = ~ok
-                inside[todo[left][witness_lsq(part, P[todo[left]], eps, more[left])]] = True
+                left = todo[~ok]
+                got, wit = witness_lsq(part, P[left], eps, more[~ok])
+                inside[left[got]] = True
+                W[np.ix_(left[got], np.searchsorted(ids, part.id))] = wit[got][:, : part.n_factors]
     return Classified(outside, inside, ~outside & ~inside, W, ids)
