@@ -34,7 +34,7 @@ import numpy as np
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.fileio import atomic_write_text, jsonable, replace_markdown_section
+from ocreach.fileio import atomic_write_text, json_text, replace_markdown_section
 from ocreach.registry import get_problem
 from ocreach.sets.zonotope import Zonotope
 
@@ -219,7 +219,7 @@ def main() -> None:
     def save(key: str, entry: dict) -> None:
         saved[key] = {**entry, "date": time.strftime("%Y-%m-%d %H:%M"),
                       "load_average_1min": os.getloadavg()[0]}
-        atomic_write_text(path, json.dumps(jsonable(saved), indent=1))
+        atomic_write_text(path, json_text(saved, indent=1))
 
     load = os.getloadavg()[0]
     lines = ["## Regularised coordinates", "", (f"Measured {time.strftime('%Y-%m-%d')}, 2-core shared machine (load {load:.1f}), "

@@ -40,7 +40,7 @@ from scipy.integrate import solve_ivp
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.fileio import atomic_write_text, jsonable
+from ocreach.fileio import atomic_write_text, json_text, jsonable
 from ocreach.sets.polyzonotope import PolyZonotope
 from ocreach.sets.pz_union import PZUnion
 from ocreach.sets.pz_witness import classify, classify_zonotope
@@ -340,7 +340,7 @@ def main() -> None:
             elif method in old:
                 row[method] = old[method]
         rows = [r for r in rows if r.get("case") != name] + [row]
-        atomic_write_text(path, json.dumps(jsonable(rows), indent=1))   # a row at a time
+        atomic_write_text(path, json_text(rows, indent=1))   # a row at a time
         log(json.dumps(jsonable(row), indent=1))
 
 
