@@ -389,7 +389,8 @@ def support_bounds(pz: PolyZonotope, D: Any, tol: float = 1e-3, max_boxes: int =
     the set).  ``tol``: stop a (sub-)problem when ``upper - lower <= tol * r(d)``, ``r(d) =
     sum |d^T G_i| + |d^T GI|_1`` (the enclosure radius).  ``max_boxes`` caps the boxes split per
     round and ``max_iter`` the rounds; a direction that has not met ``tol`` keeps valid but wider
-    bounds (``converged`` False).
+    bounds (``converged`` False).  The arithmetic is floating point: the exact support may exceed
+    ``upper`` by at most :func:`upper_rounding` (a certificate adds it).
     """
     from ocreach.sets._base import as_directions
 
