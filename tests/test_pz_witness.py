@@ -87,14 +87,15 @@ def test_classify_zonotope_verdicts_agree_with_exact_arithmetic(seed, n, rel_eps
     rng = np.random.default_rng(seed)
     c, G = rand_zonotope(rng, n)
     eps = rel_eps * (1.0 + np.abs(c).max())
-    X = boundary_points(rng, c, G, eps, 25)
+    XZ = boundary_points(rng, c, G, eps, 25)
     lo = c - np.abs(G).sum(axis=1) * rng.uniform(0, 2)
     hi = c + np.abs(G).sum(axis=1) * rng.uniform(0, 2)
     # the interval's own faces and corners, to a few ulps either side of the enlarged box
     t = np.where(rng.uniform(size=(25, n)) < 0.7, rng.integers(0, 2, (25, n)), rng.uniform(size=(25, n)))
     XI = lo + (hi - lo) * t + eps * rng.integers(-1, 2, (25, n)) \
-        + rng.choice([0.0, 1e-16, 4e-16, 3e-15], size=(25, 1)) * np.abs(lo - hi + c).max() * rng.normal(size=(25, n))
-    for S, X in ((Zonotope(c, G), X), (Interval(lo, hi), XI)):
+        + rng.choice([0.0, 1e-16, 4e-16, 3e-15], size=(25, 1)) * np.abs(lo - hi + c).max() \
+        * rng.normal(size=(25, n))
+    for S, X in ((Zonotope(c, G), XZ), (Interval(lo, hi), XI)):
         v = classify_zonotope(S, X, eps)
         assert not (v.inside & v.outside).any()
         for i in np.flatnonzero(v.inside | v.outside):
