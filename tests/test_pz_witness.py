@@ -168,7 +168,7 @@ def known_preimage_points(seed, rel_eps, k=20):
     return pz, X, eps, A, B
 
 
-@SET
+@settings(max_examples=8, deadline=None)
 @given(st.integers(0, 100_000), st.sampled_from([1e-12, 1e-9, 1e-4]))
 def test_classify_pz_verdicts_at_points_of_known_preimage(seed, rel_eps):
     """Polynomial zonotopes (dependent factors of degree up to 3, constant monomials, no or some
