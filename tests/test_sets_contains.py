@@ -160,6 +160,34 @@ def test_lp_free_certificates_with_many_generators():
 
 
 @SET
+@given(st.integers(0, 10_000), st.sampled_from([1e-12, 1e-6, 1e-2, 0.5]))
+def test_classify_zonotope_decides_points_of_known_membership(seed, rel):
+    """Three-way membership (``ocreach.sets.pz_witness.classify_zonotope``) of points whose
+    membership is known: support points ``c + G sign(G^T d)`` (vertices: every factor on a face)
+    moved towards the centre by ``rel`` of their offset are inside, moved out along ``d`` by more
+    than the tolerance they are outside; every point is decided, and a union is inside where a
+    part is."""
+    from ocreach.sets.pz_witness import classify_zonotope
+    from ocreach.sets.union import ZonotopeUnion
+
+    rng = np.random.default_rng(seed)
+    n, h = int(rng.integers(1, 6)), int(rng.integers(1, 40))
+    Z = Zonotope(rng.normal(size=n), rng.normal(size=(n, h)) * rng.uniform(0.01, 1, h))
+    d = rng.normal(size=(60, n))
+    V = Z.c + np.sign(d @ Z.G) @ Z.G.T
+    eps = 1e-9 * (1 + np.abs(V).max())
+    inner = Z.c + (1 - rel) * (V - Z.c)
+    outer = V + (2 * eps + rel) * np.sign(d)      # d^T x beyond the support by 2 eps |d|_1 at least
+    v_in = classify_zonotope(Z, inner, eps)
+    v_out = classify_zonotope(Z, outer, eps)
+    assert v_in.inside.all() and not v_in.outside.any()
+    assert v_out.outside.all() and not v_out.inside.any()
+    far = Zonotope(Z.c + 10 * np.abs(Z.G).sum(), Z.G)
+    v_u = classify_zonotope(ZonotopeUnion([far, Z]), np.vstack([inner, outer]), eps)
+    assert v_u.inside[: len(inner)].all() and v_u.outside[len(inner):].all()
+
+
+@SET
 @given(st.integers(0, 10_000))
 def test_lp_membership_rejects_points_beyond_its_tolerance(seed):
     """The LP path reports inside only points within its tolerance: support points of zonotopes
