@@ -7,12 +7,12 @@ A point escapes a set when it lies outside the set enlarged by the box of radius
 * :class:`Zonotope`, :class:`Interval` and :class:`ZonotopeUnion`: the scaled gauge of the
   enlarged set (:func:`ocreach.sets.union.union_gauge`: exact membership certificate, else the
   gauge LP ``min t : x in c + t G``), an escape when it exceeds ``1 + GAUGE_TOL``;
-* :class:`PolyZonotope` and :class:`PZUnion`: outside the zonotope enclosure is an escape; inside
-  it, the three-valued membership on the polynomial itself
-  (:func:`ocreach.sets.pz_exact.membership`):
-  a certificate of exclusion (a direction ``d`` with ``d^T x`` above the rigorous upper support
-  bound) is an escape, a witness is inside, and a point neither proved in nor out is counted as
-  *undecided* (reported, not an escape);
+* :class:`PolyZonotope` and :class:`PZUnion`: the verified three-valued membership of
+  :func:`ocreach.sets.pz_witness.classify` on the enlarged set: a certificate of exclusion (a
+  direction ``d`` with ``d^T x`` above a rigorous upper bound of the support, of the zonotope
+  enclosure or of the polynomial itself, rounding included) is an escape, a witness (factors in
+  the box mapping within the tolerance, rounding included) is inside, and a point neither proved
+  in nor out is counted as *undecided* (reported, not an escape);
 * any other set: the support test in the ``2 n`` axis directions and the direction from the set's
   box centre to the point (``d^T x > support(d) + tol`` is an escape, since ``support`` is an upper
   bound for a set result); weaker, and reported as such (``Verdict.exact = False``).
@@ -37,8 +37,8 @@ GAUGE_TOL = 1e-9
 
 @dataclass(frozen=True)
 class Verdict:
-    """Per point: ``gauge`` (> 1 + GAUGE_TOL outside; 1.0 for points proved inside without it,
-    inf for certified exclusions of a polynomial zonotope), ``escaped`` and ``undecided`` masks;
+    """Per point: ``gauge`` (> 1 + GAUGE_TOL outside; for a polynomial zonotope inf for a
+    certified exclusion, else 1.0), ``escaped`` and ``undecided`` masks;
     ``exact``: the check decides membership exactly (zonotopes) or by certificates (PZ)."""
 
     gauge: np.ndarray
@@ -90,29 +90,12 @@ def check_points(S, points: np.ndarray) -> Verdict:
 
 
 def _check_pz(parts: list[PolyZonotope], P: np.ndarray, eps: float) -> Verdict:
-    from ocreach.sets.pz_exact import membership
+    from ocreach.sets.pz_witness import classify
 
-    N = P.shape[0]
-    enclosure = ZonotopeUnion([_enlarged(p.to_zonotope(), eps) for p in parts])
-    gz = np.atleast_1d(union_gauge(enclosure, P))
-    inside = np.zeros(N, bool)
-    out_all = np.ones(N, bool)
-    todo = np.flatnonzero(gz <= 1 + GAUGE_TOL)
-    for part in parts:
-        idx = todo[~inside[todo]]
-        if idx.size == 0:
-            break
-        mem = membership(part, P[idx], tol=eps)
-        inside[idx[mem.inside]] = True
-        out_all[idx[~mem.outside]] = False
-    outside_enclosure = gz > 1 + GAUGE_TOL
-    certified = np.zeros(N, bool)
-    certified[todo] = out_all[todo] & ~inside[todo]
-    gauge = np.where(outside_enclosure, gz, np.minimum(gz, 1.0))
-    gauge[certified] = np.inf
-    undecided = ~outside_enclosure & ~certified & ~inside
-    escaped = outside_enclosure | certified
-    return Verdict(gauge, escaped, undecided, True)
+    S = parts[0] if len(parts) == 1 else PZUnion(parts)
+    v = classify(S, P, eps)
+    gauge = np.where(v.outside, np.inf, 1.0)
+    return Verdict(gauge, v.outside, v.undecided, True)
 
 
 def _check_support(S, P: np.ndarray, eps: float) -> Verdict:
