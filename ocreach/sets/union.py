@@ -161,7 +161,11 @@ def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool = True) -> np.
 
 def _gauge_lp(G: np.ndarray, R: np.ndarray) -> np.ndarray:
     """``min t_k s.t. G xi_k = r_k, -t_k <= xi_k <= t_k`` for all rows ``r_k`` of ``R`` in ONE
-    block-diagonal LP (HiGHS); the objective is the sum, which separates over the blocks."""
+    block-diagonal LP (HiGHS); the objective is the sum, which separates over the blocks.  If
+    the batch fails, the points one by one; a point whose simplex fails numerically (status 4,
+    seen at these tolerances on a generator of a row 100 times the others) by HiGHS's interior
+    point method, then, if that fails too, the lower bound ``max_i |r_i| / sum_j |G_ij|`` when
+    that is > 1 (outside either way), else the error."""
     import scipy.sparse as sp
     from scipy.optimize import linprog
 
@@ -174,15 +178,28 @@ def _gauge_lp(G: np.ndarray, R: np.ndarray) -> np.ndarray:
     I = sp.identity(K, format="csr")
     c = np.tile(np.r_[np.zeros(h), 1.0], K)
     bounds = [(None, None)] * h + [(0, None)]
-    res = linprog(c, A_ub=sp.kron(I, ub, format="csc"), b_ub=np.zeros(2 * h * K),
-                  A_eq=sp.kron(I, eq, format="csc"), b_eq=R.ravel(), bounds=bounds * K,
-                  method="highs", options={"primal_feasibility_tolerance": 1e-10,
-                                           "dual_feasibility_tolerance": 1e-10})
-    if res.status == 2:  # infeasible: some point is off the range of G -> solve them one by one
-        if K == 1:
-            return np.array([np.inf])
+    def solve(method: str):
+        return linprog(c, A_ub=sp.kron(I, ub, format="csc"), b_ub=np.zeros(2 * h * K),
+                       A_eq=sp.kron(I, eq, format="csc"), b_eq=R.ravel(), bounds=bounds * K,
+                       method=method, options={"primal_feasibility_tolerance": 1e-10,
+                                               "dual_feasibility_tolerance": 1e-10})
+
+    res = solve("highs")
+    if res.status == 4 and K == 1:  # the simplex's numerical failure: HiGHS's interior point
+        res = solve("highs-ipm")
+    if res.status != 0 and K > 1:
+        # infeasible (some point is off the range of G), or HiGHS's numerical failure (status 4)
+        # on blocks of very different scales (points far outside one sub-step tube of a union
+        # next to points inside it): the same LPs one by one
         return np.concatenate([_gauge_lp(G, R[k:k + 1]) for k in range(K)])
+    if res.status == 2:
+        return np.array([np.inf])
     if res.status != 0:
+        # |r_i| = |sum_j G_ij xi_j| <= t sum_j |G_ij|: a lower bound of the gauge; a point it
+        # puts outside (e.g. far from one sub-step tube of a union) needs no exact value
+        lower = (np.abs(R) / np.abs(G).sum(axis=1)).max(axis=1)
+        if np.all(lower > 1.0):
+            return lower
         raise SolverError(f"gauge LP failed (HiGHS status {res.status}: {res.message})")
     return res.x.reshape(K, nv)[:, -1]
 
