@@ -135,12 +135,13 @@ def markdown(plant: dict, loop: dict, mcs: list[dict]) -> str:
     for mc in mcs:
         t = mc["timing"]
         when = f" (measured {mc['when']})" if mc.get("when") else ""
-        lines += ["", f"Year-long Monte Carlo{when}: {mc['runs']} runs of each of "
-                  f"{', '.join(mc['controllers'])} on {mc['workers']}: "
-                  f"{t['total_wall_s'] / 60:.1f} min wall ({t['driver_prepare_wall_s'] / 60:.1f} "
-                  f"min preparing in the driver), {t['runs_cpu_s'] / 60:.1f} min CPU in the "
-                  f"runs.", "", "| controller | Delta-V per year, mean / p95 (m/s) | lost | "
-                  "CPU per revolution (ms) |", "|---|---:|---:|---:|"]
+        lines += ["", (f"Year-long Monte Carlo{when}: {mc['runs']} runs of each of "
+                       f"{', '.join(mc['controllers'])} on {mc['workers']}: "
+                       f"{t['total_wall_s'] / 60:.1f} min wall "
+                       f"({t['driver_prepare_wall_s'] / 60:.1f} min preparing in the driver), "
+                       f"{t['runs_cpu_s'] / 60:.1f} min CPU in the runs."), "",
+                  "| controller | Delta-V per year, mean / p95 (m/s) | lost | CPU per revolution (ms) |",
+                  "|---|---:|---:|---:|"]
         lines += [f"| {n} | {v['dv_mean']:.3g} / {v['dv_p95']:.3g} | {v['lost']} | "
                   f"{v['cpu_ms_per_revolution']:.0f} |" for n, v in mc["summary"].items()]
     return "\n".join(lines) + "\n"

@@ -348,7 +348,7 @@ def test_adaptive_sound_tubes_cross_the_nrho_perilune_and_contain_every_sampled_
                                   **ADAPTIVE_TUBE_OPTIONS)
     assert len(tubes) >= 2  # one tube from step 72 cannot cross perilune
     assert tubes[0].k0 == 72 and tubes[-1].k_end == 84
-    assert all(b.k0 == a.k_end + 1 for a, b in zip(tubes, tubes[1:]))  # contiguous
+    assert all(b.k0 == a.k_end + 1 for a, b in itertools.pairwise(tubes))  # contiguous
     assert all(t.guaranteed and "failure" in t.meta for t in tubes[:-1]) and tubes[-1].guaranteed
     mu = nrho.param("mu")
     rng = np.random.default_rng(11)
@@ -409,7 +409,7 @@ def test_nrho_station_keeping_uses_guaranteed_tubes_and_says_so_per_refresh(nrho
     tubes = s["tubes"]
     assert s["refresh_steps_per_rev"] == [t["refresh_step"] for t in tubes]
     assert len(tubes) >= 3 and tubes[0]["steps"][0] == 0 and tubes[-1]["steps"][1] == s["n_steps"]
-    assert all(a["steps"][1] == b["steps"][0] for a, b in zip(tubes, tubes[1:]))
+    assert all(a["steps"][1] == b["steps"][0] for a, b in itertools.pairwise(tubes))
     assert all(t["guaranteed"] and t["source"].startswith("interval hull of taylor")
                for t in tubes)
     assert s["tube_guaranteed"] is True and run.metrics["lqr"]["tube_guaranteed"] is True

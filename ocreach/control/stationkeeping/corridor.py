@@ -282,7 +282,7 @@ class CorridorControl:
             S[key].value = v
         try:
             S[name].solve(solver="CLARABEL", max_iter=200)
-        except Exception as exc:  # noqa: BLE001 - cvxpy raises SolverError subclasses
+        except Exception as exc:  # cvxpy raises SolverError subclasses and others
             raise SolverError(f"corridor control at step {k}: the {name} SOCP failed: "
                               f"{exc}") from exc
         return S[name].status
