@@ -170,6 +170,8 @@ class PolyOptions(ZonotopeOptions):
     #: the time-point sets as polynomial zonotopes ("pz") or as their zonotope enclosures
     #: ("zonotope", for consumers that need zonotopes, e.g. drift tubes)
     output: str = "pz"
+    #: step-size control (as in :class:`ZonotopeOptions`), on by default for poly
+    growth_tol: float | None = 0.1
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -109,8 +109,9 @@ class ZonotopeOptions:
     mass_varies: bool = False
     #: step-size control: a sub-step whose remainder widens the set by more than this fraction
     #: of its extent (plus the input's reach over the sub-step) is halved (at most max_halvings
-    #: times), > 0; None: accept every sub-step whose remainder loop closes
-    growth_tol: float | None = 0.1
+    #: times), > 0; None: accept every sub-step whose remainder loop closes (problems with long
+    #: grid steps set 0.1 in their method options, e.g. dro)
+    growth_tol: float | None = None
 
     def __post_init__(self) -> None:
         self.order = check_real("order", self.order)
