@@ -301,30 +301,36 @@ class Model:
         return self.cached(("with_control_set", kind), lambda: dataclasses.replace(
             self, name=f"{self.name}-{kind}", control_set=kind, cache={}))
 
-    def throttle_relaxed(self) -> Model:
+    def throttle_relaxed(self, sigma_max: float = 1.0) -> Model:
         """The dynamics with ``||u||`` replaced by an extra control ``s in [-1, 1]``,
-        ``sigma = (1 + s) / 2 in [0, 1]`` (cached; the model itself if it declares no throttle).
+        ``sigma = sigma_max (1 + s) / 2 in [0, sigma_max]`` (cached per ``sigma_max``; the model
+        itself if it declares no throttle).
 
-        For ``||u|| <= 1`` every control ``u`` of this model is the control ``(u, 2||u|| - 1)`` of
-        the relaxed one, so the relaxed reachable set contains the true one; the relaxed ``f`` is
-        smooth in the controls at ``u = 0``, where ``||u||`` (regularised or not) has no Taylor
-        expansion: its second derivative there is ``1/eps`` (``1e15`` for the ``sqrt(|u|^2 + 1e-30)``
-        of the builders), which made the order-2 STT of the mass flow explode.
+        For ``||u|| <= sigma_max`` every control ``u`` of this model is the control
+        ``(u, 2||u|| / sigma_max - 1)`` of the relaxed one, so the relaxed reachable set contains
+        the true one; the relaxed ``f`` is smooth in the controls at ``u = 0``, where ``||u||``
+        (regularised or not) has no Taylor expansion: its second derivative there is ``1/eps``
+        (``1e15`` for the ``sqrt(|u|^2 + 1e-30)`` of the builders), which made the order-2 STT of
+        the mass flow explode and the Lagrange remainder of ``taylor`` diverge on the first step.
         """
         import dataclasses
 
         if self.throttle is None:
             return self
+        if not (np.isfinite(sigma_max) and sigma_max > 0):
+            raise ProblemError(f"sigma_max must be finite and > 0; got {sigma_max!r}")
         sigma, f_sigma = self.throttle
+        sigma_max = float(sigma_max)
 
         def build() -> Model:
             s = ca.SX.sym("s_throttle")
             u = ca.vertcat(self.u, s)
-            f = ca.substitute(f_sigma, sigma, 0.5 * (1 + s))
+            f = ca.substitute(f_sigma, sigma, 0.5 * sigma_max * (1 + s))
             return dataclasses.replace(self, name=f"{self.name}-throttle", u=u, f=f, throttle=None,
                                        control_names=(*self.control_names, "throttle"), cache={})
 
-        return self.cached("throttle_relaxed", build)
+        key = "throttle_relaxed" if sigma_max == 1.0 else ("throttle_relaxed", sigma_max)
+        return self.cached(key, build)
 
     @cached_property
     def control_affine(self) -> bool:

@@ -60,7 +60,10 @@ def dro(t_final: float = 3.0, dt: float = 0.1, thrust: float = T_MAX_N, mass: fl
         description=f"planar CR3BP DRO, T_max = {thrust * 1e3:g} mN, m = {mass:g} kg, "
                     f"a_max = {a_max:.4g} DU/TU^2, {t_final:g} TU",
         citation=f"{CITATION}, Sec. 4.1",
-        method_options={"stt": {"order": 2, "h_max": 400, "input_set": input_set}},
+        # 0.1 TU steps at 2.1 DU/TU, 0.29 DU from the Earth: the guaranteed methods' steps are
+        # halved until the remainder no longer dominates the set (growth_tol)
+        method_options={"stt": {"order": 2, "h_max": 400, "input_set": input_set},
+                        "taylor": {"growth_tol": 0.1}, "sdc": {"growth_tol": 0.1}},
         extra={"thrust_N": thrust, "mass_kg": mass},
     )
 

@@ -67,6 +67,7 @@ from ocreach.reach.linsys import (
 from ocreach.reach.result import ReachResult
 from ocreach.reach.taylor import (
     Part,
+    TaylorZonotope,
     ZonotopeOptions,
     ZonotopeReach,
     check_smooth,
@@ -169,9 +170,7 @@ class PolyOptions(ZonotopeOptions):
     #: the time-point sets as polynomial zonotopes ("pz") or as their zonotope enclosures
     #: ("zonotope", for consumers that need zonotopes, e.g. drift tubes)
     output: str = "pz"
-    #: step-size control: a sub-step whose error box widens the set by more than this fraction
-    #: of its extent (plus the input's reach over the sub-step) is halved (at most max_halvings
-    #: times), > 0; None: accept every closed step, as taylor
+    #: step-size control (as in :class:`ZonotopeOptions`), on by default for poly
     growth_tol: float | None = 0.1
 
     def __post_init__(self) -> None:
@@ -195,10 +194,6 @@ class PolyOptions(ZonotopeOptions):
         if self.remainder_splits > 4:
             raise ProblemError(f"remainder_splits must be an integer in 1..4; got "
                                f"{self.remainder_splits!r}")
-        if self.growth_tol is not None:
-            self.growth_tol = check_real("growth_tol", self.growth_tol)
-            if not self.growth_tol > 0:
-                raise ProblemError(f"growth_tol must be > 0 or None; got {self.growth_tol!r}")
         if self.output not in OUTPUTS:
             raise ProblemError(f"output must be one of {OUTPUTS}; got {self.output!r}")
 
@@ -234,10 +229,6 @@ class PolyContext(Context):
         self.h_lin = max(int(np.floor(opts.order * self.n)), self.n)
         self.h_poly = int(np.floor(opts.poly_order * self.n))
         self.h_err = max(int(np.floor(opts.error_order * self.n)), self.n)
-        #: per state, how far the input moves it per unit time (|B G_v| + W): the scale of a step
-        self.input_reach = up(np.abs(self.lin(problem.x0, V.c, 0.0, self.p)[2][:, : V.dim])
-                              @ np.abs(V.G).sum(axis=1)
-                              + (np.abs(W.G).sum(axis=1) if W is not None else 0.0), 4)
         #: per-state sensitivity of the last remainder bound to the set's extent (for splitting)
         self.weights: np.ndarray | None = None
 
@@ -473,26 +464,13 @@ class PolyReach(ZonotopeReach):
     def __init__(self, method: Method, problem: Problem, opts: PolyOptions):
         super().__init__(method, problem, opts, None, {"scheme": "conservative polynomialization "
                                                       "(Althoff 2013), third-order remainder"})
-        self.ctx = PolyContext(problem, opts, self.ctx.V, self.ctx.W)
+        self.ctx = PolyContext(self.problem, opts, self.ctx.V, self.ctx.W)
 
     def step(self, Z, t, h, L):
         return poly_step(self.ctx, Z, t, h, L)
 
-    def refine(self, Z: SoundPZ, h: float, res):
-        """Halve a sub-step whose error box widens the set by more than ``growth_tol`` of its
-        extent (plus the input's reach over the step): a longer step would close the remainder
-        loop but with a bound far above what shorter steps give (e.g. one 0.1 TU step of the dro
-        from a point: a remainder 300 times the thrust)."""
-        tol = self.opts.growth_tol
-        if tol is None:
-            return res
-        grow = h * res.L
-        size = spz.radius(Z) + h * self.ctx.input_reach
-        if np.any(grow > tol * size):
-            i = int(np.argmax(grow / np.maximum(size, 1e-300)))
-            return StepFail(f"the error box widens state {i} by {grow[i]:.3g}, more than growth_tol "
-                            f"= {tol:g} of its extent {size[i]:.3g}")
-        return res
+    def set_radius(self, S: SoundPZ) -> np.ndarray:
+        return spz.radius(S)
 
     def reduce_point(self, S: SoundPZ) -> SoundPZ:
         return spz.reduce(S, self.ctx.h_lin, self.ctx.h_poly, self.opts.reduction,
@@ -543,6 +521,10 @@ class PolyReachMethod(Method):
                    "interval arithmetic (Althoff HSCC 2013; CORA 'poly')")
 
     Options = PolyOptions
+
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        return TaylorZonotope.applicable(problem)
 
     def solve(self, problem: Problem) -> ReachResult:
         check_smooth(problem.model)

@@ -45,7 +45,13 @@ from ocreach.problem import Problem
 from ocreach.reach.base import Method
 from ocreach.reach.linsys import abs_extent, pad
 from ocreach.reach.result import ReachResult
-from ocreach.reach.taylor import ZonotopeOptions, ZonotopeReach, check_smooth, initial_zonotope
+from ocreach.reach.taylor import (
+    TaylorZonotope,
+    ZonotopeOptions,
+    ZonotopeReach,
+    check_smooth,
+    initial_zonotope,
+)
 from ocreach.reach.taylor_step import eval_error, time_dependent, tube_box, unflatten_hessian
 from ocreach.sets.matzonotope import matzonotope_product
 from ocreach.sets.rounding import rounding_radius, up
@@ -57,15 +63,41 @@ UNSOUND_REASON = ("base point 0 with Eq. 21 taken as an enclosure: A(x; 0) x = f
                   "and the matrix expansion has no remainder R_err")
 
 
+def sdc_model_problem(model) -> str:
+    """Why ``sdc`` cannot take ``model`` ("" if it can): the SDC form ``f = A(x) x + B u``
+    (Patel & Subbarao Eq. 17) needs a constant input matrix ``B`` and no explicit time
+    dependence.  The reason names the rows of ``f`` whose ``df/du`` depends on the state or the
+    control and what it depends on (e.g. the thrust ``T_max n u`` and the mass flow
+    ``T_max n^2 ||u|| / c`` of Patel & Scheeres Eq. 11)."""
+    def build() -> str:
+        Bsym = ca.jacobian(model.f, model.u)
+        rows = []
+        for i, name in enumerate(model.state_names):
+            on = [nm for j, nm in enumerate(model.state_names) if ca.depends_on(Bsym[i, :], model.x[j])]
+            on += [nm for j, nm in enumerate(model.control_names)
+                   if ca.depends_on(Bsym[i, :], model.u[j])]
+            if on:
+                rows.append(f"{name} (on {', '.join(on)})")
+        if rows:
+            return (f"sdc needs control-affine dynamics f = f0(x) + B u with a constant B "
+                    f"(Patel & Subbarao Eq. 17); df/du of model {model.name!r} depends on the state "
+                    f"or control in the rows {'; '.join(rows)}"
+                    + (" -- the thrust scaled by the inverse mass and the mass flow ||u||"
+                       if model.throttle is not None else "")
+                    + ". Use taylor or poly, which linearise in the control too")
+        if time_dependent(model):
+            return (f"sdc needs autonomous dynamics; model {model.name!r} depends on t "
+                    "(use taylor or poly, which take t as an input)")
+        return ""
+
+    return model.cached(("sdc", "model_problem"), build)
+
+
 def check_sdc_model(model) -> None:
-    """``sdc`` needs ``f = f0(x) + B u`` with a constant ``B`` and no explicit time dependence."""
-    Bsym = ca.jacobian(model.f, model.u)
-    if ca.depends_on(Bsym, ca.vertcat(model.x, model.u)):
-        raise ProblemError(f"sdc needs control-affine dynamics f = f0(x) + B u with a constant B; "
-                           f"df/du of model {model.name!r} depends on the state or control")
-    if time_dependent(model):
-        raise ProblemError(f"sdc needs autonomous dynamics; model {model.name!r} depends on t "
-                           "(use taylor, which takes t as an input)")
+    """Raise :class:`ProblemError` with :func:`sdc_model_problem`'s reason, if any."""
+    why = sdc_model_problem(model)
+    if why:
+        raise ProblemError(why)
 
 
 def third_interval(model):
@@ -200,6 +232,15 @@ class SDCZonotope(Method):
                 raise ProblemError(f"base must be one of {BASES}; got {self.base!r}")
             self.dev_order = float(check_count("dev_order", self.dev_order, 1))
 
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        """:meth:`TaylorZonotope.applicable` and the SDC form (:func:`sdc_model_problem`)."""
+        ok, why = TaylorZonotope.applicable(problem)
+        if not ok:
+            return ok, why
+        why = sdc_model_problem(problem.model)
+        return not why, why
+
     def solve(self, problem: Problem) -> ReachResult:
         return self.reacher(problem).run()
 
@@ -210,8 +251,8 @@ class SDCZonotope(Method):
         check_sdc_model(problem.model)
         initial_zonotope(problem)
         o = self.options
-        err = SDCError(problem.model, problem.params, o.dev_order, o.base)
         meta = {"alg": "ct", "base": o.base}
         if o.base == "origin":
             meta.update({"guaranteed": False, "unsound_reason": UNSOUND_REASON})
-        return ZonotopeReach(self, problem, o, err, meta)
+        return ZonotopeReach(self, problem, o,
+                             lambda prob: SDCError(prob.model, prob.params, o.dev_order, o.base), meta)

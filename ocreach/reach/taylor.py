@@ -33,8 +33,8 @@ import casadi as ca
 import numpy as np
 
 from ocreach.errors import OcreachError, ProblemError, SolverError, check_count, check_real
-from ocreach.problem import Problem
-from ocreach.reach.base import Method
+from ocreach.problem import ControlSet, Problem
+from ocreach.reach.base import Method, requirements
 from ocreach.reach.linsys import box_zonotope
 from ocreach.reach.result import ReachResult
 from ocreach.reach.taylor_step import Context, StepFail, TaylorError, ct_step, dt_step
@@ -62,6 +62,9 @@ TIME_SWITCH_OPS = ("OP_IF_ELSE_ZERO", "OP_LT", "OP_LE", "OP_EQ", "OP_NE", "OP_NO
                    "OP_OR")
 #: relative enlargement of the outer zonotope of the thrust ball (its facets' rounding)
 BALL_MARGIN = 1e-12
+#: relative margin on the largest throttle: the builders' ``||u||`` is ``sqrt(|u|^2 + eps)``
+#: (``eps = 1e-30``), at most ``1 + eps / 2`` on the unit ball
+THROTTLE_MARGIN = 1e-12
 ALGS = ("ct", "dt")
 REDUCTIONS = ("girard", "pca")
 INPUT_SETS = ("auto", "zonotope", "box")
@@ -109,6 +112,11 @@ class ZonotopeOptions:
     #: T / (Isp g0) t (full thrust all the way), the input set scaled by m0 / m_min (needs
     #: thrust_N, mass_kg, isp_s in problem.extra); False: a_max = T / m0 constant
     mass_varies: bool = False
+    #: step-size control: a sub-step whose remainder widens the set by more than this fraction
+    #: of its extent (plus the input's reach over the sub-step) is halved (at most max_halvings
+    #: times), > 0; None: accept every sub-step whose remainder loop closes (problems with long
+    #: grid steps set 0.1 in their method options, e.g. dro)
+    growth_tol: float | None = None
 
     def __post_init__(self) -> None:
         self.order = check_real("order", self.order)
@@ -137,17 +145,29 @@ class ZonotopeOptions:
         self.max_iter = check_count("max_iter", self.max_iter, 1)
         if not isinstance(self.mass_varies, (bool, np.bool_)):
             raise ProblemError(f"mass_varies must be True or False; got {self.mass_varies!r}")
+        if self.growth_tol is not None:
+            self.growth_tol = check_real("growth_tol", self.growth_tol)
+            if not self.growth_tol > 0:
+                raise ProblemError(f"growth_tol must be > 0 or None; got {self.growth_tol!r}")
 
 
 def check_smooth(model) -> None:
     """Raise :class:`ProblemError` if ``f`` uses an operation with a discontinuous derivative,
     other than a switch on time alone (:data:`TIME_SWITCH_OPS`)."""
+    why = smoothness_problem(model)
+    if why:
+        raise ProblemError(why)
+
+
+def smoothness_problem(model) -> str:
+    """Why :func:`check_smooth` refuses ``model`` ("" if it does not)."""
     found = nonsmooth_ops(model)
-    if found:
-        raise ProblemError(f"model {model.name!r} is not smooth: f uses {found}; the Lagrange "
-                           "remainder of taylor/sdc needs twice continuously differentiable "
-                           "dynamics (replace fabs/if_else/fmin/fmax by smooth expressions; an "
-                           "if_else whose condition depends on time alone is accepted)")
+    if not found:
+        return ""
+    return (f"model {model.name!r} is not smooth: f uses {found}; the Lagrange remainder of "
+            "taylor/sdc needs twice continuously differentiable dynamics (replace "
+            "fabs/if_else/fmin/fmax by smooth expressions; an if_else whose condition depends on "
+            "time alone is accepted)")
 
 
 def nonsmooth_ops(model) -> list[str]:
@@ -212,7 +232,8 @@ def mass_scale(problem: Problem) -> float:
         raise ProblemError(f"mass_varies=True needs thrust_N, mass_kg and isp_s in problem.extra and "
                            f"model units; problem {problem.id!r} lacks "
                            f"{missing + ([] if units is not None else ['units'])}")
-    if any(name in ("m", "mass") for name in problem.model.state_names):
+    if problem.model.throttle is not None or any(name in ("m", "mass")
+                                                 for name in problem.model.state_names):
         raise ProblemError(f"mass_varies=True: model {problem.model.name!r} already has a mass "
                            "state (its thrust acceleration varies with it); use mass_varies=False")
     T, m0, isp = (float(vals[k]) for k in ("thrust_N", "mass_kg", "isp_s"))
@@ -256,6 +277,34 @@ def input_zonotope(problem: Problem, opts: ZonotopeOptions) -> tuple[Zonotope, s
     Z = unit_ball_zonotope(m, k)
     return (Zonotope(Z.c, Z.G * (1.0 + BALL_MARGIN)),
             f"zonotope ({k} generators) enclosing the unit ball")
+
+
+def relax_throttle(problem: Problem, V: Zonotope) -> tuple[Problem, Zonotope, str]:
+    """The problem with its throttle relaxed, the input set with the throttle's factor and its
+    description; ``(problem, V, "")`` for a model without a throttle (:attr:`Model.throttle`).
+
+    The mass flow ``dn/dt = T_max n^2 ||u|| / c`` (Patel & Scheeres Eq. 11) has no second
+    derivative at ``u = 0``: the builders' ``sqrt(|u|^2 + 1e-30)`` has ``d^2/du^2 ~ 1e15`` there,
+    so the interval Hessian of the remainder (Patel & Subbarao Eq. 13) over any control box
+    around 0 is ~1e15 and the remainder loop diverges on the first step.  The step runs instead
+    on :meth:`~ocreach.model.Model.throttle_relaxed`: ``||u||`` replaced by an independent input
+    ``sigma in [0, sigma_max]`` (``sigma_max = 1`` on the ball, ``sqrt(n_u)`` on the box, plus
+    :data:`THROTTLE_MARGIN`), in which ``f`` is smooth (the Hessian rows of ``n`` are then
+    ``T_max n sigma / c`` and ``T_max n^2 / c``).  Every admissible control ``u`` is the relaxed
+    control ``(u, ||u||)``, so every trajectory of the model is one of the relaxed system and its
+    enclosure is an enclosure of the model's (the mass row loses only the coupling of the burn to
+    the thrust direction)."""
+    model = problem.model
+    if model.throttle is None:
+        return problem, V, ""
+    cs = problem.control_set
+    top = 1.0 if cs.kind == "ball" else float(np.sqrt(cs.dim))
+    sigma_max = float(up(top * (1.0 + THROTTLE_MARGIN), 2))
+    relaxed = model.throttle_relaxed(sigma_max)
+    out = dataclasses.replace(problem, model=relaxed, control_set=ControlSet("box", relaxed.n_u))
+    VS = V.cartesian(Zonotope(np.zeros(1), np.eye(1)))
+    return out, VS, (f"; ||u|| of the mass flow as an independent throttle in [0, {sigma_max:.15g}] "
+                     "(the relaxed model)")
 
 
 def disturbance_zonotope(problem: Problem, W: Any) -> Zonotope | None:
@@ -302,14 +351,19 @@ class ZonotopeReach:
 
     def __init__(self, method: Method, problem: Problem, opts: ZonotopeOptions, error_model,
                  extra_meta: dict[str, Any]):
+        """``error_model``: the error model's factory, called with the problem the steps run on
+        (the throttle-relaxed one, :func:`relax_throttle`), or None (``poly`` builds its own)."""
         self.method = method
-        self.problem = problem
         self.opts = opts
-        self.err = error_model
         self.extra_meta = extra_meta
         V, self.input_desc = input_zonotope(problem, opts)
+        self.input_kind = problem.control_set.kind
+        problem, V, note = relax_throttle(problem, V)
+        self.input_desc += note
+        self.problem = problem
+        self.err = None if error_model is None else error_model(problem)
         W = disturbance_zonotope(problem, opts.disturbance)
-        self.ctx = Context(problem, opts, error_model, V, W)
+        self.ctx = Context(problem, opts, self.err, V, W)
         n = problem.model.n_x
         me = opts.max_error
         self.max_error = None
@@ -327,9 +381,27 @@ class ZonotopeReach:
         """One sub-step of one part: :class:`StepOK` or :class:`StepFail`."""
         return ct_step(self.ctx, Z, t, h, L)
 
+    def set_radius(self, S) -> np.ndarray:
+        """Radius of the interval hull of a part's set, per state."""
+        return np.abs(S.G).sum(axis=1)
+
     def refine(self, Z, h: float, res):
-        """``res``, or a :class:`StepFail` to halve a sub-step that succeeded but should be shorter
-        (``poly``'s step-size control; taylor accepts every closed step)."""
+        """``res``, or a :class:`StepFail` to halve a sub-step whose error box widens the set by
+        more than ``growth_tol`` of its extent (plus the input's reach over the step): a longer
+        step would close the remainder loop, but the linearisation about one point of the step
+        then charges the curvature of the step's own motion to the remainder (``1/2 |H| (h v)^2``
+        over the tube's box, Patel & Subbarao Eq. 13), far above what shorter steps give (one
+        0.1 TU step of the dro from a point: a remainder 100 times the thrust, which the next
+        step cannot enclose)."""
+        tol = self.opts.growth_tol
+        if tol is None:
+            return res
+        grow = h * res.L
+        size = self.set_radius(Z) + h * self.ctx.input_reach
+        if np.any(grow > tol * size):
+            i = int(np.argmax(grow / np.maximum(size, 1e-300)))
+            return StepFail(f"the error box widens state {i} by {grow[i]:.3g}, more than growth_tol "
+                            f"= {tol:g} of its extent {size[i]:.3g}")
         return res
 
     def reduce_point(self, S):
@@ -469,7 +541,7 @@ class ZonotopeReach:
     def _result(self, times, sets, tubes, meta_steps, t_start, truncated: bool) -> ReachResult:
         meta = self.method.base_meta(self.problem, {"propagation": time.perf_counter() - t_start})
         meta.update({
-            "guaranteed": True, "truncated": truncated, "input_set": self.problem.control_set.kind,
+            "guaranteed": True, "truncated": truncated, "input_set": self.input_kind,
             "input_enclosure": self.input_desc, "steps": meta_steps,
             "max_parts_used": max(meta_steps["parts"], default=1),
         })
@@ -500,8 +572,11 @@ class DiscreteTaylor:
     whose remainder exceeds ``max_error``."""
 
     def __init__(self, method: Method, problem: Problem, opts, n_sub: int):
-        self.method, self.problem, self.opts, self.n_sub = method, problem, opts, n_sub
-        self.V, self.input_desc = input_zonotope(problem, opts)
+        self.method, self.opts, self.n_sub = method, opts, n_sub
+        V, self.input_desc = input_zonotope(problem, opts)
+        self.input_kind = problem.control_set.kind
+        self.problem, self.V, note = relax_throttle(problem, V)
+        self.input_desc += note
         self.W = disturbance_zonotope(problem, opts.disturbance)
         n = problem.model.n_x
         if opts.max_error is not None and np.size(opts.max_error) not in (1, n):
@@ -555,7 +630,7 @@ class DiscreteTaylor:
         meta.update({"guaranteed": True, "guaranteed_for": f"the discrete RK4 model (control held on "
                      f"each grid step, {self.n_sub} RK4 sub-steps); not an enclosure of the "
                      "continuous-time flow", "truncated": truncated, "alg": "dt",
-                     "input_set": self.problem.control_set.kind, "input_enclosure": self.input_desc,
+                     "input_set": self.input_kind, "input_enclosure": self.input_desc,
                      "steps": {"remainder": rem, "splits": splits}})
         return meta
 
@@ -584,6 +659,17 @@ class TaylorZonotope(Method):
                 raise ProblemError(f"alg must be one of {ALGS}; got {self.alg!r}")
             self.rk4_substeps = check_count("rk4_substeps", self.rk4_substeps, 1)
 
+    @classmethod
+    def applicable(cls, problem: Problem) -> tuple[bool, str]:
+        """A bounded control set, a forward grid and smooth dynamics (:func:`nonsmooth_ops`)."""
+        ok, why = requirements(problem, bounded=True)
+        if not ok:
+            return ok, why
+        if problem.backward:
+            return False, "the grid runs backward in time; taylor/sdc/poly propagate forward only"
+        why = smoothness_problem(problem.model)
+        return not why, why
+
     def solve(self, problem: Problem) -> ReachResult:
         if self.options.alg == "dt":
             check_smooth(problem.model)
@@ -599,6 +685,6 @@ class TaylorZonotope(Method):
                                f"alg={self.options.alg!r} (the RK4 map of 'dt' has no tubes)")
         check_smooth(problem.model)
         initial_zonotope(problem)  # wrong dimension -> clear error before any work
-        err = TaylorError(problem.model, problem.params)
-        return ZonotopeReach(self, problem, self.options, err, {"alg": "ct"})
+        return ZonotopeReach(self, problem, self.options,
+                             lambda prob: TaylorError(prob.model, prob.params), {"alg": "ct"})
 

@@ -286,6 +286,10 @@ class Context:
         self.lin = FastFunction(lin_fun(self.model))  # one per run: not re-entrant
         hull = V.interval_hull()
         self.Ubox = inflate_box(hull.lo, hull.hi)   # the hull's rounding
+        #: per state, how far the input moves it per unit time (|B G_v| + W): the scale of a step
+        self.input_reach = up(np.abs(self.lin(problem.x0, V.c, 0.0, self.p)[2][:, : V.dim])
+                              @ np.abs(V.G).sum(axis=1)
+                              + (np.abs(W.G).sum(axis=1) if W is not None else 0.0), 4)
 
 
 def ct_step(ctx: Context, R: Zonotope, t0: float, h: float, L_guess: np.ndarray | None

@@ -28,7 +28,8 @@ def scaled_remainder_taylor(factor: float) -> type[TaylorZonotope]:
 
         def solve(self, problem) -> ReachResult:
             check_smooth(problem.model)
-            err = ScaledRemainder(problem.model, problem.params)
-            return ZonotopeReach(self, problem, self.options, err, {"alg": "ct"}).run()
+            return ZonotopeReach(self, problem, self.options,
+                                 lambda prob: ScaledRemainder(prob.model, prob.params),
+                                 {"alg": "ct"}).run()
 
     return ScaledRemainderTaylor
