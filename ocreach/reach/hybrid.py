@@ -432,21 +432,14 @@ def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, 
 
 
 def propagator(meth, problem: Problem):
-    """The grid-step propagator (:class:`~ocreach.reach.taylor.ZonotopeReach`) of the method
-    instance ``meth`` on ``problem``: ``meth.reacher`` for ``taylor`` / ``sdc``, the
-    polynomial-zonotope driver of :mod:`ocreach.reach.poly` for ``poly`` (checked as its
+    """The grid-step propagator of the method instance ``meth`` on ``problem``: its
+    ``reacher(problem)`` (:class:`~ocreach.reach.taylor.ZonotopeReach` for ``taylor`` / ``sdc``,
+    the polynomial-zonotope driver of :mod:`ocreach.reach.poly` for ``poly``; checked as their
     ``solve`` checks)."""
-    if hasattr(meth, "reacher"):
-        return meth.reacher(problem)
-    from ocreach.reach.poly import PolyReach, PolyReachMethod
-    from ocreach.reach.taylor import check_smooth, initial_zonotope
-
-    if not isinstance(meth, PolyReachMethod):
+    if not hasattr(meth, "reacher"):
         raise ProblemError(f"hybrid guaranteed reachability supports {GUARANTEED}; got "
                            f"{type(meth).__name__}")
-    check_smooth(problem.model)
-    initial_zonotope(problem)
-    return PolyReach(meth, problem, meth.options)
+    return meth.reacher(problem)
 
 
 def _enclosure(S) -> Zonotope:

@@ -526,7 +526,12 @@ class PolyReachMethod(Method):
     def applicable(cls, problem: Problem) -> tuple[bool, str]:
         return TaylorZonotope.applicable(problem)
 
-    def solve(self, problem: Problem) -> ReachResult:
+    def reacher(self, problem: Problem) -> PolyReach:
+        """The propagator of ``problem`` (checked), run by :meth:`solve` and stepped grid step by
+        grid step by the hybrid runner (:mod:`ocreach.reach.hybrid`)."""
         check_smooth(problem.model)
         initial_zonotope(problem)  # wrong dimension -> clear error before any work
-        return PolyReach(self, problem, self.options).run()
+        return PolyReach(self, problem, self.options)
+
+    def solve(self, problem: Problem) -> ReachResult:
+        return self.reacher(problem).run()
