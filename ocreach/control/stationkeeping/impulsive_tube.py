@@ -59,7 +59,7 @@ log = logging.getLogger("ocreach.control.stationkeeping.impulsive_tube")
 #: Patel & Subbarao's initial deviation set (DU, DU/TU per axis): the default gate.
 PAPER_GATE = (1e-4, 5e-4)
 TUBE_SOURCES = ("taylor-or-linear", "linear")
-_CACHE_VERSION = 1
+_CACHE_VERSION = 2  # 2: tubes across DE421 fit-piece blends are guaranteed (one window polynomial)
 
 
 @dataclass
