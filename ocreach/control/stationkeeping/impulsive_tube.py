@@ -15,8 +15,9 @@ docs/validation/orbit-maintenance.md; the navigation box is
 box ``W`` = the largest SRP dispersion (:meth:`~ocreach.control.stationkeeping.srp.
 SolarRadiationPressure.dispersion_bound`, the part of SRP no controller knows).  Source
 ``"taylor-or-linear"``: guaranteed ``taylor`` tubes on the plant's windowed frame model (with the
-window error added to ``W``), the linearised tube (labelled, not guaranteed) where ``taylor``
-cannot run (an interval across a blend of two DE421 fit pieces).  Membership by the interval
+window error added to ``W``; a window across a blend of two DE421 fit pieces included), the
+linearised tube (labelled, not guaranteed) where ``taylor`` cannot enclose an interval (it
+fails, or the window's error bound cannot be computed there).  Membership by the interval
 hull (the paper's Fig. 7 boxes).  Computed once per scenario and cached on disk
 (``$OCREACH_CACHE_DIR/orbit_maintenance``), shared by every run.
 
