@@ -101,7 +101,7 @@ def test_event_and_tube_mpc_close_the_loop_on_the_corrected_reference(nrho):
 def test_fallback_is_labelled_and_a_strict_sound_source_refuses(nrho, eph):
     ref, _ = eph
     G0 = paper_initial_set(nrho)
-    why = "window reaches across a boundary of the blend of DE421 fit pieces 0 and 1"
+    why = "taylor refuses the model: an if_else whose condition depends on the state"
 
     def refused(t_lo, t_hi):
         raise ProblemError(why)

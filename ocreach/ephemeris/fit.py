@@ -413,8 +413,18 @@ class EphemerisFit:
             C = cheb.chebfit(nodes, self.position(body, ts, origin), D).T
             # drop the trailing coefficients at the rounding floor of the interpolation (they
             # are noise, 1e-16 of the position, but the interval recurrence multiplies them by up
-            # to (1 + sqrt(2))^k): the series changes by at most their sum
-            floor = WINDOW_TAIL_ULPS * np.finfo(float).eps * np.abs(C).sum(axis=1, keepdims=True)
+            # to (1 + sqrt(2))^k): the series changes by at most their sum.  The floor: 16 ulps
+            # of the row's magnitude sum, raised to 4 times the plateau of the last eighth of
+            # the coefficients (capped at 64 ulps of the largest row): the noise of the fit's
+            # values is absolute, the same in every coordinate (a degree-60 piece evaluates to
+            # 5-16 ulps of the position), and a 7-hour window kept 44 coefficients of it in its
+            # smallest row with the row's floor alone; the cap keeps a window nearly as long as
+            # a piece, whose last coefficients are still signal, from losing them
+            eps = np.finfo(float).eps
+            rows = np.abs(C).sum(axis=1, keepdims=True)
+            plateau = 4.0 * float(np.abs(C[:, -max(1, C.shape[1] // 8):]).max())
+            floor = np.maximum(WINDOW_TAIL_ULPS * eps * rows,
+                               min(plateau, WINDOW_NOISE_ULPS * eps * float(rows.max())))
             above = np.nonzero((np.abs(C) > floor).any(axis=0))[0]
             self._cache[key] = C[:, : max(2, int(above[-1]) + 1 if above.size else 2)]
         return self._cache[key]
@@ -426,10 +436,14 @@ class EphemerisFit:
 
 
 #: Coefficients of a fit re-expanded on a window (:meth:`EphemerisFit._window_matrix`) below this
-#: many ulps of the sum of their row's magnitudes are dropped: rounding noise of the interpolation
+#: many ulps of their row's magnitude sum (or below 4 times the plateau of the last eighth of the
+#: coefficients, up to :data:`WINDOW_NOISE_ULPS` of the largest row) are dropped: rounding noise
+#: of the interpolation
 #: (measured with it: the window's positions are within 4e-9 km (Earth) and 3.4e-7 km (Sun, 10
 #: ulps) of the fit's, whose own error to DE421 is 4.4e-7 km; docs/intervals.md).
 WINDOW_TAIL_ULPS = 16.0
+#: Cap (ulps of the largest row's magnitude sum) of the noise plateau floor of a window's series.
+WINDOW_NOISE_ULPS = 64.0
 #: Overlap of neighbouring pieces, as a fraction of the piece length (on each side of an edge).
 BLEND_FRACTION = 0.05
 #: Degree-9 smoothstep on [0, 1]: 0 -> 1 with zero derivatives of orders 1..4 at both ends (C^4).
