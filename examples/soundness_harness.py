@@ -5,7 +5,9 @@ The CI profile of the same harness is ``tests/test_soundness_harness.py``; the h
 ``ocreach.testing`` (what is checked and how: its module docstrings).  Here:
 
 * ``--systems`` (260) systems of the GENERAL population (seeds 0..N-1), ``--dominated`` (60)
-  of the REMAINDER_DOMINATED population and ``--quadratic`` (60) of the QUADRATIC one, each with ``--samples`` (90) truth trajectories, the
+  of the REMAINDER_DOMINATED population, ``--quadratic`` (60) of the QUADRATIC one and
+  ``--disturbed`` (60) of the DISTURBED one (an additive disturbance set, the methods'
+  ``disturbance`` option), each with ``--samples`` (90) truth trajectories, the
   tubes checked at a quarter, half and three quarters of every step and at both ends;
 * every bundled problem on its first ``--bundled-steps`` (4) grid steps with
   ``--bundled-samples`` (10,000) trajectories at the grid times and ``--tube-samples`` (2,000 of
@@ -39,6 +41,7 @@ import numpy as np
 
 from ocreach.fileio import atomic_write_text, replace_markdown_section
 from ocreach.testing import (
+    DISTURBED,
     GENERAL,
     QUADRATIC,
     REMAINDER_DOMINATED,
@@ -53,7 +56,7 @@ from ocreach.testing.mutants import scaled_remainder_taylor
 
 INNER = (0.25, 0.5, 0.75)
 POPULATIONS = {"GENERAL": GENERAL, "REMAINDER_DOMINATED": REMAINDER_DOMINATED,
-               "QUADRATIC": QUADRATIC}
+               "QUADRATIC": QUADRATIC, "DISTURBED": DISTURBED}
 TRAILER = """## A new guaranteed method
 
 Set the class attribute `guaranteed = True` on the method (`ocreach.reach.base.Method.guaranteed`:
@@ -189,6 +192,7 @@ def main() -> None:
     ap.add_argument("--systems", type=int, default=260)
     ap.add_argument("--dominated", type=int, default=60)
     ap.add_argument("--quadratic", type=int, default=60)
+    ap.add_argument("--disturbed", type=int, default=60)
     ap.add_argument("--samples", type=int, default=90)
     ap.add_argument("--bundled-steps", type=int, default=4)
     ap.add_argument("--bundled-samples", type=int, default=10_000)
@@ -204,7 +208,7 @@ def main() -> None:
                                          / "soundness.md"))
     a = ap.parse_args()
     if a.quick:
-        a.systems, a.dominated, a.quadratic, a.bundled_steps = 12, 6, 6, 2
+        a.systems, a.dominated, a.quadratic, a.disturbed, a.bundled_steps = 12, 6, 6, 6, 2
         a.bundled_samples = a.tube_samples = 500
     t_start = time.perf_counter()
     if a.power:
@@ -225,7 +229,9 @@ def main() -> None:
              + [("REMAINDER_DOMINATED", s, a.samples, tuple(methods), with_mutant)
                 for s in range(a.dominated)]
              + [("QUADRATIC", s, a.samples, tuple(methods), with_mutant)
-                for s in range(a.quadratic)])
+                for s in range(a.quadratic)]
+             + [("DISTURBED", s, a.samples, tuple(methods), with_mutant)
+                for s in range(a.disturbed)])
     done = _map(system_task, tasks, a.workers)
     t_gen = time.perf_counter() - t_start
     bundled = _map(bundled_task, [(pid, a.bundled_steps, a.bundled_samples, a.tube_samples,
@@ -233,7 +239,8 @@ def main() -> None:
                    a.workers)
     t_all = time.perf_counter() - t_start
 
-    run = (f"{'`--quick`, ' if a.quick else ''}{a.systems} + {a.dominated} + {a.quadratic} "
+    run = (f"{'`--quick`, ' if a.quick else ''}{a.systems} + {a.dominated} + {a.quadratic} + "
+           f"{a.disturbed} "
            f"systems, {a.samples} "
            f"samples each; bundled problems on {a.bundled_steps} grid steps with "
            f"{a.bundled_samples:,} samples, {min(a.tube_samples, a.bundled_samples):,} of them in "

@@ -35,6 +35,7 @@ from ocreach.sets.polyzonotope import PolyZonotope
 from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope
 from ocreach.testing import (
+    DISTURBED,
     GENERAL,
     QUADRATIC,
     REMAINDER_DOMINATED,
@@ -96,6 +97,30 @@ def test_guaranteed_methods_contain_quadratic_systems(seed):
     that bound let trajectories escape on seeds 0-5."""
     outcomes = run_all([generated_case(seeded_system(seed, QUADRATIC))], n_samples=60)
     assert not _failures(outcomes), _failures(outcomes)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_guaranteed_methods_contain_disturbed_systems(seed):
+    """Explicit seeds of the DISTURBED population: an additive disturbance set with a nonzero
+    centre on fast rotations, which every method gets as its ``disturbance`` option and the truth
+    integrates as piecewise-constant extreme, bang-bang and random ``w(t)``."""
+    outcomes = run_all([generated_case(seeded_system(seed, DISTURBED))], n_samples=60)
+    assert not _failures(outcomes), _failures(outcomes)
+
+
+def test_harness_integrates_the_disturbance():
+    """The same DISTURBED cases without the ``disturbance`` option: ``taylor``'s sets then
+    enclose the undisturbed flow only, and the truth's disturbed trajectories leave them on most
+    seeds (6 of seeds 0-7 on 2026-12-03), so a method that ignored its disturbance would fail."""
+    caught = 0
+    for seed in range(8):
+        case = generated_case(seeded_system(seed, DISTURBED))
+        assert case.options and case.disturbance is not None
+        bare = Case(label=case.label, problem=case.problem, rhs=case.rhs, kind=case.kind,
+                    disturbance=case.disturbance)
+        out = run_method("taylor", bare, n_samples=60)
+        caught += out.escapes > 0
+    assert caught >= 5, f"the disturbance-free sets escaped on only {caught} of 8 seeds"
 
 
 # ------------------------------------------------------------------------------ bundled problems

@@ -530,3 +530,69 @@ def test_serial_executor_runs_with_one_blas_thread_and_restores_the_callers():
         finally:
             handle.close()
         assert blas_threads() == before
+
+
+_SLOW_RUNNER = '''
+import os, time
+from pathlib import Path
+
+def run(payloads):
+    Path(os.environ["PID_DIR"], str(os.getpid())).write_text("")
+    time.sleep(120)
+    return [{"key": p["key"], "status": "ok", "outputs": {}} for p in payloads]
+'''
+_DRIVER = '''
+import sys
+sys.path.insert(0, sys.argv[2])
+import slow_runner
+from ocreach.sweep import run_sweep, spec_from_dict
+spec = {"name": "slow", "base": {"problem": "vdp", "method": "mc", "options": {"samples": 4}},
+        "product": {"options.seed": list(range(8))}}
+if __name__ == "__main__":
+    run_sweep(spec_from_dict(spec), sys.argv[1], workers=2, runner=slow_runner.run, chunk=1,
+              progress=False)
+'''
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as fh:   # a zombie (exited, not yet reaped) is not running
+        return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc for process states")
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGKILL"])
+def test_stopped_driver_leaves_no_worker_computing(tmp_path, sig):
+    """A driver stopped by SIGTERM stops its pool workers (it handles SIGTERM like Ctrl-C); one
+    killed outright leaves workers that notice and exit (their orphan check): no process goes on
+    computing for a driver that is gone."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    (tmp_path / "slow_runner.py").write_text(_SLOW_RUNNER)
+    (tmp_path / "driver.py").write_text(_DRIVER)
+    pids = tmp_path / "pids"
+    pids.mkdir()
+    env = {**os.environ, "PID_DIR": str(pids), "PYTHONPATH": str(tmp_path)}
+    drv = subprocess.Popen([sys.executable, str(tmp_path / "driver.py"), str(tmp_path / "out"),
+                            str(tmp_path)], env=env, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while len(list(pids.iterdir())) < 2 and time.time() < deadline and drv.poll() is None:
+        time.sleep(0.2)
+    workers = [int(p.name) for p in pids.iterdir()]
+    assert len(workers) == 2, drv.stderr.read() if drv.poll() is not None else "workers not started"
+    drv.send_signal(getattr(signal, sig))
+    drv.wait(timeout=60)
+    assert drv.returncode != 0
+    deadline = time.time() + 30
+    while any(_alive(w) for w in workers) and time.time() < deadline:
+        time.sleep(0.2)
+    left = [w for w in workers if _alive(w)]
+    for w in left:   # a failing run does not leave them to the rest of the suite
+        os.kill(w, signal.SIGKILL)
+    assert not left, f"workers still running after {sig}"

@@ -52,6 +52,8 @@ class ExecutorHandle:
     n_workers: int
     kind: str
     closers: list[Callable[[], Any]] = field(default_factory=list)
+    #: set by the driver when it stops on an interrupt (Ctrl-C, SIGTERM): closers need not wait
+    interrupted: bool = False
 
     def close(self) -> None:
         for fn in reversed(self.closers):
@@ -82,26 +84,58 @@ def single_thread_env() -> Iterator[None]:
                 os.environ[k] = v
 
 
-def _worker_init() -> None:
-    """Pool worker start: one BLAS thread; ignore Ctrl-C (the driver handles it, cancels what has
-    not started and lets running tasks finish, so no task is recorded as failed by an interrupt)."""
+#: seconds between a pool worker's checks that its driver is still alive
+ORPHAN_CHECK_S = 2.0
+
+
+def _exit_when_orphaned(driver_pid: int) -> None:
+    """Daemon thread of a pool worker: end the worker at once when its driver is gone (killed:
+    the worker is re-parented, ``os.getppid()`` changes), instead of computing for nobody."""
+    import time
+
+    while os.getppid() == driver_pid:
+        time.sleep(ORPHAN_CHECK_S)
+    os._exit(1)
+
+
+def _worker_init(driver_pid: int | None = None) -> None:
+    """Pool worker start: one BLAS thread; ignore Ctrl-C (the driver handles it: it stops its
+    workers, every finished record being on disk); exit when the driver dies."""
     import signal
+    import threading
 
     from ocreach.sweep.worker import limit_threads
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     limit_threads()
+    if driver_pid is not None:
+        threading.Thread(target=_exit_when_orphaned, args=(driver_pid,), daemon=True,
+                         name="ocreach-orphan-check").start()
+
+
+def _stop_pool(pool: ProcessPoolExecutor, interrupted: Callable[[], bool]) -> None:
+    """Shut ``pool`` down: wait for its workers after a normal end; after an interrupt terminate
+    them (what they run is not recorded any more, so waiting for it only delays the exit)."""
+    if interrupted():
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(Exception):
+                proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        return
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def process_pool(workers: int) -> ExecutorHandle:
-    """A ``spawn`` process pool of ``workers`` processes, all started now (under one-thread env)."""
+    """A ``spawn`` process pool of ``workers`` processes, all started now (under one-thread env);
+    closing it after an interrupt (``handle.interrupted``) terminates the workers."""
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_worker_init)
+                               initializer=_worker_init, initargs=(os.getpid(),))
     with single_thread_env():  # spawned children inherit this environment
         for f in [pool.submit(os.getpid) for _ in range(workers)]:
             f.result()
-    return ExecutorHandle(pool, workers, f"process pool ({workers} workers)",
-                          [lambda: pool.shutdown(wait=True, cancel_futures=True)])
+    handle = ExecutorHandle(pool, workers, f"process pool ({workers} workers)")
+    handle.closers.append(lambda: _stop_pool(pool, lambda: handle.interrupted))
+    return handle
 
 
 def _dask():

@@ -3,14 +3,18 @@
 Only the driver writes (:class:`ocreach.sweep.store.Store`); workers return plain records.  The
 records of the futures that finished together are appended in submission order and fsynced
 once (group commit: at a high completion rate one fsync covers several records).  A
-progress bar (tqdm) shows counts of ok / failed tasks, the rate and the ETA.  Ctrl-C (or any
-exception in the driver) cancels what has not started; every finished record is already on disk
-and the next run with the same spec and ``--out`` continues from there.
+progress bar (tqdm) shows counts of ok / failed tasks, the rate and the ETA.  Ctrl-C or SIGTERM
+(or any exception in the driver) cancels what has not started and stops the local workers (the
+tasks they were running are not recorded and run again next time); every finished record is
+already on disk and the next run with the same spec and ``--out`` continues from there.
 """
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Executor, Future, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -99,7 +103,7 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
     handle = make_executor(workers, scheduler=scheduler, dask_local_workers=dask_local,
                            serial=serial, executor=executor)
     try:
-        with Store.open(out, spec) as store:
+        with Store.open(out, spec) as store, sigterm_as_interrupt():
             summary = RunSummary(total=len(spec), skipped=0, notes=list(store.log.notes),
                                  out=str(out), executor=handle.kind)
             done = store.finished(retry_failed)
@@ -114,9 +118,30 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
             _drive(spec, chunks, len(todo), store, handle, summary,
                    max_in_flight or 2 * handle.n_workers, progress, on_record, runner, desc)
             return summary
+    except KeyboardInterrupt:
+        handle.interrupted = True
+        raise
     finally:
         if executor is None:
             handle.close()
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM handled like Ctrl-C while the driver runs (in the main thread): the driver stops,
+    every finished record is on disk, its workers are stopped (not left computing for nobody)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum} (SIGTERM)")
+
+    old = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def _drive(spec: Spec, chunks: list[list[tuple[str, dict[str, Any]]]], n_tasks: int, store: Store,

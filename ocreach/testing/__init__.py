@@ -24,6 +24,7 @@ from ocreach.testing.harness import (
     summary,
 )
 from ocreach.testing.strategies import (
+    DISTURBED,
     GENERAL,
     QUADRATIC,
     REMAINDER_DOMINATED,
@@ -34,6 +35,6 @@ from ocreach.testing.strategies import (
     systems,
 )
 
-__all__ = ["GENERAL", "QUADRATIC", "REMAINDER_DOMINATED", "Case", "GeneratedSystem", "Outcome", "Ranges",
+__all__ = ["DISTURBED", "GENERAL", "QUADRATIC", "REMAINDER_DOMINATED", "Case", "GeneratedSystem", "Outcome", "Ranges",
            "bundled_cases", "generate", "generated_case", "guaranteed_methods", "run_all",
            "run_method", "seeded_system", "summary", "systems"]

@@ -45,6 +45,7 @@ from ocreach.testing.truth import (
     integrate,
     model_rhs,
     samples,
+    with_disturbance,
 )
 
 #: statuses of an :class:`Outcome` that are not failures (escapes aside)
@@ -69,6 +70,11 @@ class Case:
     rhs: Rhs
     kind: str
     description: str = ""
+    #: additive disturbance ``(w_c, W_G)`` on ``dx/dt`` that the truth integrates (the methods
+    #: get it through ``options``)
+    disturbance: tuple[np.ndarray, np.ndarray] | None = None
+    #: options every method gets on this case (under the caller's own)
+    options: dict[str, Any] = field(default_factory=dict)
     _truth: dict = field(default_factory=dict, repr=False)
 
     def hybrid_truth(self, n_samples: int, seed: int, inner: tuple[float, ...]) -> HybridTruth:
@@ -83,14 +89,18 @@ class Case:
         key = (n_samples, seed, inner, pieces)
         if key not in self._truth:
             smp = samples(self.problem, n_samples, seed=seed, pieces=pieces, rhs=self.rhs)
-            self._truth[key] = integrate(self.rhs, self.problem.grid, smp, inner)
+            rhs = self.rhs
+            if self.disturbance is not None:
+                rhs, smp = with_disturbance(rhs, smp, *self.disturbance, seed=seed)
+            self._truth[key] = integrate(rhs, self.problem.grid, smp, inner)
         return self._truth[key]
 
 
 def generated_case(system) -> Case:
     """The case of a :class:`ocreach.testing.strategies.GeneratedSystem` (its numpy truth)."""
     return Case(label=system.label, problem=system.problem(), rhs=system.rhs, kind="generated",
-                description=system.describe())
+                description=system.describe(), disturbance=system.disturbance,
+                options=system.method_options())
 
 
 def shortened(problem, steps: int):
@@ -245,7 +255,8 @@ def run_method(method: str | type[Method], case: Case, *, n_samples: int = 60, s
     t0 = time.perf_counter()
     out = Outcome(method=name, case=case.label, kind=case.kind, status="complete")
     try:
-        result, out.status, out.reason = _solve(method, case.problem, dict(options or {}))
+        result, out.status, out.reason = _solve(method, case.problem,
+                                                {**case.options, **(options or {})})
     except Exception as exc:
         out.status, out.reason = "crashed", f"{type(exc).__name__}: {exc}"
         out.seconds = time.perf_counter() - t0

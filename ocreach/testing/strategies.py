@@ -102,6 +102,10 @@ class Ranges:
     controls: tuple[str, ...] = ("box", "ball")      # input set kinds to draw from
     t_final: tuple[float, float] = (0.2, 0.6)
     steps: tuple[int, int] = (2, 4)
+    disturbance: bool = False                # an additive disturbance set W on dx/dt
+    disturbance_centre: float = 1.0          # |w_c,i| <= disturbance_centre
+    disturbance_radius: tuple[float, float] = (0.05, 0.5)   # row sums of |W_G|
+    rotation: float = 0.0                    # > 0: A plus rotations at rates in [rotation/2, rotation]
 
 
 #: the harness's general population: 2-6 states, polynomial and rational terms of degree 2-3,
@@ -123,6 +127,14 @@ REMAINDER_DOMINATED = Ranges(n=(2, 3), linear=0.1, terms=(1, 1), degree=(2, 2), 
 #: has to cover: a dynamic-error bound that is too small shows as an escape (it did, on 20 of
 #: seeds 0-24, before the chord term of ``poly``'s dynamic error was added on 2026-12-03),
 #: where the inputs and interval-bounded third derivatives of the other populations hide it.
+#: a population with an additive disturbance ``w(t) in W = w_c + W_G [-1, 1]^q`` on ``dx/dt``
+#: (the methods' ``disturbance`` option; the truth integrates piecewise-constant extreme, bang-bang
+#: and random ``w``): rotations of 1.5-3 rad per time unit on a weak linear part turn the
+#: disturbance's input solution by up to ~3 rad inside a step (a centre of ``W`` boxed by its
+#: solution at the step's end missed such a flow), quadratic terms, a nonzero centre, 1-2 steps.
+DISTURBED = Ranges(n=(2, 4), n_u=(1, 2), linear=0.3, terms=(1, 1), degree=(2, 2), coef=0.5,
+                   rational=0.0, time_term=0.15, input_gain=0.3, x0=0.5, radius=(0.01, 0.1),
+                   t_final=(0.5, 2.0), steps=(1, 2), disturbance=True, rotation=3.0)
 QUADRATIC = Ranges(n=(2, 3), n_u=(1, 1), linear=0.0, terms=(1, 1), degree=(2, 2), coef=2.0,
                    rational=0.0, time_term=0.0, input_gain=0.0, x0=0.0, radius=(0.05, 0.25),
                    steps=(1, 3))
@@ -154,6 +166,9 @@ class GeneratedSystem:
     t_final: float
     steps: int
     notes: dict[str, Any] = field(default_factory=dict)
+    #: additive disturbance ``w_c + W_G [-1, 1]^q`` on ``dx/dt`` (None: none); the methods get
+    #: it as their ``disturbance`` option (:meth:`method_options`), the truth integrates it
+    disturbance: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def n(self) -> int:
@@ -172,7 +187,17 @@ class GeneratedSystem:
         return (f"{self.label}: n = {self.n}, n_u = {self.n_u} ({self.control}), "
                 f"{len(self.terms)} nonlinear terms ({', '.join(sorted(kinds))}"
                 f"{', t-dependent' if any(tm.t_power for tm in self.terms) else ''}), "
-                f"initial {self.initial}, t in [0, {self.t_final:.3g}] in {self.steps} steps")
+                f"initial {self.initial}, t in [0, {self.t_final:.3g}] in {self.steps} steps"
+                + (f", disturbance of {self.disturbance[1].shape[1]} generators"
+                   if self.disturbance is not None else ""))
+
+    def method_options(self) -> dict[str, Any]:
+        """Options every method needs on this system: the ``disturbance`` set, if any."""
+        if self.disturbance is None:
+            return {}
+        from ocreach.sets.zonotope import Zonotope
+
+        return {"disturbance": Zonotope(*self.disturbance)}
 
     # ---------------------------------------------------------------- the two codings
     def expression(self, x: ca.SX, u: ca.SX, t: ca.SX) -> ca.SX:
@@ -264,8 +289,22 @@ def generate(draw: Draw, ranges: Ranges | None = None, label: str = "system") ->
         G *= (extent / np.maximum(np.abs(G).sum(axis=1), 1e-12))[:, None]
     t_final = draw.real(*r.t_final)
     steps = draw.integer(*r.steps)
+    if r.rotation > 0:   # drawn last, so the draws of the other populations are unchanged
+        for i in range(0, n - 1, 2):   # x_i' += w x_(i+1), x_(i+1)' -= w x_i
+            w = draw.real(0.5 * r.rotation, r.rotation)
+            A[i, i + 1] += w
+            A[i + 1, i] -= w
+    W = None
+    if r.disturbance:
+        q = draw.integer(1, n)
+        wc = np.array([draw.real(-r.disturbance_centre, r.disturbance_centre) for _ in range(n)])
+        WG = np.array([[draw.real(-1.0, 1.0) for _ in range(q)] for _ in range(n)])
+        extent = np.array([draw.real(*r.disturbance_radius) for _ in range(n)])
+        WG *= (extent / np.maximum(np.abs(WG).sum(axis=1), 1e-12))[:, None]
+        W = (wc, WG)
     return GeneratedSystem(label=label, A=A, terms=terms, B=B, control=control, x0=x0,
-                           generators=G, initial=initial, t_final=t_final, steps=steps)
+                           generators=G, initial=initial, t_final=t_final, steps=steps,
+                           disturbance=W)
 
 
 def seeded_system(seed: int, ranges: Ranges | None = None) -> GeneratedSystem:

@@ -196,6 +196,29 @@ def samples(problem, n: int, seed: int = 0, pieces: int = 2, rhs: Rhs | None = N
     return Samples(X0=X0, U=U, labels=tuple(labels))
 
 
+def with_disturbance(rhs: Rhs, smp: Samples, centre: np.ndarray, generators: np.ndarray,
+                     seed: int = 0) -> tuple[Rhs, Samples]:
+    """The samples with an additive disturbance ``w(t) = centre + generators omega(t)``,
+    ``omega`` in ``[-1, 1]^q`` piecewise constant like the inputs (the laws of :data:`LAWS`,
+    shifted by one against the inputs' so that a constant input meets a bang-bang disturbance):
+    the right-hand side ``rhs(t, x, u) + w`` on the inputs ``[u, omega]``, and the samples with
+    ``omega`` appended to ``U``."""
+    from ocreach.problem import ControlSet
+
+    wc = np.asarray(centre, dtype=float)
+    WG = np.asarray(generators, dtype=float)
+    N, K, pieces, m = smp.U.shape
+    Om, laws = input_schedules(ControlSet("box", WG.shape[1]), N, K, pieces,
+                               np.random.default_rng([seed, 1]))
+    Om, laws = np.roll(Om, 1, axis=0), laws[-1:] + laws[:-1]
+
+    def disturbed(t: float, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        return rhs(t, X, U[:, :m]) + wc + U[:, m:] @ WG.T
+
+    labels = tuple(f"{lab}/w-{law}" for lab, law in zip(smp.labels, laws, strict=True))
+    return disturbed, Samples(X0=smp.X0, U=np.concatenate([smp.U, Om], axis=-1), labels=labels)
+
+
 def integrate(rhs: Rhs, grid: np.ndarray, smp: Samples, inner: Sequence[float] = (0.5,),
               rtol: float = RTOL, atol: float = ATOL) -> Truth:
     """Integrate every sample over ``grid`` (module docstring); all samples in one DOP853 system
