@@ -7,26 +7,31 @@ For every case the script runs ``poly`` and ``taylor`` (keeping the sets of a me
 models or integrators): half of the initial states at vertices of the initial set, half uniform
 inside, the controls constant, bang-bang (a new unit direction / box corner every grid step) or
 uniform random per step.  Every state at every grid time must lie in that time's set, and the
-states at the step midpoints (of the first ``--tube-samples``) in the step's time-interval tube:
-
-* zonotope sets (``taylor``, tubes): the scaled gauge (exact membership certificate, else the LP);
-* polynomial zonotopes (``poly``'s sets): :func:`ocreach.sets.pz_witness.classify` -- outside the
-  zonotope enclosure or a certified exclusion (support bound) is an escape, a witness (factors in
-  the box mapping within the tolerance) proves the point inside, the rest is reported as
-  undecided (neither proved in nor out).
+states at the step midpoints (of the first ``--tube-samples``) in the step's time-interval tube,
+decided by the verified three-way membership of :mod:`ocreach.sets.pz_witness`
+(:func:`~ocreach.sets.pz_witness.classify` for polynomial zonotopes, warm-started from the same
+trajectory's witness at the previous grid time; :func:`~ocreach.sets.pz_witness.classify_zonotope`
+for zonotopes and their unions): a verified witness proves a point inside, a verified certificate
+(a direction beyond the support) outside -- an escape --, and a point neither is reported as
+undecided, never counted as inside.
 
 A point escapes when it is outside the set enlarged by ``1e-9 (1 + |x|)`` (the truth's own
 error is far below).  Tightness at the last time both reached and at each method's last time: the
 ratio of the set's width to the samples' width in 50 random position directions (for a polynomial
 zonotope the rigorous upper support bound of :func:`ocreach.sets.pz_exact.support_bounds`).
 
-    python examples/poly_validation.py [--cases vdp,dro,nrho24,nrho76,nrho76sun,halo200,em200,em200mee] [--samples 10000]
+    python examples/poly_validation.py [--cases vdp,dro,nrho24,nrho76,nrho76sun,halo80,em200,em200mee]
+        [--samples 10000] [--tube-samples 2000] [--pz-every 1] [--methods poly,taylor]
         [--out out/poly_validation]
+
+Progress and every escape are printed as they are found; ``summary.json`` is rewritten
+(atomically) after every case, so an interrupted run keeps the cases it finished.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -35,30 +40,32 @@ from scipy.integrate import solve_ivp
 
 import ocreach
 from ocreach.errors import SolverError
-from ocreach.fileio import atomic_write_text, jsonable
+from ocreach.fileio import atomic_write_text, json_text, jsonable
 from ocreach.sets.polyzonotope import PolyZonotope
 from ocreach.sets.pz_union import PZUnion
-from ocreach.sets.pz_witness import classify
-from ocreach.sets.union import ZonotopeUnion, union_gauge
+from ocreach.sets.pz_witness import classify, classify_zonotope
+from ocreach.sets.union import ZonotopeUnion
 from ocreach.sets.zonotope import Zonotope
 
 HOUR = 3600.0 / 375200.0
 ABS_TOL = 1e-9
 RTOL, ATOL = 1e-12, 1e-14
 
-#: case -> (problem id, problem overrides, poly options, taylor options)
+#: case -> (problem id, problem overrides, poly options, taylor options): the rows of
+#: ``benchmarks/bench_poly.py`` (the same options), and two longer horizons
 CASES = {
     "vdp": ("vdp", {}, {}, {}),
-    "dro": ("dro", {}, {}, {}),
+    "dro": ("dro", {"t_final": 2.0}, {"substeps": 8}, {"substeps": 8}),
     "nrho24": ("nrho-9-2", {"t_final": 24 * HOUR}, {}, {}),
-    "nrho76": ("nrho-9-2", {}, {"max_parts": 8}, {"max_parts": 8}),
-    "nrho157": ("nrho-9-2", {"t_final": 157 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
-    "halo200": ("l2-halo", {"t_final": 200 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
+    "nrho76": ("nrho-9-2", {}, {"max_parts": 1}, {"max_parts": 1}),
     "nrho76sun": ("nrho-9-2", {}, {"max_parts": 1, "coordinates": "sundman:k=1.5"},
                   {"max_parts": 1, "coordinates": "sundman:k=1.5"}),
+    "halo80": ("l2-halo", {"t_final": 80 * HOUR}, {"max_parts": 1}, {"max_parts": 1}),
     "em200": ("earth-mars", {"t_days": 200.0}, {"max_parts": 1}, {"max_parts": 1}),
     "em200mee": ("earth-mars", {"t_days": 200.0}, {"max_parts": 1, "coordinates": "mee"},
                  {"max_parts": 1, "coordinates": "mee"}),
+    "nrho157": ("nrho-9-2", {"t_final": 157 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
+    "halo200": ("l2-halo", {"t_final": 200 * HOUR}, {"max_parts": 8}, {"max_parts": 8}),
 }
 
 
@@ -162,19 +169,16 @@ def truth(problem, K: int, N: int, seed: int = 0):
 # ------------------------------------------------------------------------------------------------
 # containment
 # ------------------------------------------------------------------------------------------------
-def _enlarged(Z: Zonotope, eps: float) -> Zonotope:
-    return Zonotope(Z.c, np.hstack([Z.G, eps * np.eye(Z.dim)]))
-
-
-def check(S, P: np.ndarray) -> tuple[int, int, float]:
-    """``(escapes, undecided, largest zonotope gauge)`` of the points ``P`` against the set."""
+def check(S, P: np.ndarray, start=None):
+    """The three-way verdicts (:class:`ocreach.sets.pz_witness.Classified`) of the points ``P``
+    against the set enlarged by ``ABS_TOL (1 + |P|_inf)``: polynomial zonotopes by
+    :func:`~ocreach.sets.pz_witness.classify` (warm-started from ``start``, the verdicts of the same
+    trajectories at the previous grid time), zonotopes and their unions by
+    :func:`~ocreach.sets.pz_witness.classify_zonotope`."""
     eps = ABS_TOL * (1.0 + float(np.abs(P).max()))
     if isinstance(S, (PolyZonotope, PZUnion)):
-        v = classify(S, P, eps)
-        return int(v.outside.sum()), int(v.undecided.sum()), v.max_gauge
-    parts = S.parts if isinstance(S, ZonotopeUnion) else [S]
-    g = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(p, eps) for p in parts]), P))
-    return int((g > 1 + 1e-9).sum()), 0, float(g.max())
+        return classify(S, P, eps, start=start)
+    return classify_zonotope(S, P, eps)
 
 
 def widths(S, D: np.ndarray, dims) -> np.ndarray:
@@ -206,10 +210,57 @@ def run(problem, method: str, opts: dict):
         return exc.partial, time.perf_counter() - t0, " ".join(str(exc).split())[:300]
 
 
-def validate(name: str, samples: int, tube_samples: int, seed: int = 0) -> dict:
+def check_method(res, ends, mids, tube_samples: int, pz_every: int, log) -> dict:
+    """Escapes, undecided and points of the sets (every grid time; a polynomial-zonotope set in
+    full at every ``pz_every``-th grid time and the last, against its zonotope enclosure at the
+    others) and of the tubes (the step midpoints of the first ``tube_samples`` trajectories)."""
+    Km = res.times.size - 1
+    cnt = {"set_escapes": 0, "set_undecided": 0, "set_points": 0, "pz_times": 0,
+           "enclosure_only_times": 0, "tube_escapes": 0, "tube_undecided": 0, "tube_points": 0,
+           "escape_times": []}
+    prev = None
+    t0 = time.perf_counter()
+    for k in range(Km + 1):
+        S, P = res.sets[k], ends[:, k]
+        full = not isinstance(S, (PolyZonotope, PZUnion)) or k % pz_every == 0 or k == Km
+        if full:
+            v = check(S, P, start=prev)
+            prev = v if v.witness is not None else None
+            cnt["pz_times"] += isinstance(S, (PolyZonotope, PZUnion))
+        else:                       # the zonotope enclosure: an escape from it is an escape
+            parts = S.parts if isinstance(S, PZUnion) else [S]
+            v = check(ZonotopeUnion([p.to_zonotope() for p in parts]), P)
+            cnt["enclosure_only_times"] += 1
+        e, u = int(v.outside.sum()), int(v.undecided.sum())
+        cnt["set_escapes"] += e
+        cnt["set_undecided"] += u
+        cnt["set_points"] += P.shape[0]
+        if e:
+            cnt["escape_times"].append(k)
+            log(f"  ESCAPE: {e} of {P.shape[0]} points outside the set at grid index {k} "
+                f"(t = {res.times[k]:.6g})")
+        if k % 10 == 0 or k == Km:
+            log(f"  sets: grid index {k}/{Km}, {cnt['set_escapes']} escapes, "
+                f"{cnt['set_undecided']} undecided, {time.perf_counter() - t0:.0f} s")
+    for k in range(min(Km, len(res.tubes or []))):
+        P = mids[:tube_samples, k]
+        v = check(res.tubes[k], P)
+        e = int(v.outside.sum())
+        cnt["tube_escapes"] += e
+        cnt["tube_undecided"] += int(v.undecided.sum())
+        cnt["tube_points"] += P.shape[0]
+        if e:
+            log(f"  ESCAPE: {e} step midpoints outside the tube of step {k}")
+    cnt["check_s"] = time.perf_counter() - t0
+    return cnt
+
+
+def validate(name: str, samples: int, tube_samples: int, pz_every: int, log, methods=("poly", "taylor"),
+             seed: int = 0) -> dict:
     pid, over, popts, topts = CASES[name]
     problem = ocreach.get_problem(pid, **over)
     out = {"case": name, "problem": pid, "overrides": over, "samples": samples,
+           "tube_samples": min(samples, tube_samples), "pz_every": pz_every,
            "asked_steps": int(problem.grid.size - 1)}
     results = {}
     for method, opts in (("poly", popts), ("taylor", topts)):
@@ -219,28 +270,26 @@ def validate(name: str, samples: int, tube_samples: int, seed: int = 0) -> dict:
         out[method] = {"options": opts, "runtime_s": rt, "reached_steps": int(res.times.size - 1),
                        "reached_t": float(res.times[-1]), "failure": fail,
                        "max_parts_used": res.meta.get("max_parts_used")}
+        log(f"{name}: {method} reached {res.times.size - 1} of {problem.grid.size - 1} steps "
+            f"in {rt:.2f} s")
     K = max(r.times.size - 1 for r in results.values())
     t0 = time.perf_counter()
     ends, mids = truth(problem, K, samples, seed)
     out["truth_runtime_s"] = time.perf_counter() - t0
+    log(f"{name}: {samples} trajectories over {K} steps in {out['truth_runtime_s']:.1f} s")
     pos = list(problem.position_dims) if problem.position_dims else list(range(problem.model.n_x))
     D = np.random.default_rng(7).standard_normal((50, len(pos)))
     D /= np.linalg.norm(D, axis=1, keepdims=True)
     for method, res in results.items():
+        if method not in methods:
+            continue
         Km = res.times.size - 1
-        esc = und = 0
-        worst = 0.0
-        for k in range(Km + 1):
-            e, u, g = check(res.sets[k], ends[:, k])
-            esc, und, worst = esc + e, und + u, max(worst, g)
-        tube_esc = 0
-        for k in range(min(Km, len(res.tubes or []))):
-            e, _, _ = check(res.tubes[k], mids[:tube_samples, k])
-            tube_esc += e
         entry = out[method]
-        entry.update({"escapes": esc, "undecided": und, "tube_escapes": tube_esc,
-                      "checked_points": samples * (Km + 1), "tube_points": tube_samples * Km,
-                      "max_enclosure_gauge": worst})
+        entry.update(check_method(res, ends, mids, tube_samples, pz_every, log))
+        log(f"{name}: {method}: {entry['set_escapes']} escapes / {entry['set_undecided']} undecided "
+            f"of {entry['set_points']} set points, {entry['tube_escapes']} escapes / "
+            f"{entry['tube_undecided']} undecided of {entry['tube_points']} tube points "
+            f"({entry['check_s']:.0f} s)")
         P = ends[:, Km][:, pos]
         wmc = (P @ D.T).max(axis=0) + (-P @ D.T).max(axis=0)
         r = widths(res.sets[Km], D, pos) / wmc
@@ -262,16 +311,37 @@ def main() -> None:
     ap.add_argument("--cases", default="vdp,dro,nrho24")
     ap.add_argument("--samples", type=int, default=10000)
     ap.add_argument("--tube-samples", type=int, default=2000)
+    ap.add_argument("--pz-every", type=int, default=1,
+                    help="check polynomial-zonotope sets in full at every N-th grid time and the "
+                         "last (their zonotope enclosures at the others)")
+    ap.add_argument("--methods", default="poly,taylor",
+                    help="the methods to check (both always run: the width ratios compare them); "
+                         "the others' entries of an earlier row of the case are kept")
     ap.add_argument("--out", default="out/poly_validation")
     args = ap.parse_args()
     outdir = Path(args.out)
     outdir.mkdir(parents=True, exist_ok=True)
-    rows = []
+    path = outdir / "summary.json"
+    rows = json.loads(path.read_text()) if path.exists() else []
+
+    def log(msg: str) -> None:
+        print(msg, flush=True)
+
     for name in args.cases.split(","):
-        row = validate(name, args.samples, args.tube_samples)
-        rows.append(row)
-        print(json.dumps(jsonable(row), indent=1), flush=True)
-        atomic_write_text(outdir / "summary.json", json.dumps(jsonable(rows), indent=1))
+        if name not in CASES:
+            raise SystemExit(f"--cases: unknown case {name!r}; known: {', '.join(CASES)}")
+        methods = args.methods.split(",")
+        row = validate(name, args.samples, args.tube_samples, args.pz_every, log, methods)
+        old = next((r for r in rows if r.get("case") == name), {})
+        for method in ("poly", "taylor"):
+            if method in methods:
+                row[method].update(date=time.strftime("%Y-%m-%d %H:%M"),
+                                   load_average_1min=os.getloadavg()[0])
+            elif method in old:
+                row[method] = old[method]
+        rows = [r for r in rows if r.get("case") != name] + [row]
+        atomic_write_text(path, json_text(rows, indent=1))   # a row at a time
+        log(json.dumps(jsonable(row), indent=1))
 
 
 if __name__ == "__main__":

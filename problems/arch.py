@@ -91,14 +91,23 @@ def _model(name: str, states: list[str], f_of, params: dict[str, float] | None =
 
 def _problem(pid: str, benchmark: str, instance: str, model: Model, lo, hi, t_final: float,
              dt: float, verification: Verification, description: str, citation: str,
-             options: dict | None = None, **kw) -> Problem:
+             options: dict | None = None, method: str = "taylor", **kw) -> Problem:
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     return Problem(
         id=pid, model=model, x0=0.5 * (lo + hi), grid=time_grid(t_final, dt),
         initial_set=Interval(lo, hi), description=description, citation=citation,
         method_options=options or {}, position_dims=(0, 1), velocity_dims=(0, 1),
-        extra={"arch": {"benchmark": benchmark, "instance": instance},
+        extra={"arch": _suite_entry(benchmark, instance, method, options),
                "verification": verification}, **kw)
+
+
+def _suite_entry(benchmark: str, instance: str, method: str, options: dict | None) -> dict:
+    """``extra["arch"]``: the ARCH-COMP names and the suite's guaranteed method (its options are
+    the problem's ``method_options[method]``)."""
+    if method not in (options or {}):
+        raise ProblemError(f"ARCH instance {benchmark} {instance}: the suite method {method!r} has "
+                           f"no options entry; entries: {sorted(options or {})}")
+    return {"benchmark": benchmark, "instance": instance, "method": method}
 
 
 def _check_dt(dt: float, t_final: float) -> None:
@@ -138,11 +147,13 @@ def cvdp20(mu: float = 1.0, t_final: float | None = None, dt: float = 0.01) -> P
     _check_dt(dt, T)
     inst = f"mu{int(mu)}"
     ver = Verification(specs=(Unsafe(ge("y1", ymax)), Unsafe(ge("y2", ymax))))
-    opts = {"taylor": {"order": 20, "max_parts": 64}}
+    # suite: poly from 4 initial parts (one part and taylor end above the bound; see docs/arch.md)
+    opts = {"taylor": {"order": 20, "max_parts": 64},
+            "poly": {"initial_parts": 4, "max_parts": 64}}
     return _problem(f"arch-cvdp20-{inst}", "CVDP20", inst, coupled_vanderpol(mu),
                     [xl, 2.35, xl, 2.35], [xh, 2.45, xh, 2.45], T, dt, ver,
                     f"coupled Van der Pol, mu = {mu:g}, T = {T:g}, y1, y2 < {ymax:g} (ARCH CVDP20)",
-                    "ARCH-COMP20 NLN (CVDP20); ARIADNE CVDP20.hpp, JR20", opts)
+                    "ARCH-COMP20 NLN (CVDP20); ARIADNE CVDP20.hpp, JR20", opts, method="poly")
 
 
 def cvdp23(t_final: float = 7.0, dt: float = 0.01) -> Problem:
@@ -152,11 +163,12 @@ def cvdp23(t_final: float = 7.0, dt: float = 0.01) -> Problem:
     # [1.25;2.35]..[1.55;2.45]; original interval for b: 1 to 3")
     _check_dt(dt, t_final)
     ver = Verification(specs=(Unsafe(ge("y1", 2.75)), Unsafe(ge("y2", 2.75))))
-    opts = {"taylor": {"order": 20, "max_parts": 256}}
+    opts = {"taylor": {"order": 20, "max_parts": 256}, "poly": {"max_parts": 64}}
     return _problem("arch-cvdp23", "CVDP23", "", coupled_vanderpol(1.0, b_state=True),
                     [1.25, 2.35, 1.25, 2.35, 1.0], [1.55, 2.45, 1.55, 2.45, 3.0], t_final, dt, ver,
                     "coupled Van der Pol, mu = 1, b in [1, 3] as a constant state, T = 7 (ARCH CVDP23)",
-                    "ARCH-COMP23/24 NLN (CVDP23); JR24, CORA, ARIADNE CVDP23.hpp", opts)
+                    "ARCH-COMP23/24 NLN (CVDP23); JR24, CORA, ARIADNE CVDP23.hpp", opts,
+                    method="poly")
 
 
 # =============================================================================== LALO20
@@ -187,10 +199,11 @@ def lalo20(W: float = 0.01, t_final: float = 20.0, dt: float = 0.05) -> Problem:
     _check_dt(dt, t_final)
     x0 = np.array(LALO_X0)
     ver = Verification(specs=(Unsafe(ge("x4", bound)),), measures=(Width((("x4", 1.0),)),))
-    opts = {"taylor": {"order": 20, "max_parts": 64}}
+    opts = {"taylor": {"order": 20, "max_parts": 64}, "poly": {"max_parts": 64}}
     return _problem(f"arch-lalo20-{inst.lower()}", "LALO20", inst, laub_loomis(), x0 - W, x0 + W,
                     t_final, dt, ver, f"Laub-Loomis, W = {W:g}, T = {t_final:g}, x4 < {bound:g} "
-                    "(ARCH LALO20)", "ARCH-COMP20-24 NLN (LALO20); JR24, CORA, ARIADNE", opts)
+                    "(ARCH LALO20)", "ARCH-COMP20-24 NLN (LALO20); JR24, CORA, ARIADNE", opts,
+                    method="poly")
 
 
 # =============================================================================== QUAD20
@@ -288,11 +301,13 @@ def prde20(case: str = "I", t_final: float = 100.0, dt: float = 0.1) -> Problem:
                                          "z": (0, math.inf)}), window=(T, T)),
                               Attains((("x", 1.0), ("y", 1.0), ("z", 1.0)), 10.0, window=(T, T))),
                        measures=(BoxVolume(("x", "y", "z")),))
-    opts = {"taylor": {"order": 20, "max_parts": 64}}
+    # suite: poly; with the uncertain a, from 2 initial parts (x(T) ~ 1e-9 must be proven > 0)
+    opts = {"taylor": {"order": 20, "max_parts": 64},
+            "poly": {"initial_parts": 1 if case == "I" else 2, "max_parts": 64}}
     return _problem(f"arch-prde20-{case.lower()}", "PRDE20", case,
                     production_destruction(case != "I"), lo, hi, T, dt, ver,
                     f"production-destruction, case {case}, T = {T:g} (ARCH PRDE20)",
-                    "ARCH-COMP20 NLN (PRDE20); JR20, ARIADNE PRDE20.hpp", opts)
+                    "ARCH-COMP20 NLN (PRDE20); JR20, ARIADNE PRDE20.hpp", opts, method="poly")
 
 
 # =============================================================================== ROBE21
@@ -320,11 +335,13 @@ def robe21(case: str = "1", t_final: float = 40.0, dt: float | None = None) -> P
     dt = {"1": 0.05, "2": 0.05, "3": 0.05}[case] if dt is None else dt
     _check_dt(dt, T)
     ver = Verification(measures=(Width((("x", 1.0), ("y", 1.0), ("z", 1.0)), "width of x+y+z"),))
-    opts = {"taylor": {"order": 20, "max_parts": 1, "max_halvings": 12}}
+    # suite: poly for case 1 (taylor's remainder loop stops closing at t = 29.95), taylor else
+    opts = {"taylor": {"order": 20, "max_parts": 1, "max_halvings": 12}, "poly": {}}
     return _problem(f"arch-robe21-{case}", "ROBE21", case, robertson(*ROBERTSON_CASES[case]),
                     [1.0, 0.0, 0.0], [1.0, 0.0, 0.0], T, dt, ver,
                     f"Robertson, case {case} (alpha, beta, gamma = {ROBERTSON_CASES[case]}), "
-                    f"T = {T:g} (ARCH ROBE21)", "ARCH-COMP21-24 NLN (ROBE21); JR24, CORA", opts)
+                    f"T = {T:g} (ARCH ROBE21)", "ARCH-COMP21-24 NLN (ROBE21); JR24, CORA", opts,
+                    method="poly" if case == "1" else "taylor")
 
 
 # =============================================================================== LOVO21
@@ -373,6 +390,9 @@ def lovo21(t_final: float = 3.64, dt: float = 0.01, eps: float = 0.012) -> Hybri
     ver = Verification(measures=(BoxVolume(("x", "y")), Maximum((("cnt", 1.0),), "max cnt")),
                        extra={"final_jump_counts": (2, 4)},
                        notes="verified when the final sets show runs with 2 and with 4 jumps")
+    # suite: poly (a tighter final box than taylor's, both verify)
+    opts = {"taylor": {"order": 20, "max_parts": 1}, "poly": {"order": 20},
+            "hybrid": {"clusters": 1, "enclose": "pca"}}
     return HybridProblem(
         id="arch-lovo21", model=aut.location("outside").model, x0=0.5 * (lo + hi),
         grid=time_grid(T, dt, fit=True), initial_set=Interval(lo, hi), automaton=aut,
@@ -380,9 +400,8 @@ def lovo21(t_final: float = 3.64, dt: float = 0.01, eps: float = 0.012) -> Hybri
         description=f"Lotka-Volterra with tangential crossing of the circle r = 0.161, "
                     f"eps = {eps:g}, T = {T:g} (ARCH LOVO21)",
         citation="ARCH-COMP21-24 NLN (LOVO21); ARIADNE LOVO21.hpp, CORA, JR24",
-        method_options={"taylor": {"order": 20, "max_parts": 1},
-                        "hybrid": {"clusters": 1, "enclose": "pca"}},
-        extra={"arch": {"benchmark": "LOVO21", "instance": ""}, "verification": ver})
+        method_options=opts,
+        extra={"arch": _suite_entry("LOVO21", "", "poly", opts), "verification": ver})
 
 
 # =============================================================================== SPRE22
@@ -471,16 +490,19 @@ def spre22(t_final: float = 200.0, dt: float = 0.2, dt_attempt: float = 0.05,
              name=f"speed <= {SPRE_VMAX:g} m/min in attempt"),
         Unsafe(box({"x": (-SPRE_TARGET, SPRE_TARGET), "y": (-SPRE_TARGET, SPRE_TARGET)}),
                locations=("aborting",), name=f"target |x|, |y| <= {SPRE_TARGET:g} m avoided in aborting")))
+    # suite: taylor, the abort guard sets (every state of approaching and attempt over t in
+    # [120, 150]) in 60 groups; with 10 or 40 the aborting sets are not proven outside the target
+    # box (docs/arch.md)
+    opts = {"taylor": {"order": 10, "max_parts": 1},
+            "hybrid": {"dt": {"attempt": dt_attempt}, "clusters": {"abort": 60}, "enclose": "pca"}}
     return HybridProblem(
         id="arch-spre22", model=aut.location("approaching").model, x0=0.5 * (lo + hi),
         grid=time_grid(t_final, dt), initial_set=Interval(lo, hi), automaton=aut,
         initial_location="approaching", position_dims=(0, 1), velocity_dims=(2, 3),
         description="spacecraft rendezvous with abort, T = 200 min (ARCH SPRE22)",
         citation="ARCH-COMP22-24 NLN (SPRE22); JR24, CORA, ARIADNE SPRE22.hpp; Chan & Mitra, ARCH 2017",
-        method_options={"taylor": {"order": 10, "max_parts": 1},
-                        "hybrid": {"dt": {"attempt": dt_attempt}, "clusters": {"abort": 10},
-                                   "enclose": "pca"}},
-        extra={"arch": {"benchmark": "SPRE22", "instance": ""}, "verification": ver})
+        method_options=opts,
+        extra={"arch": _suite_entry("SPRE22", "", "taylor", opts), "verification": ver})
 
 
 # =============================================================================== registry

@@ -20,6 +20,15 @@ def laub_loomis(X: np.ndarray) -> np.ndarray:
                             1.8 * x6 - 1.5 * x2 * x7])
 
 
+def coupled_vanderpol(mu: float):
+    """The coupled Van der Pol oscillators (b = 1) of CVDP20."""
+    def f(X: np.ndarray) -> np.ndarray:
+        x1, y1, x2, y2 = X.T
+        return np.column_stack([y1, mu * (1 - x1**2) * y1 - x1 + (x2 - x1),
+                                y2, mu * (1 - x2**2) * y2 - x2 - (x2 - x1)])
+    return f
+
+
 def lotka_volterra(X: np.ndarray) -> np.ndarray:
     x, y = X[:, 0], X[:, 1]
     return np.column_stack([3 * x - 3 * x * y, x * y - y])

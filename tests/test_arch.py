@@ -17,6 +17,7 @@ from _arch_truth import (
     SC_K1,
     SC_K2,
     batch,
+    coupled_vanderpol,
     first_root,
     laub_loomis,
     lotka_volterra,
@@ -176,6 +177,67 @@ def test_lalo20_w001_is_verified_and_contains_independent_truth():
     assert width >= np.ptp(Xs[-1][:, 3])
 
 
+def test_a_run_that_stops_early_is_checked_against_the_truth_as_far_as_it_got():
+    """CVDP20 mu = 2 with taylor stops near t = 3 (the remainder is no longer finite with every
+    part in use): the row says unknown with the reason, the sets computed up to there hold the
+    suite's 2,000 samples and 2,000 independent ones (numpy right-hand side, SciPy DOP853)."""
+    from ocreach.arch.report import csv_text
+    from ocreach.arch.suite import run_instance
+
+    run, p, res = run_instance("arch-cvdp20-mu2", method="taylor", samples=N_TRUTH,
+                               truth_stride=30, warmup=False)
+    assert run.result == "unknown" and "cannot be enclosed" in run.error and run.stopped
+    assert res.meta["truncated"] and 1.0 < run.computed_to < p.grid[-1]
+    K = len(res.sets)
+    assert run.computed_to == pytest.approx(p.grid[K - 1])
+    tr = run.truth
+    assert tr["escapes"] == 0 and tr["checked_to"] == run.computed_to
+    ks = set(range(0, K, 30)) | {K - 1}  # the time-point sets there, the tubes after them
+    assert tr["points_checked"] == N_TRUTH * (len(ks) + len(ks - {K - 1}))
+    X0 = _initial(p, np.random.default_rng(9), N_TRUTH)
+    ks = np.unique(np.r_[np.arange(0, K, 50), K - 1])
+    Xs = states_at(coupled_vanderpol(2.0), X0, p.grid[ks])
+    for k, X in zip(ks, Xs):
+        assert np.asarray(union_gauge(res.sets[k], X)).max() <= TOL, f"escape at t = {p.grid[k]}"
+    row = csv_text([run]).splitlines()[1].split(",")
+    assert row[2] == "" and row[6:8] == ["taylor", f"{run.computed_to:.6g}"] and row[8] == "0"
+
+
+@pytest.mark.parametrize("method", ["taylor", "poly"])
+def test_initial_parts_cover_the_initial_set_and_the_truth(method):
+    p = ocreach.get_problem("arch-lalo20-w01", t_final=1.0)
+    r = ocreach.reach(p, method, initial_parts=4)
+    assert len(r.sets[0].parts) == 4
+    X0 = _initial(p, np.random.default_rng(10), N_TRUTH)
+    ks = np.array([0, 5, p.grid.size - 1])
+    Xs = states_at(laub_loomis, X0, p.grid[ks])
+    for k, X in zip(ks, Xs):  # poly: the zonotope enclosures of its polynomial zonotopes
+        assert _in_sets([q.to_zonotope() for q in r.sets[k].parts], X).all(), \
+            f"escape at t = {p.grid[k]}"
+    for bad, msg in (({"initial_parts": 0}, "initial_parts must be an integer >= 1"),
+                     ({"initial_parts": 5, "max_parts": 4}, "initial_parts must be <= max_parts")):
+        with pytest.raises(ProblemError, match=msg):
+            ocreach.reach(p, method, **bad)
+
+
+def test_a_hybrid_flowpipe_that_stops_early_holds_the_runs_up_to_where_it_got():
+    """Steps of 0.4 inside the Lotka-Volterra circle with no halving: a later branch cannot be
+    enclosed; the partial flowpipe says up to when it holds every run, and 2,000 runs through
+    the automaton are inside it up to then."""
+    from ocreach.arch.truth import hybrid_truth
+    from ocreach.errors import SolverError
+
+    p = ocreach.get_problem("arch-lovo21", t_final=1.2)
+    with pytest.raises(SolverError, match="cannot be enclosed") as info:
+        ocreach.reach(p, "taylor", max_halvings=0, hybrid={"dt": {"inside": 0.4}})
+    part = info.value.partial
+    until = part.meta["valid_until"]
+    assert part.meta["truncated"] and "cannot be enclosed" in part.meta["failure"]
+    assert 0.3 < until < 1.2
+    tr = hybrid_truth(p, part, samples=N_TRUTH, stride=4)
+    assert tr.escapes == 0 and tr.checked_to == until and tr.points > N_TRUTH
+
+
 def _least_norm_inside(Z, P: np.ndarray) -> np.ndarray:
     """Rows of ``P`` proved inside ``Z``: the least-norm factors ``xi`` of ``G xi = x - c`` with
     ``|xi| <= 1`` and a residual at rounding level (a sufficient test, no LP)."""
@@ -210,7 +272,8 @@ def _in_pieces(res, loc: str, X: np.ndarray, t: np.ndarray) -> np.ndarray:
                      axis=1)
         return idx[inb]
 
-    for test in (_least_norm_inside, lambda Z, Q: np.atleast_1d(gauge(Z, Q, lp=False)) <= 1.0):
+    for test in (_least_norm_inside,
+                 lambda Z, Q: np.atleast_1d(gauge(Z, Q, lp=False)) <= 1.0):
         for pc, I in zip(pcs, boxes):
             idx = candidates(pc, I)
             if idx.size:
@@ -359,11 +422,16 @@ def test_arch_command_writes_the_suite_files(tmp_path, capsys):
 
     out = tmp_path / "arch"
     assert main(["arch", "--only", "lalo20-w001", "--samples", "50", "--truth-stride", "20",
-                 "--out", str(out)]) == 0
+                 "--workers", "1", "--out", str(out)]) == 0
     csv = (out / "arch.csv").read_text().splitlines()
-    assert csv[0] == "benchmark,instance,result,time,accuracy,timesteps"
-    assert csv[1].startswith("LALO20,W001,1,")
-    assert "| LALO20 | W001 | verified |" in (out / "arch.md").read_text()
+    assert csv[0] == ("benchmark,instance,result,time,accuracy,timesteps,method,computed_to,"
+                      "truth_escapes,truth_points")
+    row = csv[1].split(",")
+    # the suite's method; computed to T = 20; 50 samples at 21 grid times in the sets there and
+    # at the middle of the 20 steps after them in the tubes, none outside
+    assert row[:3] == ["LALO20", "W001", "1"]
+    assert row[6:] == ["poly", "20", "0", str(50 * (21 + 20))]
+    assert "| LALO20 | W001 | poly | verified |" in (out / "arch.md").read_text()
     assert (out / "LALO20.png").stat().st_size > 1000
     assert "1/1 verified" in capsys.readouterr().out
     from ocreach.arch.suite import arch_ids
@@ -407,13 +475,82 @@ def test_soundness_harness_checks_hybrid_flowpipes_through_the_automaton():
     for k in range(0, tr.times.size, 37):
         assert np.abs(tr.points[k, :2] - at(float(tr.times[k]))[lab[k]]).max() < 1e-7
     (case,) = bundled_cases(steps=30, ids=["arch-lovo21"])
-    res = ocreach.reach(case.problem, "taylor")
     truth = case.hybrid_truth(45, 0, (0.5,))
-    ok = Outcome("taylor", case.label, "bundled", "complete")
-    check_hybrid(res, truth, ok)
-    assert ok.points_checked == truth.points.shape[0] > 0 and ok.escapes == 0, ok.line()
+    for method in ("poly", "taylor"):  # poly: polynomial zonotopes cut through their enclosures
+        res = ocreach.reach(case.problem, method)
+        ok = Outcome(method, case.label, "bundled", "complete")
+        check_hybrid(res, truth, ok)
+        assert ok.points_checked == truth.points.shape[0] > 0 and ok.escapes == 0, ok.line()
+    # a partial flowpipe is checked up to where every run is enclosed
+    cut = dataclasses.replace(res, meta={**res.meta, "valid_until": 0.1})
+    part = Outcome("taylor", case.label, "bundled", "partial")
+    check_hybrid(cut, truth, part)
+    assert 0 < part.points_checked == (truth.times <= 0.1 + 1e-9).sum() < truth.times.size
     shrunk = dataclasses.replace(res, pieces=[dataclasses.replace(
         pc, set=Zonotope(pc.set.c, 0.9 * pc.set.G)) for pc in res.pieces])
     bad = Outcome("taylor", case.label, "bundled", "complete")
     check_hybrid(shrunk, truth, bad)
     assert bad.escapes > 0
+
+
+def test_hybrid_truth_checks_the_tubes_between_grid_times():
+    """A flowpipe that holds the runs at the grid times only (a small box around the sampled
+    states at each grid time, nothing between) is caught: the hybrid truth also checks every
+    run at the middle of each grid step."""
+    from ocreach.arch.truth import hybrid_truth
+    from ocreach.reach.hybrid import HybridResult, simulate_hybrid
+    from ocreach.specs import Piece
+
+    p = ocreach.get_problem("arch-lovo21", t_final=0.1)
+    hs = simulate_hybrid(p, samples=40, seed=3)
+    smp = hs.samples
+    G = p.grid.size
+    names = (*p.automaton.state_names, "t")
+    pieces = []
+    for k in range(G):
+        for loc in set(smp.locations[:, k]):
+            X = smp.states[smp.locations[:, k] == loc, k]
+            lo = np.r_[X.min(axis=0), p.grid[k]] - 1e-6
+            hi = np.r_[X.max(axis=0), p.grid[k]] + 1e-6
+            pieces.append(Piece(Zonotope((lo + hi) / 2, np.diag((hi - lo) / 2)), float(p.grid[k]),
+                                float(p.grid[k]), names, loc))
+    fake = HybridResult(names=names, pieces=pieces, finals=[], branches=[],
+                        meta={"valid_until": p.t_final})
+    tr = hybrid_truth(p, fake, samples=40, seed=3)
+    assert tr.points == 40 * (2 * G - 1) + (smp.times.shape[1] - G) * 40
+    assert tr.escapes == 40 * (G - 1)  # every midpoint state, no grid-time state
+    t = tr.escape_example["time"]
+    assert min(abs(t - 0.5 * (p.grid[:-1] + p.grid[1:]))) < 1e-12
+
+
+def test_a_row_is_not_verified_when_cut_short_or_contradicted_by_the_truth():
+    """The verdict of a row: sets that stop short of the horizon prove nothing after it, and a
+    sampled state outside the guaranteed sets, or a sampled counter-example of a verified spec,
+    takes the row out of ``verified`` with the reason."""
+    import dataclasses
+
+    from ocreach.arch.report import _label
+    from ocreach.arch.suite import InstanceRun, _contradictions, _verdict
+    from ocreach.specs import check
+
+    p = ocreach.get_problem("arch-lalo20-w001", t_final=0.5)
+    r = ocreach.reach(p, "taylor")
+    specs = [check(s, r, p.model.state_names) for s in p.extra["verification"].specs]
+    row = InstanceRun(p.id, "LALO20", "W001", "taylor")
+    assert _verdict(p, r, specs, row) == "verified"
+    short = dataclasses.replace(r, times=r.times[:-1], sets=r.sets[:-1], tubes=r.tubes[:-1])
+    assert _verdict(p, short, specs, row) == "unknown"
+    cut = dataclasses.replace(r, meta={**r.meta, "truncated": True})
+    assert _verdict(p, cut, specs, row) == "unknown"
+    for truth, why in (({"escapes": 3, "escape_example": {"time": 0.1}, "violations": {}},
+                        "3 sampled state"),
+                       ({"escapes": 0, "violations": {"x4": {"detail": "x4 = 4.6"}}},
+                        "contradicts the verification: x4: x4 = 4.6")):
+        row = InstanceRun(p.id, "LALO20", "W001", "taylor", result="verified", truth=truth)
+        _contradictions(row)
+        assert row.result == "unknown" and why in row.error
+        assert _label(row) == "W001 (unknown)"  # not drawn as a run that stopped
+    ok = InstanceRun(p.id, "LALO20", "W001", "taylor", result="verified",
+                     truth={"escapes": 0, "violations": {}})
+    _contradictions(ok)
+    assert ok.result == "verified" and ok.error == ""

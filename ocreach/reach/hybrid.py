@@ -1,8 +1,9 @@
 """Reachability of hybrid automata (:mod:`ocreach.hybrid`): guaranteed flowpipes through the
-guards for ``taylor`` / ``sdc``, and samples simulated through the same automaton for ``mc``.
+guards for ``taylor`` / ``sdc`` / ``poly``, and samples simulated through the same automaton for
+``mc``.
 
-Guaranteed (``taylor``, ``sdc``)
---------------------------------
+Guaranteed (``taylor``, ``sdc``, ``poly``)
+------------------------------------------
 Every location's model gets the global time as a state (:func:`ocreach.hybrid.clocked`), so each
 set carries the times of its states, time windows are half-spaces, and a jump set keeps its spread
 of crossing times.  A *branch* is a location with an initial set; it is propagated grid step by grid
@@ -22,6 +23,10 @@ left the location or passed the horizon:
    enclosed by one zonotope (an oriented box, :func:`oriented_hull`; JuliaReach clusters its jump
    sets the same way), cut again by invariant and guard, mapped by the reset, and started as a new
    branch of the target location.
+
+The sub-step tubes of ``poly`` are zonotopes like those of ``taylor``; its time-point sets are
+polynomial zonotopes, cut by an invariant through their zonotope enclosure (kept when the
+enclosure lies inside, dropped when its cut is empty, else replaced by the cut enclosure).
 
 The final sets are the pieces cut to ``t = T`` by their clock.  Sound: each step of the base method
 encloses every run of its branch; cutting by an invariant or guard keeps every state that
@@ -55,7 +60,7 @@ from ocreach.sets.rounding import rounding_radius
 from ocreach.sets.zonotope import Zonotope
 from ocreach.specs import Linear, Piece, Samples, complementary, cut_region, support_bound
 
-GUARANTEED = ("taylor", "sdc")
+GUARANTEED = ("taylor", "sdc", "poly")
 SAMPLED = ("mc",)
 ENCLOSURES = ("box", "pca")
 
@@ -262,9 +267,15 @@ def _local_grid(H: float, dt: float) -> np.ndarray:
 
 def reach_guaranteed(problem: HybridProblem, method: str, method_cls: type, **options: Any
                      ) -> HybridResult:
-    """The guaranteed flowpipe of ``problem`` (module docstring) with ``taylor`` or ``sdc``
-    (``method_cls`` its class); ``options`` are the method's options plus ``hybrid={...}``
-    (:class:`HybridOptions`)."""
+    """The guaranteed flowpipe of ``problem`` (module docstring) with ``taylor``, ``sdc`` or
+    ``poly`` (``method_cls`` its class); ``options`` are the method's options plus
+    ``hybrid={...}`` (:class:`HybridOptions`).
+
+    ``meta["valid_until"]`` is the time up to which every run lies in the pieces: the horizon,
+    or less when branches or jump sets were dropped (``max_branches``, ``max_jumps``:
+    ``truncated``).  A branch that cannot be enclosed raises :class:`SolverError` with the flowpipe
+    computed so far in ``err.partial`` (``truncated``, ``meta["failure"]``, and ``valid_until``
+    the earliest time of what was not propagated)."""
     if method not in GUARANTEED:
         raise ProblemError(f"hybrid guaranteed reachability supports {GUARANTEED}; got {method!r}")
     hraw = {**problem.options_for("hybrid"), **dict(options.pop("hybrid", None) or {})}
@@ -285,18 +296,49 @@ def reach_guaranteed(problem: HybridProblem, method: str, method_cls: type, **op
     finals: list[tuple[str, Zonotope, tuple[str, ...]]] = []
     done: list[Branch] = []
     truncated = False
+    valid = T  # every run of the automaton lies in the pieces up to this time
     t_start = time.perf_counter()
+
+    def start(items) -> float:
+        return min((lo for lo, _, _ in items), default=T)
+
+    def result(failure: str = "") -> HybridResult:
+        meta = {"method": method, "guaranteed": True, "truncated": truncated or bool(failure),
+                "problem": problem.id, "valid_until": valid,
+                "options": {k: v for k, v in dataclasses.asdict(meth.options).items()},
+                "hybrid": dataclasses.asdict(hopts),
+                "runtime": {"propagation": time.perf_counter() - t_start},
+                "steps": sum(b.steps for b in done), "branches": len(done)}
+        if failure:
+            meta["failure"] = failure
+        return HybridResult(names=names, pieces=pieces, finals=finals, branches=done, meta=meta)
+
     while level:  # one generation: the branches reached by the same number of jumps
         pending: dict[tuple, tuple[Transition, list]] = {}
-        for br in level:
+        for j, br in enumerate(level):
             if len(done) >= hopts.max_branches:
                 truncated = True
+                valid = min(valid, _tau_range(br.initial, it)[0])
                 br.stop = f"not propagated: more than max_branches = {hopts.max_branches} branches"
                 done.append(br)
                 continue
             loc = aut.location(br.location)
-            cands = _propagate_branch(problem, meth, loc, br, names, it, T,
-                                      (hopts.dt or {}).get(loc.name, dt0), pieces, finals)
+            try:
+                cands = _propagate_branch(problem, meth, loc, br, names, it, T,
+                                          (hopts.dt or {}).get(loc.name, dt0), pieces, finals)
+            except SolverError as exc:
+                if not hasattr(exc, "valid_until"):
+                    raise
+                # what is not propagated: the rest of this branch, its guard sets and those of
+                # the generation so far, the branches after it
+                valid = min([valid, exc.valid_until]
+                            + [start(items) for _, items in exc.candidates]
+                            + [start(items) for _, items in pending.values()]
+                            + [_tau_range(b.initial, it)[0] for b in level[j + 1:]])
+                br.stop = f"failed: {exc}"
+                done.append(br)
+                exc.partial = result(str(exc))
+                raise
             done.append(br)
             for tr, items in cands:
                 if items:
@@ -305,16 +347,12 @@ def reach_guaranteed(problem: HybridProblem, method: str, method_cls: type, **op
         for (path, label, _), (tr, items) in pending.items():
             if len(path) + 1 > hopts.max_jumps:
                 truncated = True
+                valid = min(valid, start(items))
                 done[-1].stop += f"; {len(items)} guard set(s) of {label!r} after {path} dropped: " \
                                  f"max_jumps = {hopts.max_jumps} reached"
                 continue
             level += _jump_branches(aut, tr, items, path, hopts, names)
-    meta = {"method": method, "guaranteed": True, "truncated": truncated, "problem": problem.id,
-            "options": {k: v for k, v in dataclasses.asdict(meth.options).items()},
-            "hybrid": dataclasses.asdict(hopts),
-            "runtime": {"propagation": time.perf_counter() - t_start},
-            "steps": sum(b.steps for b in done), "branches": len(done)}
-    return HybridResult(names=names, pieces=pieces, finals=finals, branches=done, meta=meta)
+    return result()
 
 
 def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, T: float,
@@ -332,7 +370,7 @@ def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, 
     grid = _local_grid(H, dt)
     sub = Problem(id=f"{problem.id}[{loc.name}]", model=model, x0=Z.c, grid=grid, initial_set=Z,
                   params=problem.params, control_set=problem.control_set)
-    reacher = meth.reacher(sub)
+    reacher = propagator(meth, sub)
     outgoing = aut.outgoing(loc.name)
     cands: dict[str, list[tuple[float, float, Zonotope]]] = {tr.label: [] for tr in outgoing}
     rates = {tr.label: _entry_rates(loc, tr, names) for tr in outgoing}
@@ -347,9 +385,13 @@ def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, 
     for k in range(grid.size - 1):
         new, tubes, _stats, fail = reacher.advance_grid_step(parts, float(grid[k]), float(grid[k + 1]))
         if fail is not None:
-            raise SolverError(f"{meth.name} (hybrid): location {loc.name!r}, branch "
+            err = SolverError(f"{meth.name} (hybrid): location {loc.name!r}, branch "
                               f"{' -> '.join(br.path) or 'initial'}, local step {k} "
                               f"[{grid[k]:.6g}, {grid[k + 1]:.6g}] cannot be enclosed: {fail.reason}")
+            # the runs of this branch are enclosed up to the earliest clock of its parts
+            err.valid_until = min(_tau_range(_enclosure(p.Z), it)[0] for p in parts)
+            err.candidates = [(tr, cands[tr.label]) for tr in outgoing]
+            raise err
         br.steps += 1
         for tube in tubes:
             tc = cut_region(tube, loc.invariant, names) if loc.invariant else tube
@@ -375,18 +417,62 @@ def _propagate_branch(problem, meth, loc: Location, br: Branch, names, it: int, 
                 cands[tr.label].append((*_tau_range(J, it), J))
         kept = []
         for p in new:
-            Zc = cut_region(p.Z, loc.invariant, names) if loc.invariant else p.Z
+            Zc = _cut_part(reacher, p.Z, loc.invariant, names) if loc.invariant else p.Z
             if Zc is not None:
                 kept.append(dataclasses.replace(p, Z=Zc))
         parts = kept
         if not parts:
             br.stop = "every run has left the location"
             break
-        if min(_tau_range(p.Z, it)[0] for p in parts) > T:
+        if min(_tau_range(_enclosure(p.Z), it)[0] for p in parts) > T:
             break
     for tr in outgoing:
         br.jumps[tr.label] = len(cands[tr.label])
     return [(tr, cands[tr.label]) for tr in outgoing]
+
+
+def propagator(meth, problem: Problem):
+    """The grid-step propagator (:class:`~ocreach.reach.taylor.ZonotopeReach`) of the method
+    instance ``meth`` on ``problem``: ``meth.reacher`` for ``taylor`` / ``sdc``, the
+    polynomial-zonotope driver of :mod:`ocreach.reach.poly` for ``poly`` (checked as its
+    ``solve`` checks)."""
+    if hasattr(meth, "reacher"):
+        return meth.reacher(problem)
+    from ocreach.reach.poly import PolyReach, PolyReachMethod
+    from ocreach.reach.taylor import check_smooth, initial_zonotope
+
+    if not isinstance(meth, PolyReachMethod):
+        raise ProblemError(f"hybrid guaranteed reachability supports {GUARANTEED}; got "
+                           f"{type(meth).__name__}")
+    check_smooth(problem.model)
+    initial_zonotope(problem)
+    return PolyReach(meth, problem, meth.options)
+
+
+def _enclosure(S) -> Zonotope:
+    """A zonotope containing a part's set (the set itself for the zonotope methods, the sound
+    enclosure of a polynomial zonotope of ``poly``)."""
+    if isinstance(S, Zonotope):
+        return S
+    from ocreach.sets import pz_sound as spz
+
+    return spz.to_zonotope(S)
+
+
+def _cut_part(reacher, S, region, names):
+    """A part's time-point set cut by ``region`` (None if that is proven empty).  A polynomial
+    zonotope (``poly``) is cut through its zonotope enclosure: kept as it is when the enclosure
+    lies in the region, dropped when the enclosure's cut is empty, else replaced by the cut
+    enclosure (a zonotope containing the set's part in the region, with fresh factors)."""
+    if isinstance(S, Zonotope):
+        return cut_region(S, region, names)
+    E = _enclosure(S)
+    C = cut_region(E, region, names)
+    if C is None or C is E:
+        return None if C is None else S
+    from ocreach.sets import pz_sound as spz
+
+    return spz.from_zonotope(C, reacher.ctx.fid, reacher.ctx.d)
 
 
 def _entry_rates(loc: Location, tr: Transition, names) -> Any:
@@ -759,8 +845,8 @@ def simulate_hybrid(problem: HybridProblem, samples: int = 1000, seed: int | Non
 # =============================================================================== entry point
 def reach_hybrid(problem: HybridProblem, method: str, method_cls: type, **options: Any):
     """``ocreach.reach`` on a :class:`~ocreach.hybrid.HybridProblem`: the guaranteed flowpipe
-    (``taylor``, ``sdc``; ``method_cls`` the method's class) or samples through the automaton
-    (``mc``: ``samples``, ``seed``, ``rtol``, ``atol``)."""
+    (``taylor``, ``sdc``, ``poly``; ``method_cls`` the method's class) or samples through the
+    automaton (``mc``: ``samples``, ``seed``, ``rtol``, ``atol``)."""
     if method in GUARANTEED:
         return reach_guaranteed(problem, method, method_cls, **options)
     if method in SAMPLED:

@@ -85,6 +85,11 @@ class ZonotopeOptions:
     split: bool = True
     #: most parts at one time, >= 1
     max_parts: int = 64
+    #: parts the initial set is split into before the first step (each split halves a part the
+    #: way a failing part is halved, the part with the largest extent first), 1..max_parts; a
+    #: large initial set whose curvature over the horizon no single linearisation follows
+    #: (e.g. the coupled Van der Pol of the ARCH-COMP suite) is propagated piece by piece
+    initial_parts: int = 1
     #: sub-steps per grid step to start with, >= 1
     substeps: int = 1
     #: how often a failing sub-step may be halved (adaptive steps, e.g. near perilune), >= 0
@@ -119,6 +124,10 @@ class ZonotopeOptions:
         if not isinstance(self.split, (bool, np.bool_)):
             raise ProblemError(f"split must be True or False; got {self.split!r}")
         self.max_parts = check_count("max_parts", self.max_parts, 1)
+        self.initial_parts = check_count("initial_parts", self.initial_parts, 1)
+        if self.initial_parts > self.max_parts:
+            raise ProblemError(f"initial_parts must be <= max_parts = {self.max_parts}; got "
+                               f"{self.initial_parts!r}")
         self.substeps = check_count("substeps", self.substeps, 1)
         self.max_halvings = check_count("max_halvings", self.max_halvings, 0)
         if self.input_set not in INPUT_SETS:
@@ -382,8 +391,28 @@ class ZonotopeReach:
         return self.opts.split and stats["n_parts"] < self.opts.max_parts
 
     def initial_parts(self) -> list[Part]:
-        """The parts :meth:`run` starts from: the problem's initial set, one part."""
-        return [Part(Z=self.initial_set())]
+        """The parts :meth:`run` starts from: the problem's initial set, split into
+        ``initial_parts`` parts by :meth:`split_part` (the part with the largest extent, the sum
+        of its interval hull's widths relative to the initial set's in the states where that has
+        a width, halved first; the halves of a split cover the part, so the parts cover the
+        initial set)."""
+        parts = [Part(Z=self.initial_set())]
+        if self.opts.initial_parts == 1:
+            return parts
+        scale = self._extent(parts[0].Z)
+        inv = np.divide(1.0, scale, out=np.zeros_like(scale), where=scale > 0)
+        while len(parts) < self.opts.initial_parts:
+            sizes = [float(self._extent(p.Z) @ inv) if self.can_split_set(p.Z) else -1.0
+                     for p in parts]
+            i = int(np.argmax(sizes))
+            if sizes[i] < 0:
+                break
+            parts[i:i + 1] = list(self.split_part(parts[i]))
+        return parts
+
+    def _extent(self, S) -> np.ndarray:
+        """Widths of the interval hull of a part's set."""
+        return 2.0 * np.abs(self.as_set([S]).to_zonotope().G).sum(axis=1)
 
     def advance_grid_step(self, parts: list[Part], t0: float, t1: float
                           ) -> tuple[list[Part], list[Zonotope], dict[str, Any], StepFail | None]:

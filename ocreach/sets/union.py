@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ocreach.errors import SolverError
+from ocreach.errors import SetError, SolverError
 from ocreach.sets._base import SetBase, as_directions, as_points, as_rng, check_parts
 from ocreach.sets.zonotope import Zonotope
 
@@ -116,16 +116,28 @@ class ZonotopeUnion(SetBase):
         return float(sum(p.volume() for p in self.parts))
 
 
-def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool = True) -> np.ndarray:
+def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool | str = True) -> np.ndarray:
     """Scaled gauge ``min {t >= 0 : x in c + t G}`` of each point (inf if ``x - c`` is outside
     the range of ``G``); ``x`` is in ``Z`` iff the gauge is <= 1.
 
     Unless ``exact``, points certified inside by the exact membership test
     (:func:`ocreach.sets.contains.points_in_zonotope` on the row-scaled set, distance tolerance
-    ``CERT_TOL`` of the set's size) are reported with the upper bound ``1.0`` without an LP; then the LP ``min t s.t. G xi = x - c, -t <= xi <= t`` for the
-    remaining points, ``GAUGE_CHUNK`` of them per block-diagonal LP (HiGHS).  With ``lp=False``
-    only the certificate runs and uncertified points get ``inf``.
+    ``CERT_TOL`` of the set's size) are reported with the upper bound ``1.0`` without a gauge LP;
+    then the LP ``min t s.t. G xi = x - c, -t <= xi <= t`` for the remaining points,
+    ``GAUGE_CHUNK`` of them per block-diagonal LP (HiGHS).  ``lp`` chooses how far this goes:
+
+    * ``True``: membership test, then the gauge LP for the points not inside;
+    * ``False``: the exact membership test only (its certificates and LP); the points not inside
+      get ``inf``;
+    * ``"membership-lp"``: as ``False`` without the membership test's certificates first (for
+      points whose LP-free certificates already failed);
+    * ``"certificates"``: no LP at all: the points proven inside by the LP-free certificates
+      (:func:`ocreach.sets.contains.certified_in_zonotope`) get ``1.0``, every other point
+      ``inf`` (not proven inside, which is not proven outside).
     """
+    if not (isinstance(lp, (bool, np.bool_)) or lp in ("membership-lp", "certificates")):
+        raise SetError(f"gauge: lp must be True, False, 'membership-lp' or 'certificates'; got "
+                       f"{lp!r}")
     P, single = as_points("points", points, Z.dim)
     G = np.asarray(Z.G)
     G = G[:, np.any(G != 0, axis=0)]
@@ -146,13 +158,18 @@ def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool = True) -> np.
     if exact:
         ok = np.zeros(R.shape[0], dtype=bool)
     else:
-        from ocreach.sets.contains import points_in_zonotope
+        from ocreach.sets.contains import certified_in_zonotope, points_in_zonotope
 
         # exact membership up to an l1 distance of ~6e-11 of the (row-scaled, unit-size) set
-        ok = ~off & np.asarray(points_in_zonotope(Zonotope(np.zeros(G.shape[0]), G), R,
-                                                  tol=CERT_TOL), dtype=bool)
+        Zs = Zonotope(np.zeros(G.shape[0]), G)
+        if lp == "certificates":
+            inside = certified_in_zonotope(Zs, R, tol=CERT_TOL)
+        else:
+            inside = points_in_zonotope(Zs, R, tol=CERT_TOL, certify=lp != "membership-lp")
+        ok = ~off & np.asarray(inside, dtype=bool)
         out[ok] = 1.0
-    todo = np.flatnonzero(~ok & ~off) if lp else np.zeros(0, dtype=np.int64)
+    gauge_lp = isinstance(lp, (bool, np.bool_)) and bool(lp)
+    todo = np.flatnonzero(~ok & ~off) if gauge_lp else np.zeros(0, dtype=np.int64)
     for s0 in range(0, todo.size, GAUGE_CHUNK):
         blk = todo[s0: s0 + GAUGE_CHUNK]
         out[blk] = _gauge_lp(G, R[blk])
@@ -161,7 +178,11 @@ def gauge(Z: Zonotope, points: Any, exact: bool = False, lp: bool = True) -> np.
 
 def _gauge_lp(G: np.ndarray, R: np.ndarray) -> np.ndarray:
     """``min t_k s.t. G xi_k = r_k, -t_k <= xi_k <= t_k`` for all rows ``r_k`` of ``R`` in ONE
-    block-diagonal LP (HiGHS); the objective is the sum, which separates over the blocks."""
+    block-diagonal LP (HiGHS); the objective is the sum, which separates over the blocks.  If
+    the batch fails, the points one by one; a point whose simplex fails numerically (status 4,
+    seen at these tolerances on a generator of a row 100 times the others) by HiGHS's interior
+    point method, then, if that fails too, the lower bound ``max_i |r_i| / sum_j |G_ij|`` when
+    that is > 1 (outside either way), else the error."""
     import scipy.sparse as sp
     from scipy.optimize import linprog
 
@@ -174,15 +195,28 @@ def _gauge_lp(G: np.ndarray, R: np.ndarray) -> np.ndarray:
     I = sp.identity(K, format="csr")
     c = np.tile(np.r_[np.zeros(h), 1.0], K)
     bounds = [(None, None)] * h + [(0, None)]
-    res = linprog(c, A_ub=sp.kron(I, ub, format="csc"), b_ub=np.zeros(2 * h * K),
-                  A_eq=sp.kron(I, eq, format="csc"), b_eq=R.ravel(), bounds=bounds * K,
-                  method="highs", options={"primal_feasibility_tolerance": 1e-10,
-                                           "dual_feasibility_tolerance": 1e-10})
-    if res.status == 2:  # infeasible: some point is off the range of G -> solve them one by one
-        if K == 1:
-            return np.array([np.inf])
+    def solve(method: str):
+        return linprog(c, A_ub=sp.kron(I, ub, format="csc"), b_ub=np.zeros(2 * h * K),
+                       A_eq=sp.kron(I, eq, format="csc"), b_eq=R.ravel(), bounds=bounds * K,
+                       method=method, options={"primal_feasibility_tolerance": 1e-10,
+                                               "dual_feasibility_tolerance": 1e-10})
+
+    res = solve("highs")
+    if res.status == 4 and K == 1:  # the simplex's numerical failure: HiGHS's interior point
+        res = solve("highs-ipm")
+    if res.status != 0 and K > 1:
+        # infeasible (some point is off the range of G), or HiGHS's numerical failure (status 4)
+        # on blocks of very different scales (points far outside one sub-step tube of a union
+        # next to points inside it): the same LPs one by one
         return np.concatenate([_gauge_lp(G, R[k:k + 1]) for k in range(K)])
+    if res.status == 2:
+        return np.array([np.inf])
     if res.status != 0:
+        # |r_i| = |sum_j G_ij xi_j| <= t sum_j |G_ij|: a lower bound of the gauge; a point it
+        # puts outside (e.g. far from one sub-step tube of a union) needs no exact value
+        lower = (np.abs(R) / np.abs(G).sum(axis=1)).max(axis=1)
+        if np.all(lower > 1.0):
+            return lower
         raise SolverError(f"gauge LP failed (HiGHS status {res.status}: {res.message})")
     return res.x.reshape(K, nv)[:, -1]
 
@@ -190,23 +224,39 @@ def _gauge_lp(G: np.ndarray, R: np.ndarray) -> np.ndarray:
 def union_gauge(S: Any, points: Any, exact: bool = False) -> np.ndarray:
     """Smallest gauge over the parts of a :class:`ZonotopeUnion` (or of one zonotope).
 
-    Unless ``exact``, a point certified inside some part is reported as ``1.0`` (see :func:`gauge`);
-    the exact LP gauge is computed only for points inside no part."""
+    Unless ``exact``, a point certified inside some part is reported as ``1.0`` (see :func:`gauge`):
+    first by the LP-free certificates, then by the LP of the exact membership test, each part
+    tried only on the points inside its interval hull (widened by ``1e-6`` of its magnitude); the
+    exact LP gauge over every part is computed only for points inside no part."""
     parts = S.parts if isinstance(S, ZonotopeUnion) else (S.to_zonotope(),)
     P, single = as_points("points", points, parts[0].dim)
     out = np.full(P.shape[0], np.inf)
     todo = np.ones(P.shape[0], dtype=bool)
     if not exact:
-        for p in parts:
-            idx = np.flatnonzero(todo)
-            if idx.size == 0:
-                break
-            g = np.atleast_1d(gauge(p, P[idx], lp=False))
-            hit = g <= 1.0
-            out[idx[hit]] = g[hit]
-            todo[idx[hit]] = False
+        boxes = [_box(p) for p in parts]
+        for lp in ("certificates", "membership-lp"):
+            for p, (lo, hi) in zip(parts, boxes):
+                idx = np.flatnonzero(todo)
+                if idx.size == 0:
+                    break
+                idx = idx[np.all((P[idx] >= lo) & (P[idx] <= hi), axis=1)]
+                if idx.size == 0:
+                    continue
+                g = np.atleast_1d(gauge(p, P[idx], lp=lp))
+                hit = g <= 1.0
+                out[idx[hit]] = g[hit]
+                todo[idx[hit]] = False
     idx = np.flatnonzero(todo)
     if idx.size:
         vals = np.vstack([np.atleast_1d(gauge(p, P[idx], exact=True)) for p in parts])
         out[idx] = vals.min(axis=0)
     return float(out[0]) if single else out
+
+
+def _box(Z: Zonotope) -> tuple[np.ndarray, np.ndarray]:
+    """The interval hull of ``Z`` widened by ``1e-6`` of its magnitude: a point outside it is not
+    in ``Z``, nor within the membership tests' tolerance of it (``CERT_TOL`` times the generator
+    count, relative)."""
+    r = np.abs(Z.G).sum(axis=1)
+    tol = 1e-6 * (1.0 + np.abs(Z.c) + r)
+    return Z.c - r - tol, Z.c + r + tol

@@ -36,7 +36,7 @@ import numpy as np
 
 from ocreach.errors import ProblemError, SolverError
 from ocreach.reach.base import Method, available_methods, method_class
-from ocreach.testing.containment import Verdict, check_flowpipe, check_points
+from ocreach.testing.containment import Verdict, check_flowpipe, check_points, tolerance
 from ocreach.testing.truth import (
     HybridTruth,
     Rhs,
@@ -238,11 +238,15 @@ def check_result(result, truth: Truth, out: Outcome, tube_samples: int | None = 
 def check_hybrid(result, truth: HybridTruth, out: Outcome) -> None:
     """Check the flowpipe pieces of a hybrid ``result`` against the runs through the automaton
     (:func:`ocreach.testing.truth.hybrid_truth`): every truth state, with its time, in a piece of
-    its location covering that time (:func:`ocreach.testing.containment.check_flowpipe`)."""
+    its location covering that time (:func:`ocreach.testing.containment.check_flowpipe`), up to
+    the time the flowpipe encloses every run (``meta["valid_until"]``: the horizon, or less for a
+    partial flowpipe)."""
     out.truth_failure = truth.failure
-    P = np.column_stack([truth.points, truth.times])
-    v = check_flowpipe(result.pieces, P, truth.times, truth.locations)
-    _record(out, v, "piece", 0, 0.0, truth.labels, P)
+    until = float((result.meta or {}).get("valid_until", np.inf))
+    keep = truth.times <= until + tolerance(truth.times)
+    P = np.column_stack([truth.points, truth.times])[keep]
+    v = check_flowpipe(result.pieces, P, truth.times[keep], np.asarray(truth.locations)[keep])
+    _record(out, v, "piece", 0, 0.0, list(np.asarray(truth.labels, dtype=object)[keep]), P)
     out.sets_checked += len(result.pieces)
 
 
