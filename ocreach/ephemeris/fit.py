@@ -233,17 +233,18 @@ class EphemerisFit:
         interval.
 
         ``window = (lo, hi)`` (seconds after the epoch, ``lo < hi``): the expression only for
-        ``lo <= t <= hi``, where the fit is a single polynomial (the branch of every ``if_else``
-        that holds on the whole window), re-expanded as a Chebyshev series on the window itself
-        (:meth:`_window_matrix`; the difference to the fit bounded by :meth:`window_error_bound`,
-        docs/intervals.md "Ephemeris positions over a time interval"): no ``if_else`` (a model a
-        sound reachability method accepts), and an interval extension over a step that is not blown up by the piece's
-        degree-48 recurrence.  A window that reaches across a branch boundary (the start or end
-        of a blend) raises :class:`ProblemError`.
+        ``lo <= t <= hi``, one polynomial on the whole window: the fit interpolated at Chebyshev
+        nodes of the window (:meth:`_window_matrix`; on a window inside one branch of the
+        ``if_else`` chain, the branch's polynomial re-expanded; across branches -- a piece and a
+        blend -- the C^4 fit approximated to rounding level), its difference to the fit bounded
+        by :meth:`window_error_bound` (docs/intervals.md "Ephemeris positions over a time
+        interval"): no ``if_else`` (a model a sound reachability method accepts), and an
+        interval extension over a step that is not blown up by the piece's degree-48
+        recurrence.
         """
         if window is not None:
             w_lo, w_hi = _check_window(window)
-            C = self._window_matrix(body, origin, w_lo, w_hi)  # raises across a blend boundary
+            C = self._window_matrix(body, origin, w_lo, w_hi)
             out = ca.mtimes(ca.DM(C), _basis((2.0 * t - (w_lo + w_hi)) / (w_hi - w_lo),
                                               C.shape[1] - 1))
             R = self._rotation(frame)
@@ -267,55 +268,69 @@ class EphemerisFit:
         return ((self.edges_days[k] - self.blend_days) * SECONDS_PER_DAY,
                 (self.edges_days[k] + self.blend_days) * SECONDS_PER_DAY)
 
-    def _branch_on(self, w_lo: float, w_hi: float) -> int:
-        """Degree of the single polynomial the fit is on ``[w_lo, w_hi]`` (seconds): the largest
-        piece degree, plus 9 (:data:`_SMOOTHSTEP`) inside a blend.  Raises
-        :class:`ProblemError` when the window reaches across a boundary of a blend."""
-        k, blended = self._window_branch(w_lo, w_hi)
+    def _branches(self) -> list[tuple[int, bool, float, float]]:
+        """The branches of :meth:`position_expr`'s ``if_else`` chain in time order, each as
+        ``(k, blended, start, end)`` (seconds after the epoch; ``-inf`` / ``inf`` at the ends):
+        ``(k, False, ...)`` piece ``k`` on ``[e1_k, e0_(k+1))``, ``(k, True, ...)`` the blend of
+        pieces ``k - 1`` and ``k`` on ``[e0_k, e1_k)``, ``[e0_k, e1_k]`` the blend's
+        :meth:`_blend_seconds` (the chain's comparisons ``t < e0``, ``t < e1``)."""
+        out, start = [], -np.inf
+        for k in range(1, len(self.coefficients)):
+            e0, e1 = self._blend_seconds(k)
+            out += [(k - 1, False, start, e0), (k, True, e0, e1)]
+            start = e1
+        return out + [(len(self.coefficients) - 1, False, start, np.inf)]
+
+    def _window_branches(self, w_lo: float, w_hi: float
+                         ) -> list[tuple[int, bool, float, float]]:
+        """The branches (:meth:`_branches`) that hold somewhere in ``[w_lo, w_hi]`` (seconds),
+        each with the closed sub-window ``[s0, s1]`` it holds on (its half-open domain
+        ``[start, end)`` met with the window, closed: a superset).  A branch that holds at the
+        window's end only (``start == w_hi``) gets ``[w_hi, min(end, w_hi + 1e-6 (w_hi -
+        w_lo))]``: still inside its own domain, so the bound on it stays a bound of the fit."""
+        out = []
+        for k, blended, start, end in self._branches():
+            if start > w_hi or end <= w_lo:
+                continue
+            s0, s1 = max(start, w_lo), min(end, w_hi)
+            if s1 <= s0:  # start == w_hi: a single point of the window
+                s1 = min(end, w_hi + 1e-6 * (w_hi - w_lo))
+                if not s1 > s0:
+                    s1 = float(np.nextafter(s0, np.inf))
+            out.append((k, blended, s0, s1))
+        return out
+
+    def _branch_degree(self, k: int, blended: bool) -> int:
+        """Degree of branch ``(k, blended)``: the piece's, or in a blend the larger of the two
+        pieces' plus 9 (:data:`_SMOOTHSTEP`)."""
         if not blended:
             return self.degrees[k]
         return max(self.degrees[k - 1], self.degrees[k]) + _SMOOTHSTEP.degree()
 
-    def _window_branch(self, w_lo: float, w_hi: float) -> tuple[int, bool]:
-        """The branch of :meth:`position_expr`'s ``if_else`` chain that holds on the whole window
-        ``[w_lo, w_hi]`` (seconds): ``(k, False)`` piece ``k``, ``(k, True)`` the blend of pieces
-        ``k - 1`` and ``k``.  Raises :class:`ProblemError` when the window reaches across a
-        boundary of a blend."""
-        branch = (0, False)
-        for k in range(1, len(self.coefficients)):
-            e0, e1 = self._blend_seconds(k)
-            if w_hi < e0:
-                continue
-            if w_lo >= e0 and w_hi < e1:
-                branch = (k, True)
-            elif w_lo >= e1:
-                branch = (k, False)
-            else:
-                raise ProblemError(
-                    f"window [{w_lo / SECONDS_PER_DAY:.6g}, {w_hi / SECONDS_PER_DAY:.6g}] d reaches "
-                    f"across a boundary of the blend of DE421 fit pieces {k - 1} and {k} "
-                    f"([{e0 / SECONDS_PER_DAY:.6g}, {e1 / SECONDS_PER_DAY:.6g}] d): no single "
-                    f"smooth expression holds on it")
-        return branch
-
     def window_error_bound(self, body: str, origin: str, w_lo: float, w_hi: float, *,
                            derivative: int = 0) -> np.ndarray:
         """Rigorous bound (3 ICRF coordinates, km/s^k) of ``|d^k/dt^k (p(t) - q(t))|`` for
-        ``w_lo <= t <= w_hi`` (seconds), ``p`` the fit as :meth:`position_expr` defines it (the
-        branch of its ``if_else`` chain on the window, read as exact real arithmetic on its float
-        constants) and ``q`` its re-expansion ``position_expr(..., window=(w_lo, w_hi))``.
+        ``w_lo <= t <= w_hi`` (seconds), ``p`` the fit as :meth:`position_expr` defines it (its
+        ``if_else`` chain read as exact real arithmetic on its float constants) and ``q`` its
+        re-expansion ``position_expr(..., window=(w_lo, w_hi))``.
 
-        Both are polynomials in ``s = (2 t - fl(w_lo + w_hi)) / fl(w_hi - w_lo)``: the piece's
-        series ``sum c_j T_j(tau)`` with ``tau = alpha s + beta`` (and, in a blend, the
-        smoothstep of ``gamma s + delta``) is re-expanded in ``s`` with exact rational
-        arithmetic (:mod:`ocreach.ephemeris.exact_chebyshev`), the window's coefficients subtracted, and
-        ``sup |sum e_j T_j^(k)(s)| <= sum |e_j| T_j^(k)(rho)`` (``rho = max(1, |s|)`` on the
-        window) times ``(2 / fl(w_hi - w_lo))^k``, rounded up to a float once.  This covers the
-        interpolation's rounding and the dropped tail (:data:`WINDOW_TAIL_ULPS`) together.  It
-        does not cover the rounding of a float evaluation of either expression (the plant's
-        integrator works at a far coarser tolerance).  :class:`ProblemError` unless ``w_lo <
-        w_hi`` are finite and ``derivative`` is an integer >= 0 (or if the window reaches across a
-        boundary of a blend)."""
+        The window may meet several branches of the chain (pieces and blends,
+        :meth:`_window_branches`); at every ``t`` the fit is the polynomial of the branch that
+        holds there, so the bound is the largest over the branches of a bound on the branch's
+        closed sub-window ``[s0, s1]``.  There, with ``u`` in ``[-1, 1]`` the sub-window's own
+        variable (``s = m + h u``, ``s = (2 t - fl(w_lo + w_hi)) / fl(w_hi - w_lo)`` the
+        window's, ``m``, ``h`` exact rationals), the branch -- the piece's series ``sum c_j
+        T_j(tau)`` with ``tau = alpha u + beta``, in a blend also the smoothstep of ``gamma u +
+        delta`` -- and ``q`` are re-expanded in ``u`` with exact rational arithmetic
+        (:mod:`ocreach.ephemeris.exact_chebyshev`), subtracted, and ``sup |sum e_j T_j^(k)(u)|
+        <= sum |e_j| T_j^(k)(1)`` times ``(2 / (fl(w_hi - w_lo) h))^k``, rounded up to a float
+        once.  Only the sub-window enters, so a piece's polynomial outside its domain (where it
+        does not hold) never does.  This covers the interpolation's rounding, the blend's kink
+        (the fit is C^4 there, ``q`` one polynomial) and the dropped tail
+        (:data:`WINDOW_TAIL_ULPS`) together.  It does not cover the rounding of a float
+        evaluation of either expression (the plant's integrator works at a far coarser
+        tolerance).  :class:`ProblemError` unless ``w_lo < w_hi`` are finite and ``derivative``
+        is an integer >= 0."""
         from fractions import Fraction
 
         from ocreach.ephemeris import exact_chebyshev as xc
@@ -325,46 +340,64 @@ class EphemerisFit:
         key = ("window-bound", body, origin, w_lo, w_hi, derivative)
         if key in self._cache:
             return self._cache[key]
-        q = self._window_matrix(body, origin, w_lo, w_hi)
-        k, blended = self._window_branch(w_lo, w_hi)
+        q = list(self._window_matrix(body, origin, w_lo, w_hi))
         A_w, B_w = Fraction(w_lo + w_hi), Fraction(w_hi - w_lo)  # the floats the expression uses
+        out = np.zeros(3)
+        for k, blended, s0, s1 in self._window_branches(w_lo, w_hi):
+            # the window's s on the sub-window: s = m + h u, u in [-1, 1]
+            sa, sb = (2 * Fraction(s0) - A_w) / B_w, (2 * Fraction(s1) - A_w) / B_w
+            m, h = (sa + sb) / 2, (sb - sa) / 2
+            rows = self._branch_series(body, origin, k, blended, h * B_w, m * B_w + A_w)
+            qu = xc.compose_affine(q, h, m)
+            scale = (2 / (B_w * h)) ** derivative
+            out = np.maximum(out, [xc.float_up(xc.sup_bound(xc.add(r, qr, -1), Fraction(1),
+                                                            derivative) * scale)
+                                   for r, qr in zip(rows, qu, strict=True)])
+        self._cache[key] = out
+        return out
 
-        def t_of_s(a: Fraction, b: Fraction) -> tuple[Fraction, Fraction]:
-            """``(2 t - a) / b`` as ``alpha s + beta`` (``t = (s B_w + A_w) / 2``)."""
-            return B_w / b, (A_w - a) / b
+    def _branch_series(self, body: str, origin: str, k: int, blended: bool, a_u, b_u) -> list:
+        """Branch ``(k, blended)`` of ``body - origin`` (ICRF) as exact rational Chebyshev
+        series in ``u``, for ``2 t = a_u u + b_u`` (``a_u``, ``b_u`` exact rationals): the
+        piece's series in ``tau = (2 t - fl(lo + hi)) / fl(hi - lo)``, in a blend ``p + w (r -
+        p)`` with ``w`` the smoothstep of ``(t - e0) / fl(e1 - e0)``, all with the float
+        constants of :meth:`position_expr`."""
+        from fractions import Fraction
+
+        from ocreach.ephemeris import exact_chebyshev as xc
+
+        def affine(a: Fraction, b: Fraction) -> tuple[Fraction, Fraction]:
+            """``(2 t - a) / b`` as ``alpha u + beta``."""
+            return a_u / b, (b_u - a) / b
 
         def piece(j: int) -> list:
             lo, hi = self.piece_bounds_days[j]
             lo, hi = lo * SECONDS_PER_DAY, hi * SECONDS_PER_DAY
-            alpha, beta = t_of_s(Fraction(lo + hi), Fraction(hi - lo))
-            return xc.compose_affine(list(self._matrix(body, origin, j)), alpha, beta)
+            return xc.compose_affine(list(self._matrix(body, origin, j)),
+                                     *affine(Fraction(lo + hi), Fraction(hi - lo)))
 
         rows = piece(k)
-        if blended:
-            prev = piece(k - 1)
-            e0, e1 = self._blend_seconds(k)
-            # w((t - e0) / fl(e1 - e0)), t - e0 = (s B_w + A_w - 2 e0) / 2
-            E = Fraction(e1 - e0)
-            gamma, delta = B_w / (2 * E), (A_w - 2 * Fraction(e0)) / (2 * E)
-            w = [Fraction(0)]
-            for c in _SMOOTHSTEP.coef[::-1]:  # Horner, as _smoothstep_expr
-                w = xc.add(xc.affine_times(w, gamma, delta), [Fraction(float(c))])
-            rows = [xc.add(p, xc.product(w, xc.add(r, p, -1))) for p, r in zip(prev, rows,
-                                                                                strict=True)]
-        s_lo, s_hi = (2 * Fraction(w_lo) - A_w) / B_w, (2 * Fraction(w_hi) - A_w) / B_w
-        rho = max(Fraction(1), abs(s_lo), abs(s_hi))
-        scale = (2 / B_w) ** derivative
-        out = np.array([xc.float_up(xc.sup_bound(xc.add(r, [Fraction(float(v)) for v in qr], -1),
-                                                 rho, derivative) * scale)
-                        for r, qr in zip(rows, q, strict=True)])
-        self._cache[key] = out
-        return out
+        if not blended:
+            return rows
+        prev = piece(k - 1)
+        e0, e1 = self._blend_seconds(k)
+        # (t - e0) / fl(e1 - e0) = (2 t - 2 e0) / (2 fl(e1 - e0))
+        gamma, delta = affine(2 * Fraction(e0), 2 * Fraction(e1 - e0))
+        w = [Fraction(0)]
+        for c in _SMOOTHSTEP.coef[::-1]:  # Horner, as _smoothstep_expr
+            w = xc.add(xc.affine_times(w, gamma, delta), [Fraction(float(c))])
+        return [xc.add(p, xc.product(w, xc.add(r, p, -1))) for p, r in zip(prev, rows, strict=True)]
 
     def _window_matrix(self, body: str, origin: str, w_lo: float, w_hi: float) -> np.ndarray:
         """Chebyshev coefficients (3, D+1) of ``body - origin`` (ICRF) re-expanded on the window
-        ``[w_lo, w_hi]`` (seconds): on the window the fit is one polynomial of degree ``D``
-        (:meth:`_branch_on`), interpolated here at the ``D + 1`` Chebyshev nodes of the window
-        (exact up to rounding; docs/intervals.md "Ephemeris positions over a time interval").
+        ``[w_lo, w_hi]`` (seconds): the interpolant of the fit (:meth:`position`) at the ``D + 1``
+        Chebyshev nodes of the window, ``D`` the largest degree of the branches the window meets
+        (:meth:`_window_branches`, :meth:`_branch_degree`).  On a window inside one branch the
+        fit is that polynomial and the interpolant is exact up to rounding; across a blend's
+        boundary the fit is C^4 (its 5th derivative jumps by ``w^(5)(0) (p_k - p_(k-1)) / (e1 -
+        e0)^5``, 3e-31 .. 1e-30 km/s^5 on a 74-day fit) and the interpolant is as close
+        (docs/intervals.md "Ephemeris positions over a time interval"; :meth:`window_error_bound`
+        bounds the difference).
 
         Why: the interval extension of the three-term recurrence ``T_k = 2 tau T_(k-1) -
         T_(k-2)`` widens by up to ``1 + sqrt(2)`` per degree near ``|tau| = 1``, which for the
@@ -373,14 +406,25 @@ class EphemerisFit:
         (H the half-width, omega the body's angular rate) and that growth is harmless."""
         key = ("window", body, origin, w_lo, w_hi)
         if key not in self._cache:
-            D = self._branch_on(w_lo, w_hi)
+            D = max(self._branch_degree(k, blended)
+                    for k, blended, _, _ in self._window_branches(w_lo, w_hi))
             nodes = np.cos(np.pi * (np.arange(D + 1) + 0.5) / (D + 1))
             ts = 0.5 * (w_lo + w_hi) + 0.5 * (w_hi - w_lo) * nodes
             C = cheb.chebfit(nodes, self.position(body, ts, origin), D).T
             # drop the trailing coefficients at the rounding floor of the interpolation (they
             # are noise, 1e-16 of the position, but the interval recurrence multiplies them by up
-            # to (1 + sqrt(2))^k): the series changes by at most their sum
-            floor = WINDOW_TAIL_ULPS * np.finfo(float).eps * np.abs(C).sum(axis=1, keepdims=True)
+            # to (1 + sqrt(2))^k): the series changes by at most their sum.  The floor: 16 ulps
+            # of the row's magnitude sum, raised to 4 times the plateau of the last eighth of
+            # the coefficients (capped at 64 ulps of the largest row): the noise of the fit's
+            # values is absolute, the same in every coordinate (a degree-60 piece evaluates to
+            # 5-16 ulps of the position), and a 7-hour window kept 44 coefficients of it in its
+            # smallest row with the row's floor alone; the cap keeps a window nearly as long as
+            # a piece, whose last coefficients are still signal, from losing them
+            eps = np.finfo(float).eps
+            rows = np.abs(C).sum(axis=1, keepdims=True)
+            plateau = 4.0 * float(np.abs(C[:, -max(1, C.shape[1] // 8):]).max())
+            floor = np.maximum(WINDOW_TAIL_ULPS * eps * rows,
+                               min(plateau, WINDOW_NOISE_ULPS * eps * float(rows.max())))
             above = np.nonzero((np.abs(C) > floor).any(axis=0))[0]
             self._cache[key] = C[:, : max(2, int(above[-1]) + 1 if above.size else 2)]
         return self._cache[key]
@@ -392,10 +436,14 @@ class EphemerisFit:
 
 
 #: Coefficients of a fit re-expanded on a window (:meth:`EphemerisFit._window_matrix`) below this
-#: many ulps of the sum of their row's magnitudes are dropped: rounding noise of the interpolation
+#: many ulps of their row's magnitude sum (or below 4 times the plateau of the last eighth of the
+#: coefficients, up to :data:`WINDOW_NOISE_ULPS` of the largest row) are dropped: rounding noise
+#: of the interpolation
 #: (measured with it: the window's positions are within 4e-9 km (Earth) and 3.4e-7 km (Sun, 10
 #: ulps) of the fit's, whose own error to DE421 is 4.4e-7 km; docs/intervals.md).
 WINDOW_TAIL_ULPS = 16.0
+#: Cap (ulps of the largest row's magnitude sum) of the noise plateau floor of a window's series.
+WINDOW_NOISE_ULPS = 64.0
 #: Overlap of neighbouring pieces, as a fraction of the piece length (on each side of an edge).
 BLEND_FRACTION = 0.05
 #: Degree-9 smoothstep on [0, 1]: 0 -> 1 with zero derivatives of orders 1..4 at both ends (C^4).

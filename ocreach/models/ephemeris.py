@@ -143,8 +143,9 @@ def ephemeris_inertial(
     ``span_days``: days from the epoch the model must be valid for (negative for backward
     propagation; see :class:`ocreach.ephemeris.EphemerisFit`).
     ``window = (lo, hi)`` (model time, TU after the epoch): the dynamics for ``lo <= t <= hi``
-    only, without the ``if_else`` between fit pieces, the fit re-expanded on the window
-    (:meth:`~ocreach.ephemeris.EphemerisFit.position_expr`): not the same function but within
+    only, without the ``if_else`` between fit pieces, the fit as one polynomial on the window
+    (:meth:`~ocreach.ephemeris.EphemerisFit.position_expr`, also across a blend of two pieces):
+    not the same function but within
     :meth:`~ocreach.ephemeris.EphemerisFit.window_error_bound` of it (positions; ``cache[
     "window_seconds"]`` is the window it takes), so a sound method run on it encloses the full
     model only with that difference added to its disturbance, as

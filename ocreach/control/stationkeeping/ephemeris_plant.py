@@ -172,10 +172,10 @@ class EphemerisPlant:
     def frame_model_on(self, t_lo: float, t_hi: float):
         """:meth:`frame_model` for reference times ``t_lo <= t <= t_hi`` only, without the
         ``if_else`` between DE421 fit pieces (``window`` of
-        :func:`~ocreach.models.ephemeris.ephemeris_inertial`: the fit re-expanded on the window),
-        for sound reachability; the same function there up to the acceleration difference that
-        ``model.cache["window_error"]`` bounds (:meth:`_window_error`).  Raises
-        :class:`ProblemError` when the interval reaches across a boundary of a blend of pieces."""
+        :func:`~ocreach.models.ephemeris.ephemeris_inertial`: the fit as one polynomial on the
+        window, also across a blend of two pieces), for sound reachability; the same function
+        there up to the acceleration difference that ``model.cache["window_error"]`` bounds
+        (:meth:`_window_error`)."""
         from ocreach.models.ephemeris import ephemeris_inertial
 
         if self.circular:  # the circular stand-in is one smooth expression already

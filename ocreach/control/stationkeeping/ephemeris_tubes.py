@@ -23,11 +23,10 @@ The frame model of a long run joins two DE421 fit pieces in time with ``if_else`
 it, and the interval bounds of the pieces' degree-48 basis over a step are loose, so the sound
 method runs per interval on ``model_on(t_a - dt, t_b + dt)``
 (:meth:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant.frame_model_on`: the same function on
-that window without the ``if_else``, up to a difference bounded rigorously and added to the
-disturbance: :func:`with_model_error`, :func:`checked_model_error`); an interval across the
-blend of two pieces falls back
-(docs/validation/station-keeping-ephemeris.md, "DE421 ephemeris plant, corrected reference:
-event-triggered and tube MPC").
+that window as one polynomial without the ``if_else``, also where the window reaches across
+the blend of two pieces, up to a difference bounded rigorously and added to the disturbance:
+:func:`with_model_error`, :func:`checked_model_error`; docs/intervals.md "Ephemeris positions
+over a time interval").
 """
 from __future__ import annotations
 
@@ -87,8 +86,7 @@ def sound_reference(reference: TrackingReference, a: int, b: int, method: str,
                     model_on: Callable[[float, float], Any] | None) -> TrackingReference:
     """The reference with the model the sound method runs on over steps ``a .. b``: its own, or
     ``model_on(t_a - dt, t_b + dt)`` (the same function on that time interval up to its bounded
-    difference,
-    without the ``if_else`` between ephemeris fit pieces, e.g.
+    difference, without the ``if_else`` between ephemeris fit pieces, e.g.
     :meth:`~ocreach.control.stationkeeping.ephemeris_plant.EphemerisPlant.frame_model_on`).  Raises
     :class:`ProblemError` saying why the method cannot run on it."""
     from ocreach.reach.taylor import check_smooth

@@ -15,8 +15,9 @@ docs/validation/orbit-maintenance.md; the navigation box is
 box ``W`` = the largest SRP dispersion (:meth:`~ocreach.control.stationkeeping.srp.
 SolarRadiationPressure.dispersion_bound`, the part of SRP no controller knows).  Source
 ``"taylor-or-linear"``: guaranteed ``taylor`` tubes on the plant's windowed frame model (with the
-window error added to ``W``), the linearised tube (labelled, not guaranteed) where ``taylor``
-cannot run (an interval across a blend of two DE421 fit pieces).  Membership by the interval
+window error added to ``W``; a window across a blend of two DE421 fit pieces included), the
+linearised tube (labelled, not guaranteed) where ``taylor`` cannot enclose an interval (it
+fails, or the window's error bound cannot be computed there).  Membership by the interval
 hull (the paper's Fig. 7 boxes).  Computed once per scenario and cached on disk
 (``$OCREACH_CACHE_DIR/orbit_maintenance``), shared by every run.
 
@@ -59,7 +60,7 @@ log = logging.getLogger("ocreach.control.stationkeeping.impulsive_tube")
 #: Patel & Subbarao's initial deviation set (DU, DU/TU per axis): the default gate.
 PAPER_GATE = (1e-4, 5e-4)
 TUBE_SOURCES = ("taylor-or-linear", "linear")
-_CACHE_VERSION = 1
+_CACHE_VERSION = 2  # 2: tubes across DE421 fit-piece blends are guaranteed (one window polynomial)
 
 
 @dataclass
