@@ -91,3 +91,27 @@ def test_bad_throttle_declaration_is_refused():
         Model.build("m", x, u, x + u, throttle=(s, ca.vertcat(x, s)))
     m = Model.build("m", x, u, x + ca.fabs(u), throttle=(s, x + s))
     assert m.throttle_relaxed().n_u == 2 and Model.build("m", x, u, x + u).throttle_relaxed().n_u == 1
+
+
+def test_stt_throttle_on_a_box_reaches_the_corners_mass_flow():
+    """On the box input set ``||u||`` reaches ``sqrt(n_u)`` at a corner: the relaxed throttle must
+    reach it too, so the set's mass range covers the propellant of full corner thrust (with the
+    ball's throttle bound of 1 it stopped at the ball's)."""
+    import dataclasses
+
+    from ocreach.dynamics.flow import propagate
+
+    p = ocreach.get_problem("elliptic-earth", segments=4)
+    p = dataclasses.replace(p, model=p.model.with_control_set("box"), control_set=None)
+    assert p.control_set.kind == "box"
+    res = ocreach.reach(p, "stt")
+    corner = np.ones((p.n_segments, p.model.n_u))
+    X = propagate(p.model, p.x0, corner, p.grid, p=p.params)
+    nx = p.model.n_x
+    e = np.zeros(nx)
+    e[nx - 1] = 1.0
+    for k in range(1, p.n_segments + 1):
+        sb = support_bounds(res.sets[k], np.array([e, -e]), tol=1e-6)
+        lo, hi = -sb.upper[1], sb.upper[0]
+        tol = 1e-12 * abs(X[k, nx - 1])   # the corner is the extreme: equal up to rounding
+        assert lo - tol <= X[k, nx - 1] <= hi + tol, (k, lo, X[k, nx - 1], hi)

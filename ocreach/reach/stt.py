@@ -518,11 +518,12 @@ class STTReach(Method):
 
         opt = self.options
         model = problem.model
-        # ||u|| (mass flow) has no expansion at the reference control u = 0: expand the relaxed
-        # dynamics with the throttle as an extra input instead (Model.throttle_relaxed)
-        self._model = smodel = model.throttle_relaxed()
-        n_thr = smodel.n_u - model.n_u
         kind = opt.input_set or problem.control_set.kind
+        # ||u|| (mass flow) has no expansion at the reference control u = 0: expand the relaxed
+        # dynamics with the throttle as an extra input instead (Model.throttle_relaxed), up to
+        # the largest ||u|| of the input set (sqrt(n_u) at a corner of the box)
+        self._model = smodel = model.throttle_relaxed(1.0 if kind == "ball" else float(np.sqrt(model.n_u)))
+        n_thr = smodel.n_u - model.n_u
         if kind not in INPUT_SETS:
             raise ProblemError(f"method 'stt' needs a 'box' or 'ball' input set; the problem's control "
                                f"set is {problem.control_set.kind!r} and input_set={opt.input_set!r}")
