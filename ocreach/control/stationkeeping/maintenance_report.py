@@ -274,9 +274,10 @@ def markdown(data: dict) -> str:
                          f"{m / pb['zhang2022_dv_per_year_mps']:.3g} x Zhang et al.'s.")
     if "tube-mpc" in data["controllers"] and "tube_intervals" in data["controllers"]["tube-mpc"]:
         ti = data["controllers"]["tube-mpc"]["tube_intervals"]
+        rest = ("" if ti["guaranteed"] == ti["total"] else
+                ", the others linearised (labelled in metrics.json)")
         lines.append(f"- tube-mpc drift tubes: {ti['guaranteed']} of {ti['total']} refresh "
-                     f"intervals guaranteed (taylor), the others linearised (labelled in "
-                     f"metrics.json).")
+                     f"intervals guaranteed (taylor){rest}.")
     if data["failures"]:
         lines.append(f"- {len(data['failures'])} run(s) failed (metrics.json `failures`).")
     t = data["timing"]
