@@ -1,4 +1,6 @@
 """Independent truths for the set tests (scipy LPs written here, not the library's code)."""
+from fractions import Fraction as Fr
+
 import numpy as np
 from scipy.optimize import linprog
 
@@ -27,3 +29,19 @@ def lp_support(c, G, d):
         return float(d @ c)
     res = linprog(-(G.T @ d), bounds=[(-1, 1)] * h, method="highs")
     return float(d @ c - res.fun)
+
+
+def exact_pz_value(pz, a, b, x):
+    """``c + G m(a) + GI b - x`` in exact rational arithmetic."""
+    out = []
+    for i in range(pz.dim):
+        v = Fr(float(pz.c[i])) - Fr(float(x[i]))
+        for j in range(pz.n_dependent):
+            m = Fr(1)
+            for k in range(pz.n_factors):
+                m *= Fr(float(a[k])) ** int(pz.E[k, j])
+            v += Fr(float(pz.G[i, j])) * m
+        for j in range(pz.n_independent):
+            v += Fr(float(pz.GI[i, j])) * Fr(float(b[j]))
+        out.append(v)
+    return out

@@ -164,16 +164,9 @@ def _exact_residual_ok(pz, a, x, eps):
     """|c + G m(a) - x|_inf <= eps in exact rational arithmetic (independent of the float check)."""
     from fractions import Fraction as Fr
 
-    for i in range(pz.dim):
-        v = Fr(float(pz.c[i])) - Fr(float(x[i]))
-        for j in range(pz.n_dependent):
-            m = Fr(1)
-            for k in range(pz.n_factors):
-                m *= Fr(float(a[k])) ** int(pz.E[k, j])
-            v += Fr(float(pz.G[i, j])) * m
-        if abs(v) > Fr(eps):
-            return False
-    return True
+    from _sets_truth import exact_pz_value
+
+    return all(abs(v) <= Fr(eps) for v in exact_pz_value(pz, a, [0.0] * pz.n_independent, x))
 
 
 def _assert_witnesses_exact(pz, v, X, eps):

@@ -14,6 +14,7 @@ from fractions import Fraction as Fr
 
 import numpy as np
 import pytest
+from _sets_truth import exact_pz_value
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -126,22 +127,6 @@ def test_classify_zonotope_union_verdicts_agree_with_exact_arithmetic(seed, n):
     for i in np.flatnonzero(v.inside | v.outside):
         truth = any(exact_inside(c, G, X[i], eps) for c, G in parts)
         assert truth == bool(v.inside[i]), (i, X[i].tolist(), bool(v.inside[i]))
-
-
-def exact_pz_value(pz, a, b, x):
-    """``c + G m(a) + GI b - x`` in exact rational arithmetic."""
-    out = []
-    for i in range(pz.dim):
-        v = Fr(float(pz.c[i])) - Fr(float(x[i]))
-        for j in range(pz.n_dependent):
-            m = Fr(1)
-            for k in range(pz.n_factors):
-                m *= Fr(float(a[k])) ** int(pz.E[k, j])
-            v += Fr(float(pz.G[i, j])) * m
-        for j in range(pz.n_independent):
-            v += Fr(float(pz.GI[i, j])) * Fr(float(b[j]))
-        out.append(v)
-    return out
 
 
 def known_preimage_points(seed, rel_eps, k=20):
