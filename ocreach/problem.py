@@ -94,6 +94,11 @@ class ControlSet:
         r = rng.uniform(size=shape + (1,)) ** (1.0 / self.dim)
         return g * r
 
+    def max_norm(self) -> float:
+        """The largest ``||u||_2`` of the set: 1 on the ball, ``sqrt(dim)`` at a corner of the box."""
+        self._bounded("max_norm")
+        return 1.0 if self.kind == "ball" else float(np.sqrt(self.dim))
+
     def sample_boundary(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         """Samples on the boundary (unit sphere, or the box's vertices for ``"box"``)."""
         self._bounded("sample_boundary")

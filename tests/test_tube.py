@@ -141,8 +141,8 @@ def test_trigger_and_hysteresis_fire_exactly_at_the_crossings():
     assert trigger_signal([0.2, 1.0 + 1e-12, 0.5], beta=0.5, m=1).tolist() == [False, True, False]
 
 
-@pytest.mark.parametrize("kw", [dict(beta=1.0), dict(beta=1.5), dict(beta=0.0), dict(m=-1),
-                                dict(m=0), dict(m=2.5), dict(beta=float("nan"))])
+@pytest.mark.parametrize("kw", [{"beta": 1.0}, {"beta": 1.5}, {"beta": 0.0}, {"m": -1},
+                                {"m": 0}, {"m": 2.5}, {"beta": float("nan")}])
 def test_bad_trigger_options_raise(kw):
     with pytest.raises(ProblemError):
         EventTrigger(**kw)

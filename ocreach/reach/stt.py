@@ -519,14 +519,14 @@ class STTReach(Method):
         opt = self.options
         model = problem.model
         kind = opt.input_set or problem.control_set.kind
-        # ||u|| (mass flow) has no expansion at the reference control u = 0: expand the relaxed
-        # dynamics with the throttle as an extra input instead (Model.throttle_relaxed), up to
-        # the largest ||u|| of the input set (sqrt(n_u) at a corner of the box)
-        self._model = smodel = model.throttle_relaxed(1.0 if kind == "ball" else float(np.sqrt(model.n_u)))
-        n_thr = smodel.n_u - model.n_u
         if kind not in INPUT_SETS:
             raise ProblemError(f"method 'stt' needs a 'box' or 'ball' input set; the problem's control "
                                f"set is {problem.control_set.kind!r} and input_set={opt.input_set!r}")
+        # ||u|| (mass flow) has no expansion at the reference control u = 0: expand the relaxed
+        # dynamics with the throttle as an extra input instead (Model.throttle_relaxed), up to
+        # the largest ||u|| of the input set (sqrt(n_u) at a corner of the box)
+        self._model = smodel = model.throttle_relaxed(ControlSet(kind, model.n_u).max_norm())
+        n_thr = smodel.n_u - model.n_u
         if opt.h_max < model.n_x:
             raise ProblemError(f"h_max must be >= n_x = {model.n_x}; got {opt.h_max}")
         grid = problem.grid

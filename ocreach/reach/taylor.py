@@ -297,9 +297,7 @@ def relax_throttle(problem: Problem, V: Zonotope) -> tuple[Problem, Zonotope, st
     model = problem.model
     if model.throttle is None:
         return problem, V, ""
-    cs = problem.control_set
-    top = 1.0 if cs.kind == "ball" else float(np.sqrt(cs.dim))
-    sigma_max = float(up(top * (1.0 + THROTTLE_MARGIN), 2))
+    sigma_max = float(up(problem.control_set.max_norm() * (1.0 + THROTTLE_MARGIN), 2))
     relaxed = model.throttle_relaxed(sigma_max)
     out = dataclasses.replace(problem, model=relaxed, control_set=ControlSet("box", relaxed.n_u))
     VS = V.cartesian(Zonotope(np.zeros(1), np.eye(1)))

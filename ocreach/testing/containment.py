@@ -66,14 +66,6 @@ def _zonotope_parts(S) -> list[Zonotope] | None:
     return None
 
 
-def _pz_parts(S) -> list[PolyZonotope] | None:
-    if isinstance(S, PZUnion):
-        return list(S.parts)
-    if isinstance(S, PolyZonotope):
-        return [S]
-    return None
-
-
 def check_points(S, points: np.ndarray) -> Verdict:
     """The verdict of every row of ``points`` (N, n) against the guaranteed set ``S``."""
     P = np.atleast_2d(np.asarray(points, dtype=float))
@@ -83,16 +75,14 @@ def check_points(S, points: np.ndarray) -> Verdict:
     if zs is not None:
         g = np.atleast_1d(union_gauge(ZonotopeUnion([_enlarged(z, eps) for z in zs]), P))
         return Verdict(g, g > 1 + GAUGE_TOL, np.zeros(N, bool), True)
-    pzs = _pz_parts(S)
-    if pzs is not None:
-        return _check_pz(pzs, P, eps)
+    if isinstance(S, (PolyZonotope, PZUnion)):
+        return _check_pz(S, P, eps)
     return _check_support(S, P, eps)
 
 
-def _check_pz(parts: list[PolyZonotope], P: np.ndarray, eps: float) -> Verdict:
+def _check_pz(S: PolyZonotope | PZUnion, P: np.ndarray, eps: float) -> Verdict:
     from ocreach.sets.pz_witness import classify
 
-    S = parts[0] if len(parts) == 1 else PZUnion(parts)
     v = classify(S, P, eps)
     gauge = np.where(v.outside, np.inf, 1.0)
     return Verdict(gauge, v.outside, v.undecided, True)
