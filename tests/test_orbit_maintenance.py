@@ -342,6 +342,30 @@ def test_interrupted_monte_carlo_resumes_from_its_store(tmp_path, short):
     assert mc.records["xaxis"][0]["dv_total_mps"] == again["dv_total_mps"]  # seeded
 
 
+def test_tube_intervals_on_pool_workers_equal_the_driver_s(short, monkeypatch):
+    """A first run computes the drift tubes' refresh intervals on the Monte Carlo's workers
+    (each rebuilds the scenario from the plain settings): the same tubes as in the driver."""
+    import ocreach.control.stationkeeping.ephemeris_tubes as et
+    from ocreach.control.stationkeeping.impulsive_tube import _compute_tubes
+    from ocreach.sweep.executors import process_pool
+
+    settings, sc = short
+    # three short intervals (the driver chooses them; a worker encloses the one it is given)
+    monkeypatch.setattr(et, "refresh_starts", lambda reference, end: [0, 5, 10])
+    G = settings.navigation.box(sc.units)
+    W = 1e-9
+    here = _compute_tubes(sc, G, W, "taylor-or-linear", 16, settings, None, False)
+    with process_pool(2) as pool:
+        there = _compute_tubes(sc, G, W, "taylor-or-linear", 16, settings, pool.executor, False)
+    assert [r["steps"][0] for r in here["log"]] == list(here["starts"])
+    assert here["starts"][:3].tolist() == [0, 5, 10]
+    assert all(r["guaranteed"] for r in here["log"]), here["log"]
+    assert np.all(np.isfinite(here["half_widths"])) and here["half_widths"].shape == (16, 6)
+    np.testing.assert_array_equal(there["half_widths"], here["half_widths"])
+    np.testing.assert_array_equal(there["starts"], here["starts"])
+    assert there["log"] == here["log"]
+
+
 def test_monte_carlo_runs_run_by_run_across_the_controllers(short):
     """An interrupted Monte Carlo keeps comparable runs: run i of every controller is queued
     before run i + 1 of any."""

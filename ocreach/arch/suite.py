@@ -275,8 +275,14 @@ def run_suite(ids: list[str], *, method: str | None = None, samples: int = 2000,
                      ) if tr else ""
             acc = f", {run.accuracy_label} = {run.accuracy:.4g}" if run.accuracy is not None else ""
             why = f" -- {run.error[:200]}" if run.error else ""
-            progress(f"[{len(rows)}/{len(ids)}] {run.problem_id} ({run.method}): {run.result} in "
-                     f"{run.time:.2f} s{acc}{extra}{why}")
+            if np.isfinite(run.time):
+                took = f"in {run.time:.2f} s"
+            elif np.isfinite(run.computed_to):
+                took = f"(sets to t = {run.computed_to:.4g}) after {run.reach_s:.2f} s"
+            else:
+                took = f"(no sets) after {run.reach_s:.2f} s"
+            progress(f"[{len(rows)}/{len(ids)}] {run.problem_id} ({run.method}): {run.result} "
+                     f"{took}{acc}{extra}{why}")
         if on_done:
             on_done(run, problem, res)
 

@@ -196,12 +196,15 @@ def serial_executor() -> ExecutorHandle:
 
 def make_executor(workers: int | None = None, *, scheduler: str | None = None,
                   dask_local_workers: int | None = None, serial: bool = False,
-                  executor: Executor | None = None) -> ExecutorHandle:
-    """The executor the options ask for (at most one of them; default: a local process pool)."""
+                  executor: Executor | ExecutorHandle | None = None) -> ExecutorHandle:
+    """The executor the options ask for (at most one of them; default: a local process pool);
+    an :class:`ExecutorHandle` passed as ``executor`` is returned as it is."""
     chosen = [n for n, v in (("scheduler", scheduler), ("dask_local", dask_local_workers),
                              ("serial", serial or None), ("executor", executor)) if v is not None]
     if len(chosen) > 1:
         raise SweepError(f"choose one executor; got {chosen}")
+    if isinstance(executor, ExecutorHandle):  # the caller's, already started (and closed by it)
+        return executor
     if executor is not None:
         if not isinstance(executor, Executor):
             raise SweepError(f"executor must be a concurrent.futures.Executor; got "

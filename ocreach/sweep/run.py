@@ -65,7 +65,8 @@ def auto_chunk(n_tasks: int, n_workers: int) -> int:
     return max(1, min(MAX_AUTO_CHUNK, n_tasks // (20 * max(1, n_workers))))
 
 
-def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | None = None,
+def run_sweep(spec: Spec | str | Path, out: str | Path, *,
+              executor: Executor | ExecutorHandle | None = None,
               workers: int | None = None, scheduler: str | None = None,
               dask_local: int | None = None, serial: bool = False, retry_failed: bool = False,
               max_in_flight: int | None = None, limit: int | None = None, chunk: int | None = None,
@@ -75,11 +76,12 @@ def run_sweep(spec: Spec | str | Path, out: str | Path, *, executor: Executor | 
               desc: str = "sweep") -> RunSummary:
     """Run the pending tasks of ``spec`` into the folder ``out`` (created when new).
 
-    Executor choice: ``executor`` (any Executor), ``serial``, ``scheduler`` (Dask address),
-    ``dask_local`` (LocalCluster size) or, by default, a process pool of ``workers`` (default
-    the core count).  Tasks go out in chunks of ``chunk`` (default :func:`auto_chunk`; 1 for
-    small sweeps) and at most ``max_in_flight`` chunks are submitted and unfinished (default
-    twice the worker count); ``limit`` stops after that many new tasks; ``retry_failed`` reruns
+    Executor choice: ``executor`` (any Executor, or a started
+    :class:`~ocreach.sweep.executors.ExecutorHandle`, which the caller closes), ``serial``,
+    ``scheduler`` (Dask address), ``dask_local`` (LocalCluster size) or, by default, a process
+    pool of ``workers`` (default the core count).  Tasks go out in chunks of ``chunk``
+    (default :func:`auto_chunk`; 1 for small sweeps) and at most ``max_in_flight`` chunks are
+    submitted and unfinished (default twice the worker count); ``limit`` stops after that many new tasks; ``retry_failed`` reruns
     failed ones; ``on_record`` is called with every record written; ``runner`` is the
     module-level function a worker calls on a chunk of payloads ``{"key", "task", "base_dir"}``
     (default :func:`~ocreach.sweep.worker.run_tasks`, ``reach`` tasks; another kind of task

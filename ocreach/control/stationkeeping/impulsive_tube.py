@@ -47,6 +47,7 @@ import hashlib
 import io
 import json
 import logging
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,19 +103,26 @@ class ImpulsiveTubeMPC:
         return int(np.ceil(self.horizon_revolutions)) + 1
 
     # ------------------------------------------------------------------ setup
-    def prepare(self, sc: Scenario, settings) -> None:
-        units = sc.units
-        self._nav = settings.navigation.box(units)
+    def build_tubes(self, sc: Scenario, settings, executor: Executor | None = None,
+                    progress: bool = False) -> dict:
+        """The drift tubes of this controller on ``sc`` (:func:`drift_tubes`: from the disk
+        cache, or computed, their refresh intervals on ``executor`` when given); kept on the
+        scenario for :meth:`prepare`."""
+        nav = settings.navigation.box(sc.units)
         gp = (PAPER_GATE[0] if self.gate_position_km is None
-              else self.gate_position_km * 1e3 / units.length)
+              else self.gate_position_km * 1e3 / sc.units.length)
         gv = (PAPER_GATE[1] if self.gate_velocity_mps is None
-              else self.gate_velocity_mps / units.velocity)
-        self._gate = np.r_[np.full(3, gp), np.full(3, gv)]
-        self._N = int(round(self.horizon_revolutions * sc.M))
+              else self.gate_velocity_mps / sc.units.velocity)
+        gate = np.r_[np.full(3, gp), np.full(3, gv)]
         # the tubes cover the whole reference (the run and its look-ahead): one set of tubes
         # (and one disk-cache entry) for every horizon
-        end = sc.X.shape[0] - 1
-        self._tubes = drift_tubes(sc, self._gate + self._nav, settings, self.tube_source, end)
+        return drift_tubes(sc, gate + nav, settings, self.tube_source, sc.X.shape[0] - 1,
+                           executor=executor, progress=progress)
+
+    def prepare(self, sc: Scenario, settings) -> None:
+        self._nav = settings.navigation.box(sc.units)
+        self._N = int(round(self.horizon_revolutions * sc.M))
+        self._tubes = self.build_tubes(sc, settings)
         self._A = sc.jacobians[0]
         self._solver = None
 
@@ -239,11 +247,15 @@ def _tube_key(sc: Scenario, G: np.ndarray, W: float, source: str, end: int) -> s
     return hashlib.sha256(payload.encode()).hexdigest()[:24]
 
 
-def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int) -> dict:
+def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int,
+                executor: Executor | None = None, progress: bool = False) -> dict:
     """Box drift tubes along the scenario's reference from the initial box ``G`` (half-widths,
     model units) for steps ``0 .. end - 1`` (module doc): ``{"half_widths" (end, 6), "starts"
     (refresh steps), "log" (per interval: steps, source, guaranteed, fallback reason)}``, from
-    the disk cache when it has them."""
+    the disk cache when it has them.  Otherwise the refresh intervals (independent of each
+    other) are computed on ``executor`` (workers rebuild the scenario from ``settings``, its
+    reference from the disk cache), or here one after the other when it is None; ``progress``
+    shows a bar over the intervals."""
     from ocreach.native.compile import cache_dir
 
     key = ("drift_tubes", tuple(np.round(G, 18)), source, end)
@@ -261,7 +273,7 @@ def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int) ->
     except (OSError, ValueError, KeyError):
         out = None
     if out is None:
-        out = _compute_tubes(sc, G, W, source, end)
+        out = _compute_tubes(sc, G, W, source, end, settings, executor, progress)
         from ocreach.fileio import atomic_write_bytes
 
         buf = io.BytesIO()
@@ -275,22 +287,76 @@ def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int) ->
     return out
 
 
-def _compute_tubes(sc: Scenario, G: np.ndarray, W: float, source: str, end: int) -> dict:
-    from ocreach.control.stationkeeping.drift_tubes import as_box
-    from ocreach.control.stationkeeping.ephemeris_tubes import along_reference_schedule
+def interval_rows(sc: Scenario, G: np.ndarray, W: float, source: str, a: int,
+                  b: int) -> list[dict]:
+    """The box tubes covering the refresh interval ``a .. b - 1`` (restarted where the sound
+    method stops, :func:`~ocreach.control.stationkeeping.ephemeris_tubes.interval_tubes`), as
+    rows ``{"steps": [k0, k1], "half_widths" (k1 - k0, 6), "source", "guaranteed",
+    "fallback_reason"}`` in step order."""
+    from ocreach.control.stationkeeping.drift_tubes import ADAPTIVE_TUBE_OPTIONS, as_box
+    from ocreach.control.stationkeeping.ephemeris_tubes import interval_tubes
 
-    schedule = along_reference_schedule(sc.problem, sc.reference, np.diag(G), W, source,
-                                        wrap=as_box, end=end, model_on=sc.plant.frame_model_on)
-    h = np.empty((end, 6))
-    starts = np.asarray(schedule.starts, int)
+    tubes = sorted((as_box(t) for t in interval_tubes(
+        sc.problem, sc.reference, a, b, np.diag(G), W, source, dict(ADAPTIVE_TUBE_OPTIONS),
+        sc.plant.frame_model_on)), key=lambda t: t.k0)
+    ends = [t.k0 for t in tubes[1:]] + [b]
+    return [{"steps": [int(t.k0), int(k1)], "half_widths": t.half_widths()[: k1 - t.k0],
+             "source": t.source, "guaranteed": bool(t.guaranteed),
+             "fallback_reason": (t.meta or {}).get("fallback_reason")}
+            for t, k1 in zip(tubes, ends, strict=True)]
+
+
+def interval_rows_task(settings: dict, G: np.ndarray, W: float, source: str, a: int,
+                       b: int) -> list[dict]:
+    """Worker entry point of :func:`interval_rows`: the scenario of the plain ``settings``
+    (:meth:`~ocreach.control.stationkeeping.orbit_maintenance.MaintenanceSettings.to_dict`),
+    built once per process."""
+    from ocreach.control.stationkeeping.orbit_maintenance import MaintenanceSettings
+    from ocreach.control.stationkeeping.scenario import scenario
+    from ocreach.sweep.worker import _TASK_LOCK, limit_threads
+
+    limit_threads()
+    with _TASK_LOCK:
+        sc = scenario(MaintenanceSettings.from_dict(settings).scenario)
+        return interval_rows(sc, G, W, source, a, b)
+
+
+def _compute_tubes(sc: Scenario, G: np.ndarray, W: float, source: str, end: int, settings,
+                   executor: Executor | None, progress: bool) -> dict:
+    from tqdm import tqdm
+
+    from ocreach.control.stationkeeping.ephemeris_tubes import refresh_starts
+
+    starts = refresh_starts(sc.reference, end)
+    intervals = list(zip(starts, starts[1:] + [end], strict=True))
+    bar = tqdm(total=len(intervals), unit="interval", desc="drift tubes", disable=not progress,
+               dynamic_ncols=True)
+    try:
+        if executor is None:
+            parts = []
+            for a, b in intervals:
+                parts.append(interval_rows(sc, G, W, source, a, b))
+                bar.update()
+        else:
+            plain = settings.to_dict()
+            futures = [executor.submit(interval_rows_task, plain, G, W, source, a, b)
+                       for a, b in intervals]
+            for f in futures:
+                f.add_done_callback(lambda _: bar.update())
+            parts = [f.result() for f in futures]  # in interval order; the first error raises
+    finally:
+        bar.close()
+    h = np.full((end, 6), np.nan)
     log_rows = []
-    for a, b in zip(starts, list(starts[1:]) + [end], strict=True):
-        t = schedule.tube(int(a))
-        h[a:b] = t.half_widths()[: b - a]
-        log_rows.append({"steps": [int(a), int(b)], "source": t.source,
-                         "guaranteed": bool(t.guaranteed),
-                         "fallback_reason": (t.meta or {}).get("fallback_reason")})
-    return {"half_widths": h, "starts": starts, "log": log_rows}
+    for row in (r for part in parts for r in part):
+        k0, k1 = row["steps"]
+        h[k0:k1] = row.pop("half_widths")
+        log_rows.append(row)
+    if not np.all(np.isfinite(h)):
+        raise SolverError(f"the drift tubes leave steps {np.flatnonzero(~np.isfinite(h[:, 0]))[:5]}"
+                          f"... uncovered or not finite")
+    return {"half_widths": h, "starts": np.asarray([r["steps"][0] for r in log_rows], int),
+            "log": log_rows}
 
 
 __all__ = ["ImpulsiveTubeMPC", "PAPER_GATE", "TUBE_SOURCES", "drift_tubes", "srp_disturbance"]

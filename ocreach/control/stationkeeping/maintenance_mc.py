@@ -5,7 +5,8 @@ Each task is one run of one controller: plain data (the settings' :meth:`~ocreac
 stationkeeping.orbit_maintenance.MaintenanceSettings.to_dict`, the controller name and options,
 the run index), keyed by :func:`ocreach.sweep.keys.task_key`.  Workers build the scenario once
 per process (:func:`~ocreach.control.stationkeeping.scenario.scenario`: the corrected reference
-and the drift tubes come from the disk cache the driver filled, :func:`prepare`), run the task
+and the drift tubes come from the disk cache the driver filled, :func:`prepare`; on a first
+run the tubes' refresh intervals are computed on the same executor, one task each), run the task
 (:func:`~ocreach.control.stationkeeping.orbit_maintenance.run_maintenance`) and return its record;
 the driver alone writes the store (:class:`ocreach.sweep.store.Store`: ``sweep.json`` and one
 line per finished run in ``tasks.jsonl``).  An interrupted Monte Carlo (Ctrl-C, a killed driver)
@@ -20,6 +21,7 @@ import os
 import socket
 import time
 import traceback
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,8 @@ from ocreach.control.stationkeeping.orbit_maintenance import (
 )
 from ocreach.control.stationkeeping.scenario import scenario
 from ocreach.errors import ProblemError, check_count
+from ocreach.sweep.executors import make_executor
+from ocreach.sweep.run import sigterm_as_interrupt
 
 TASK_KIND = "orbit-maintenance"
 
@@ -94,10 +98,11 @@ def run_tasks(payloads: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def prepare(settings: MaintenanceSettings, controllers: dict[str, dict]) -> dict[str, float]:
+def prepare(settings: MaintenanceSettings, controllers: dict[str, dict],
+            executor: Executor | None = None, progress: bool = False) -> dict[str, float]:
     """Build, in the driver, what the workers then read from the disk caches (the corrected
-    reference, the drift tubes) and check every controller's options and look-ahead; returns
-    the seconds (wall) each part took."""
+    reference, the drift tubes: their refresh intervals on ``executor`` when given) and check
+    every controller's options and look-ahead; returns the seconds (wall) each part took."""
     t = time.perf_counter()
     sc = scenario(settings.scenario)
     out = {"scenario_s": time.perf_counter() - t}
@@ -107,6 +112,8 @@ def prepare(settings: MaintenanceSettings, controllers: dict[str, dict]) -> dict
             raise ProblemError(f"controller {name!r} looks {ctl.lookahead()} revolutions ahead; "
                                f"lookahead = {settings.scenario.lookahead} (raise it)")
         t = time.perf_counter()
+        if hasattr(ctl, "build_tubes"):  # the long part of a first run: on the workers
+            ctl.build_tubes(sc, settings, executor=executor, progress=progress)
         ctl.prepare(sc, settings)
         out[f"prepare_{name}_s"] = time.perf_counter() - t
     return out
@@ -137,11 +144,22 @@ def run_monte_carlo(settings: MaintenanceSettings, controllers: dict[str, dict],
     spec = task_spec(settings, controllers, runs)
     Store.check(store, spec)  # a foreign folder fails before any work
     t0, c0 = time.perf_counter(), time.process_time()
-    timing: dict[str, Any] = {"prepare": prepare(settings, controllers)}
-    t1 = time.perf_counter()
-    summary = run_sweep(spec, store, workers=workers, dask_local=dask_local,
-                        scheduler=scheduler, serial=serial, progress=progress,
-                        on_record=on_record, runner=run_tasks, desc="orbit maintenance")
+    # one executor for the tubes of a first run and for the runs
+    handle = make_executor(workers, scheduler=scheduler, dask_local_workers=dask_local,
+                           serial=serial)
+    try:
+        with sigterm_as_interrupt():
+            timing: dict[str, Any] = {"prepare": prepare(
+                settings, controllers, executor=None if serial else handle.executor,
+                progress=progress)}
+        t1 = time.perf_counter()
+        summary = run_sweep(spec, store, executor=handle, progress=progress,
+                            on_record=on_record, runner=run_tasks, desc="orbit maintenance")
+    except KeyboardInterrupt:
+        handle.interrupted = True
+        raise
+    finally:
+        handle.close()
     t2 = time.perf_counter()
     log = read_log(Path(store) / LOG)
     by_key = dict(zip(spec.keys, spec.tasks, strict=True))
