@@ -138,7 +138,7 @@ def markdown(plant: dict, loop: dict, mcs: list[dict]) -> str:
         lines += ["", (f"Year-long Monte Carlo{when}: {mc['runs']} runs of each of "
                        f"{', '.join(mc['controllers'])} on {mc['workers']}: "
                        f"{t['total_wall_s'] / 60:.1f} min wall "
-                       f"({t['driver_prepare_wall_s'] / 60:.1f} min preparing in the driver), "
+                       f"({t['driver_prepare_wall_s'] / 60:.1f} min preparing the reference and the tubes), "
                        f"{t['runs_cpu_s'] / 60:.1f} min CPU in the runs."), "",
                   "| controller | Delta-V per year, mean / p95 (m/s) | lost | CPU per revolution (ms) |",
                   "|---|---:|---:|---:|"]

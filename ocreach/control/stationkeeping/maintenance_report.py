@@ -282,7 +282,7 @@ def markdown(data: dict) -> str:
         lines.append(f"- {len(data['failures'])} run(s) failed (metrics.json `failures`).")
     t = data["timing"]
     lines += ["", f"Time: {t['total_wall_s']:.0f} s wall ({t['driver_prepare_wall_s']:.0f} s "
-              f"preparing the reference and tubes in the driver, {t['monte_carlo_wall_s']:.0f} s "
+              f"preparing the reference and the tubes, {t['monte_carlo_wall_s']:.0f} s "
               f"of runs on {t['executor']}); {t['runs_cpu_s']:.0f} s of CPU in the runs "
               f"({t['ran_now']} run now, {t['already_finished']} from the store {data['store']}).",
               "", "Figures: " + ", ".join(f"`{f}`" for f in FIGURES) + "."]
