@@ -253,9 +253,9 @@ def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int,
     model units) for steps ``0 .. end - 1`` (module doc): ``{"half_widths" (end, 6), "starts"
     (refresh steps), "log" (per interval: steps, source, guaranteed, fallback reason)}``, from
     the disk cache when it has them.  Otherwise the refresh intervals (independent of each
-    other) are computed on ``executor`` (workers rebuild the scenario from ``settings``, its
-    reference from the disk cache), or here one after the other when it is None; ``progress``
-    shows a bar over the intervals."""
+    other) are computed on ``executor`` (workers rebuild the scenario from
+    ``settings.scenario``, its reference from the disk cache), or here one after the other when
+    it is None; ``progress`` shows a bar over the intervals."""
     from ocreach.native.compile import cache_dir
 
     key = ("drift_tubes", tuple(np.round(G, 18)), source, end)
@@ -306,18 +306,17 @@ def interval_rows(sc: Scenario, G: np.ndarray, W: float, source: str, a: int,
             for t, k1 in zip(tubes, ends, strict=True)]
 
 
-def interval_rows_task(settings: dict, G: np.ndarray, W: float, source: str, a: int,
+def interval_rows_task(spec: dict, G: np.ndarray, W: float, source: str, a: int,
                        b: int) -> list[dict]:
-    """Worker entry point of :func:`interval_rows`: the scenario of the plain ``settings``
-    (:meth:`~ocreach.control.stationkeeping.orbit_maintenance.MaintenanceSettings.to_dict`),
-    built once per process."""
-    from ocreach.control.stationkeeping.orbit_maintenance import MaintenanceSettings
-    from ocreach.control.stationkeeping.scenario import scenario
+    """Worker entry point of :func:`interval_rows`: the scenario of the plain ``spec``
+    (:meth:`~ocreach.control.stationkeeping.scenario.ScenarioSpec.as_dict`), built once per
+    process."""
+    from ocreach.control.stationkeeping.scenario import ScenarioSpec, scenario
     from ocreach.sweep.worker import _TASK_LOCK, limit_threads
 
     limit_threads()
     with _TASK_LOCK:
-        sc = scenario(MaintenanceSettings.from_dict(settings).scenario)
+        sc = scenario(ScenarioSpec.from_dict(spec))
         return interval_rows(sc, G, W, source, a, b)
 
 
@@ -338,7 +337,7 @@ def _compute_tubes(sc: Scenario, G: np.ndarray, W: float, source: str, end: int,
                 parts.append(interval_rows(sc, G, W, source, a, b))
                 bar.update()
         else:
-            plain = settings.to_dict()
+            plain = settings.scenario.as_dict()
             futures = [executor.submit(interval_rows_task, plain, G, W, source, a, b)
                        for a, b in intervals]
             for f in futures:

@@ -134,13 +134,10 @@ class MaintenanceSettings:
 
     @classmethod
     def from_dict(cls, d: dict) -> MaintenanceSettings:
-        s = dict(d["scenario"])
-        srp = {k: v for k, v in s.pop("srp").items() if k != "p_1au_n_m2"}
-        s["bodies"] = tuple(s["bodies"])
         nav = {k: v for k, v in d["navigation"].items() if k != "enclosure_sigma"}
         exe = dict(d["execution"])
         exe["skipped_burns"] = tuple(exe["skipped_burns"])
-        return cls(scenario=ScenarioSpec(srp=SolarRadiationPressure(**srp), **s),
+        return cls(scenario=ScenarioSpec.from_dict(d["scenario"]),
                    navigation=NavigationErrors(**nav), execution=ExecutionErrors(**exe),
                    burn_anomaly_deg=d["burn_anomaly_deg"], loss_ratio=d["loss_ratio"],
                    seed=d["seed"])

@@ -66,6 +66,14 @@ class ScenarioSpec:
         out["bodies"] = list(self.bodies)
         return out
 
+    @classmethod
+    def from_dict(cls, d: dict) -> ScenarioSpec:
+        """The inverse of :meth:`as_dict` (the SRP's derived fields dropped)."""
+        s = dict(d)
+        srp = {k: v for k, v in s.pop("srp").items() if k != "p_1au_n_m2"}
+        s["bodies"] = tuple(s["bodies"])
+        return cls(srp=SolarRadiationPressure(**srp), **s)
+
 
 class Scenario:
     """A built scenario (module doc).  ``steps``: control steps of a run; ``M``: steps per
