@@ -23,6 +23,12 @@ The CI profile of the same harness is ``tests/test_soundness_harness.py``; the h
 0.1 and 0 on ``--power-systems`` (30) GENERAL systems, seeds 1000 on), which replaces its own
 section of the page.
 
+``--long PIDS``: only the whole-horizon check (comma-separated bundled problems, e.g.
+``elliptic-earth,lunar-flyby``): each guaranteed method (``--methods``) is solved once on the
+full problem to find how far it reaches, then checked by the harness over every step it reached
+with ``--long-samples`` (2,000) trajectories, ``--tube-samples`` of them in the tubes; the table
+replaces its own section of the page.
+
 ``--quick``: 12 + 6 + 6 systems, 2 bundled steps with 500 samples (a smoke run, about 5 minutes).
 Progress (one line per finished system or problem) goes to stderr.
 """
@@ -33,6 +39,7 @@ import datetime
 import os
 import platform
 import sys
+import textwrap
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -146,6 +153,58 @@ def bundled_task(args: tuple[str, int, int, int, tuple[str, ...]]):
     return pid, case.description, outs
 
 
+LONG_HEADING = "## Bundled problems over the whole reached horizon"
+
+
+def long_task(args: tuple[str, str, int, int]):
+    """``method`` on bundled problem ``pid`` over every grid step it reaches on the full problem
+    (one solve to find the reach, then the harness on the problem cut there)."""
+    from ocreach.testing.harness import _solve
+
+    pid, method, n_samples, tube_samples = args
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    (full,) = bundled_cases(steps=10**9, ids=[pid])
+    result, status, reason = _solve(method, full.problem, dict(full.options))
+    n_steps = full.problem.n_segments
+    reached = 0 if result is None or not result.sets else len(result.sets) - 1
+    if reached < 1:
+        why = (f"{status}: {textwrap.shorten(reason.split(';')[0], 120, placeholder=' ...')}"
+               if reason else status)
+        return pid, f"{method}: no step reached ({why})", [], (reached, n_steps,
+                                                              float(full.problem.grid[0]))
+    (case,) = bundled_cases(steps=reached, ids=[pid])
+    out = run_method(method, case, n_samples=n_samples, inner=INNER, seed=1,
+                     tube_samples=tube_samples)
+    return pid, f"{method}: {reached} of {n_steps} steps", [out], (
+        reached, n_steps, float(case.problem.grid[-1]))
+
+
+def long_section(rows, n_samples: int, tube_samples: int, workers: int, seconds: float) -> str:
+    """The ``LONG_HEADING`` section from :func:`long_task` results."""
+    L = [LONG_HEADING, "",
+         f"Each method solved once on the full problem to find the steps it reaches with its "
+         f"default options, then checked by the harness over all of them: {n_samples:,} truth "
+         f"trajectories ({min(tube_samples, n_samples):,} of them in the tubes), every grid time "
+         f"and the tubes at a quarter, half and three quarters of each step and at both ends (run "
+         f"{datetime.date.today().isoformat()}, {platform.machine()}, {os.cpu_count()} cores "
+         f"shared, {workers} worker(s), {seconds / 60:.1f} min).", "",
+         "| problem | method | reached (steps) | t reached (model time units) | status | sets | "
+         "tubes | points | escapes | max gauge | time [s] |", "|---" * 11 + "|"]
+    for pid, desc, outs, (reached, n_steps, t_end) in rows:
+        if not outs:
+            method, why = desc.split(": no step reached (", 1)
+            L.append(f"| `{pid}` | `{method}` | 0 / {n_steps} | - | {why[:-1].replace('|', '/')} "
+                     "| | | | | | |")
+        for o in outs:
+            L.append(f"| `{pid}` | `{o.method}` | {reached} / {n_steps} | {t_end:.6g} | "
+                     f"{o.status} | {o.sets_checked} | {o.tubes_checked} | "
+                     f"{o.points_checked:,} | **{o.escapes}** | {o.max_gauge:.6g} | "
+                     f"{o.seconds:.0f} |")
+    bad = [o for r in rows for o in r[2] if not o.ok]
+    L += ["", "Failures:", ""] + ([f"- {o.line()}" for o in bad] or ["- none"])
+    return "\n".join(L) + "\n"
+
+
 def _map(fn, tasks, workers: int):
     """``[fn(t) for t in tasks]`` on ``workers`` processes, a progress line per finished task."""
     t0 = time.perf_counter()
@@ -201,6 +260,9 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--power", action="store_true", help="only the power-curve section")
     ap.add_argument("--power-systems", type=int, default=30)
+    ap.add_argument("--long", default="",
+                    help="only the whole-horizon check of these comma-separated bundled problems")
+    ap.add_argument("--long-samples", type=int, default=2_000)
     ap.add_argument("--methods", default="",
                     help="comma-separated guaranteed methods (default: every one; a subset skips "
                          "the halved-remainder copy)")
@@ -222,6 +284,21 @@ def main() -> None:
     unknown = sorted(set(methods) - set(known))
     if unknown:
         ap.error(f"--methods: {unknown} are not guaranteed methods; allowed: {known}")
+    if a.long:
+        from ocreach.registry import problem_factories
+
+        pids = [p.strip() for p in a.long.split(",") if p.strip()]
+        bad = sorted(set(pids) - set(problem_factories()))
+        if bad:
+            ap.error(f"--long: {bad} are not bundled problems; allowed: "
+                     f"{sorted(problem_factories())}")
+        rows = _map(long_task, [(pid, m, a.long_samples, a.tube_samples) for pid in pids
+                                for m in methods], a.workers)
+        text = long_section(rows, a.long_samples, a.tube_samples, a.workers,
+                            time.perf_counter() - t_start)
+        print(text)
+        print(f"written: {replace_markdown_section(a.out, text)}")
+        return
     with_mutant = set(methods) == set(known)
     from ocreach.registry import problem_factories
 
@@ -299,11 +376,12 @@ def main() -> None:
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     text = "\n".join(L)
-    if out.is_file() and POWER_HEADING in out.read_text():  # kept: the --power run's own section
-        old = out.read_text()
-        rest = old[old.index(POWER_HEADING):]
-        nxt = rest.find("\n## ", 1)
-        text = text.rstrip("\n") + "\n\n" + (rest if nxt < 0 else rest[:nxt + 1])
+    for heading in (LONG_HEADING, POWER_HEADING):  # kept: the --long and --power runs' sections
+        old = out.read_text() if out.is_file() else ""
+        if heading in old:
+            rest = old[old.index(heading):]
+            nxt = rest.find("\n## ", 1)
+            text = text.rstrip("\n") + "\n\n" + (rest if nxt < 0 else rest[:nxt + 1])
     atomic_write_text(out, text)
     print("\n".join(L))
     print(f"\nwritten: {out}")

@@ -181,7 +181,7 @@ def test_a_run_that_stops_early_is_checked_against_the_truth_as_far_as_it_got():
     """CVDP20 mu = 2 with taylor stops near t = 3 (the remainder is no longer finite with every
     part in use): the row says unknown with the reason, the sets computed up to there hold the
     suite's 2,000 samples and 2,000 independent ones (numpy right-hand side, SciPy DOP853)."""
-    from ocreach.arch.report import csv_text
+    from ocreach.arch.report import csv_text, markdown
     from ocreach.arch.suite import run_instance
 
     run, p, res = run_instance("arch-cvdp20-mu2", method="taylor", samples=N_TRUTH,
@@ -201,6 +201,8 @@ def test_a_run_that_stops_early_is_checked_against_the_truth_as_far_as_it_got():
         assert np.asarray(union_gauge(res.sets[k], X)).max() <= TOL, f"escape at t = {p.grid[k]}"
     row = csv_text([run]).splitlines()[1].split(",")
     assert row[2] == "" and row[6:8] == ["taylor", f"{run.computed_to:.6g}"] and row[8] == "0"
+    details = markdown([run], "test machine", N_TRUTH, "today")
+    assert "specs not checked (the run stopped)" in details and "specs  s" not in details
 
 
 @pytest.mark.parametrize("method", ["taylor", "poly"])

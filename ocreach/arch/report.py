@@ -86,7 +86,8 @@ def markdown(rows, machine: str, samples: int, date: str, timing: dict | None = 
         lines.append(f"- problem `{r.problem_id}`, method `{r.method}`, options "
                      f"`{ {k: v for k, v in r.options.items() if v} }`")
         cpu = ", ".join(f"{k} {fmt(float(v))}" for k, v in r.cpu_s.items())
-        lines.append(f"- reachable set {fmt(r.reach_s)} s, specs {fmt(r.check_s)} s, warm-up "
+        specs = f"{fmt(r.check_s)} s" if fmt(r.check_s) else "not checked (the run stopped)"
+        lines.append(f"- reachable set {fmt(r.reach_s)} s, specs {specs}, warm-up "
                      f"{fmt(r.warmup_s)} s (wall); CPU s: {cpu}; {r.timesteps} steps")
         for s in r.specs:
             m = f", margin {fmt(s['margin'])}" if s.get("margin") is not None else ""
