@@ -366,6 +366,43 @@ def test_tube_intervals_on_pool_workers_equal_the_driver_s(short, monkeypatch):
     assert there["log"] == here["log"]
 
 
+def test_an_interrupted_first_run_keeps_the_tube_intervals_it_finished(short, monkeypatch,
+                                                                        tmp_path):
+    """The refresh intervals finished before an interruption are kept and not computed again:
+    the resumed tubes equal an uninterrupted computation exactly."""
+    import ocreach.control.stationkeeping.ephemeris_tubes as et
+    import ocreach.control.stationkeeping.impulsive_tube as it
+
+    settings, sc = short
+    monkeypatch.setattr(et, "refresh_starts", lambda reference, end: [0, 5, 10])
+    G = settings.navigation.box(sc.units)
+    W = 1e-9
+    whole = it._compute_tubes(sc, G, W, "taylor-or-linear", 16, settings, None, False)
+    real, computed = it.interval_rows, []
+
+    def interrupted(sc, G, W, source, a, b):
+        if a == 5:
+            raise KeyboardInterrupt
+        computed.append(a)
+        return real(sc, G, W, source, a, b)
+
+    monkeypatch.setattr(it, "interval_rows", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        it._compute_tubes(sc, G, W, "taylor-or-linear", 16, settings, None, False, tmp_path)
+    assert computed == [0] and len(list(tmp_path.glob("interval_*.json"))) == 1
+
+    def counted(sc, G, W, source, a, b):
+        computed.append(a)
+        return real(sc, G, W, source, a, b)
+
+    monkeypatch.setattr(it, "interval_rows", counted)
+    resumed = it._compute_tubes(sc, G, W, "taylor-or-linear", 16, settings, None, False, tmp_path)
+    assert computed == [0, 5, 10]
+    np.testing.assert_array_equal(resumed["half_widths"], whole["half_widths"])
+    np.testing.assert_array_equal(resumed["starts"], whole["starts"])
+    assert resumed["log"] == whole["log"]
+
+
 def test_monte_carlo_runs_run_by_run_across_the_controllers(short):
     """An interrupted Monte Carlo keeps comparable runs: run i of every controller is queued
     before run i + 1 of any."""

@@ -47,8 +47,10 @@ import hashlib
 import io
 import json
 import logging
+import shutil
 from concurrent.futures import Executor
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -255,7 +257,9 @@ def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int,
     the disk cache when it has them.  Otherwise the refresh intervals (independent of each
     other) are computed on ``executor`` (workers rebuild the scenario from
     ``settings.scenario``, its reference from the disk cache), or here one after the other when
-    it is None; ``progress`` shows a bar over the intervals."""
+    it is None; ``progress`` shows a bar over the intervals.  Each finished interval is kept
+    beside the cache file until the whole is written, so an interrupted first run resumes where
+    it stopped."""
     from ocreach.native.compile import cache_dir
 
     key = ("drift_tubes", tuple(np.round(G, 18)), source, end)
@@ -273,7 +277,8 @@ def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int,
     except (OSError, ValueError, KeyError):
         out = None
     if out is None:
-        out = _compute_tubes(sc, G, W, source, end, settings, executor, progress)
+        parts_dir = path.with_suffix(".parts")
+        out = _compute_tubes(sc, G, W, source, end, settings, executor, progress, parts_dir)
         from ocreach.fileio import atomic_write_bytes
 
         buf = io.BytesIO()
@@ -281,6 +286,7 @@ def drift_tubes(sc: Scenario, G: np.ndarray, settings, source: str, end: int,
                  log=json.dumps(out["log"]))
         try:
             atomic_write_bytes(path, buf.getvalue())
+            shutil.rmtree(parts_dir, ignore_errors=True)  # kept in the whole file now
         except OSError as exc:
             log.warning("could not cache the drift tubes in %s: %s", path.parent, exc)
     sc.cache[key] = out
@@ -321,30 +327,42 @@ def interval_rows_task(spec: dict, G: np.ndarray, W: float, source: str, a: int,
 
 
 def _compute_tubes(sc: Scenario, G: np.ndarray, W: float, source: str, end: int, settings,
-                   executor: Executor | None, progress: bool) -> dict:
+                   executor: Executor | None, progress: bool,
+                   parts_dir: Path | None = None) -> dict:
+    """The refresh intervals' rows (:func:`drift_tubes`), each kept in ``parts_dir`` as soon as
+    it is computed and read from there on the next call, so an interrupted first run keeps the
+    intervals it finished."""
+    from concurrent.futures import as_completed
+
     from tqdm import tqdm
 
     from ocreach.control.stationkeeping.ephemeris_tubes import refresh_starts
 
     starts = refresh_starts(sc.reference, end)
     intervals = list(zip(starts, starts[1:] + [end], strict=True))
-    bar = tqdm(total=len(intervals), unit="interval", desc="drift tubes", disable=not progress,
-               dynamic_ncols=True)
+    parts = {ab: _read_interval(parts_dir, ab) for ab in intervals}
+    todo = [ab for ab in intervals if parts[ab] is None]
+    bar = tqdm(total=len(intervals), initial=len(intervals) - len(todo), unit="interval",
+               desc="drift tubes", disable=not progress, dynamic_ncols=True)
+
+    def done(ab: tuple[int, int], rows: list[dict]) -> None:
+        parts[ab] = rows
+        _write_interval(parts_dir, ab, rows)
+        bar.update()
+
     try:
         if executor is None:
-            parts = []
-            for a, b in intervals:
-                parts.append(interval_rows(sc, G, W, source, a, b))
-                bar.update()
+            for a, b in todo:
+                done((a, b), interval_rows(sc, G, W, source, a, b))
         else:
             plain = settings.scenario.as_dict()
-            futures = [executor.submit(interval_rows_task, plain, G, W, source, a, b)
-                       for a, b in intervals]
-            for f in futures:
-                f.add_done_callback(lambda _: bar.update())
-            parts = [f.result() for f in futures]  # in interval order; the first error raises
+            futures = {executor.submit(interval_rows_task, plain, G, W, source, a, b): (a, b)
+                       for a, b in todo}
+            for f in as_completed(futures):  # the first error raises; the finished are kept
+                done(futures[f], f.result())
     finally:
         bar.close()
+    parts = [parts[ab] for ab in intervals]
     h = np.full((end, 6), np.nan)
     log_rows = []
     for row in (r for part in parts for r in part):
@@ -356,6 +374,40 @@ def _compute_tubes(sc: Scenario, G: np.ndarray, W: float, source: str, end: int,
                           f"... uncovered or not finite")
     return {"half_widths": h, "starts": np.asarray([r["steps"][0] for r in log_rows], int),
             "log": log_rows}
+
+
+def _interval_file(parts_dir: Path, ab: tuple[int, int]) -> Path:
+    return parts_dir / f"interval_{ab[0]}_{ab[1]}.json"
+
+
+def _read_interval(parts_dir: Path | None, ab: tuple[int, int]) -> list[dict] | None:
+    """The rows of interval ``ab`` kept by an earlier call, or None (none kept, or unreadable)."""
+    if parts_dir is None:
+        return None
+    try:
+        rows = json.loads(_interval_file(parts_dir, ab).read_text())
+        for r in rows:
+            r["half_widths"] = np.asarray(r["half_widths"], dtype=float).reshape(-1, 6)
+            k0, k1 = r["steps"]
+            if r["half_widths"].shape[0] != k1 - k0:
+                return None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return rows
+
+
+def _write_interval(parts_dir: Path | None, ab: tuple[int, int], rows: list[dict]) -> None:
+    """Keep the rows of interval ``ab`` (plain JSON; the floats round-trip exactly)."""
+    if parts_dir is None:
+        return
+    from ocreach.fileio import atomic_write_text
+
+    plain = [{**r, "half_widths": np.asarray(r["half_widths"]).tolist()} for r in rows]
+    try:
+        parts_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(_interval_file(parts_dir, ab), json.dumps(plain))
+    except OSError as exc:
+        log.warning("could not keep the drift tubes of steps %s in %s: %s", ab, parts_dir, exc)
 
 
 __all__ = ["ImpulsiveTubeMPC", "PAPER_GATE", "TUBE_SOURCES", "drift_tubes", "srp_disturbance"]
