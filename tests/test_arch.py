@@ -254,7 +254,8 @@ def _least_norm_inside(Z, P: np.ndarray) -> np.ndarray:
 def _in_pieces(res, loc: str, X: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Per row, True if ``(x, t)`` lies in some piece of location ``loc`` covering time ``t``:
     first the least-norm factor test on every candidate piece (narrowest time range first), then
-    the membership certificate with its LP, then the exact LP gauge for the rows still open."""
+    the membership certificate with its LP, then the exact LP gauge (<= TOL) for the rows still
+    open."""
     P = np.column_stack([X, t])
     ok = np.zeros(P.shape[0], dtype=bool)
     pcs = sorted((pc for pc in res.pieces if pc.location == loc and pc.t_hi >= t.min() - 1e-9
@@ -280,10 +281,12 @@ def _in_pieces(res, loc: str, X: np.ndarray, t: np.ndarray) -> np.ndarray:
             idx = candidates(pc, I)
             if idx.size:
                 ok[idx[test(pc.set, P[idx])]] = True
-    for i in np.flatnonzero(~ok):
-        near = [pc for pc in pcs if pc.t_lo - 1e-9 <= t[i] <= pc.t_hi + 1e-9]
-        ok[i] = min((float(union_gauge(pc.set, P[i], exact=True)) for pc in near),
-                    default=np.inf) <= TOL
+    # the exact LP gauge of the rows still open, batched per piece (a row within TOL of a
+    # piece lies in its box widened as in candidates)
+    for pc, I in zip(pcs, boxes):
+        idx = candidates(pc, I)
+        if idx.size:
+            ok[idx[np.atleast_1d(union_gauge(pc.set, P[idx], exact=True)) <= TOL]] = True
     return ok
 
 
@@ -294,8 +297,10 @@ def _in_sets(sets, P: np.ndarray) -> np.ndarray:
         idx = np.flatnonzero(~ok)
         if idx.size:
             ok[idx[np.atleast_1d(gauge(Z, P[idx], lp=False)) <= 1.0]] = True
-    for i in np.flatnonzero(~ok):
-        ok[i] = min(float(union_gauge(Z, P[i], exact=True)) for Z in sets) <= TOL
+    for Z in sets:  # the exact LP gauges of the rows still open, batched per set
+        idx = np.flatnonzero(~ok)
+        if idx.size:
+            ok[idx[np.atleast_1d(union_gauge(Z, P[idx], exact=True)) <= TOL]] = True
     return ok
 
 

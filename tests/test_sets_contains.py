@@ -296,3 +296,44 @@ def test_gauge_lp_argument_is_checked():
     for bad in ("membership", 1, None):
         with pytest.raises(SetError, match="lp must be True, False, 'membership-lp' or"):
             gauge(Z, x, lp=bad)
+
+
+@SET
+@given(st.integers(0, 10_000))
+def test_union_gauge_within_settles_only_points_whose_gauge_is_below_it(seed):
+    """``union_gauge(..., within=w)``: a point reported <= w has an exact gauge <= w (it is an
+    upper bound, never below the exact gauge by more than rounding), a point whose exact gauge
+    exceeds w keeps its exact value, and the points on a part's boundary (gauge exactly 1, the
+    vertex states of the truth checks) are all reported <= w."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 5))
+    parts = [Zonotope(rng.normal(size=n), rng.normal(size=(n, int(rng.integers(n, 3 * n + 2)))))
+             for _ in range(int(rng.integers(1, 3)))]
+    w = 1 + 1e-9
+    pts = []
+    for Z in parts:
+        d = rng.normal(size=(5, n))
+        V = Z.c + np.sign(d @ Z.G) @ Z.G.T  # vertices: gauge 1 in Z
+        for s in (0.5, 1.0, 1 + 3e-10, 1 + 1e-7, 1.5):
+            pts.append(Z.c + s * (V - Z.c))
+    pts = np.vstack(pts + [rng.normal(size=(5, n)) * 3])
+    U = ZonotopeUnion(parts)
+    exact = np.atleast_1d(union_gauge(U, pts, exact=True))
+    g = np.atleast_1d(union_gauge(U, pts, within=w))
+    assert np.all(g >= exact * (1 - 1e-9) - 1e-12)
+    clear = np.abs(exact - w) > 1e-10  # not within rounding of the threshold itself
+    assert np.array_equal((g <= w)[clear], (exact <= w)[clear])
+    above = exact > w + 1e-10
+    assert np.allclose(g[above], exact[above], rtol=1e-9)
+    assert np.all(g[exact <= 1.0 + 1e-12] <= w)
+
+
+def test_union_gauge_within_is_checked():
+    import pytest
+
+    from ocreach.errors import SetError
+
+    Z = Zonotope(np.zeros(2), np.eye(2))
+    for bad in (1.0, 0.5, float("nan"), float("inf")):
+        with pytest.raises(SetError, match="within must be a finite number > 1"):
+            union_gauge(Z, np.zeros(2), within=bad)

@@ -383,3 +383,36 @@ def test_time_switch_hidden_from_the_trace_is_still_refused():
                 initial_set=Zonotope([0.5, 0.0], np.diag([0.05, 0.05])))
     with pytest.raises(ProblemError, match="autonomous"):
         ocreach.reach(p, "sdc")
+
+
+def test_a_blown_up_bound_is_not_dropped_from_a_box():
+    """A NaN radius (an overflowed bound) keeps its generator, so the set is visibly not finite
+    (before, ``r > 0`` dropped it and the box lost that direction's width silently)."""
+    from ocreach.reach.linsys import all_finite, diag_columns
+    from ocreach.reach.taylor_step import interval_box
+
+    assert diag_columns(np.array([1.0, 0.0, np.nan])).shape == (3, 2)
+    assert not all_finite(interval_box(np.array([np.nan, 0.0]), np.array([1.0, np.inf])))
+
+
+def test_taylor_stops_with_an_error_where_the_solution_blows_up():
+    """x' = x^2 (and x^3) from around 1 escapes to infinity near t = 0.45: both algorithms stop
+    with a SolverError and the sets so far, finite and containing the exact solutions."""
+    x = ca.SX.sym("x", 2)
+    u = ca.SX.sym("u", 1)
+    m = Model.build("blowup", x, u, ca.vertcat(x[0] ** 2, x[1] ** 3 + 0 * u[0]),
+                    control_set="box")
+    p = Problem(id="blowup", model=m, x0=np.ones(2), grid=np.linspace(0, 2, 41),
+                initial_set=Zonotope([1.0, 1.0], 0.05 * np.eye(2)))
+    corners = np.array([[a, b] for a in (0.95, 1.05) for b in (0.95, 1.05)])
+    for alg in ("dt", "ct"):
+        with pytest.raises(SolverError) as err:
+            ocreach.reach(p, "taylor", alg=alg, split=False)
+        part = err.value.partial
+        assert 0 < len(part.sets) < p.grid.size
+        for k, S in enumerate(part.sets):
+            assert np.all(np.isfinite(S.c)) and np.all(np.isfinite(S.G))
+            t = float(part.times[k])
+            exact = np.column_stack([corners[:, 0] / (1 - t * corners[:, 0]),
+                                     corners[:, 1] / np.sqrt(1 - 2 * t * corners[:, 1] ** 2)])
+            assert union_gauge(S, exact).max() <= 1 + 1e-9, (alg, k)

@@ -49,7 +49,8 @@ def cmd_arch(args: argparse.Namespace) -> int:
     target = out.commit()
     print(summary_line(rows) + f"; {writer.timing['total (wall)']:.0f} s wall on {workers} "
           f"worker(s)")
-    print(f"wrote {target}/arch.csv, arch.md, results.json and {len(writer.by_bench)} figure(s)")
+    figs = f" and {len(writer.by_bench)} figure(s)" if writer.figures else " (no figures)"
+    print(f"wrote {target}/arch.csv, arch.md, results.json{figs}")
     return 0
 
 

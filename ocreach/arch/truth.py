@@ -9,8 +9,12 @@ the step's tube.  A hybrid problem's samples come from
 after each jump, and at the middle of the grid steps, inside the sub-step tubes) must lie in a
 flowpipe piece of its location whose clock range contains its time, as the point ``(x, t)``.
 A guaranteed run that stopped early is checked up to where it got.  Membership is the exact
-gauge of :func:`ocreach.sets.union.gauge` (LP-free certificates first, then the LP of the exact
-membership test, the exact gauge LP for points inside no set), with tolerance ``1 + 1e-9``.
+gauge of :func:`ocreach.sets.union.gauge` with tolerance ``GAUGE_TOL = 1 + 1e-9``: LP-free
+certificates first, on the sets and then on the sets scaled by ``GAUGE_TOL`` (the states from
+the vertices of the initial box lie on the sets' boundary), then the LP of the exact membership
+test on the scaled sets, the exact gauge LP only for points inside none of those.  A point
+settled on a scaled set counts with the gauge ``GAUGE_TOL`` (an upper bound) in the worst
+gauge.
 """
 from __future__ import annotations
 
@@ -22,7 +26,7 @@ import numpy as np
 
 from ocreach.sets.polyzonotope import PolyZonotope
 from ocreach.sets.pz_union import PZUnion
-from ocreach.sets.union import ZonotopeUnion, gauge, union_gauge
+from ocreach.sets.union import ZonotopeUnion, gauge, scaled, union_gauge
 from ocreach.specs import Samples, check_samples
 
 #: a point is inside a set when its gauge is at most this
@@ -103,7 +107,7 @@ def continuous_truth(problem, result, samples: int = 2000, seed: int = 0,
         if k < min(K - 1, len(tubes)):
             checks.append((tubes[k], traj[:, 2 * k + 1], float(fine[2 * k + 1])))
         for S, Xk, tk in checks:
-            g = np.asarray(union_gauge(_zonotopes(S), Xk))
+            g = np.asarray(union_gauge(_zonotopes(S), Xk, within=GAUGE_TOL))
             truth.points += g.size
             truth.worst_gauge = max(truth.worst_gauge, float(g.max()))
             bad = g > GAUGE_TOL
@@ -171,9 +175,13 @@ def hybrid_truth(problem, result, samples: int = 2000, seed: int = 0, stride: in
     for pc in result.pieces:
         by_loc.setdefault(pc.location, []).append(pc)
     # membership in some piece of the point's location whose clock range holds its time: first
-    # the LP-free certificates, then the exact test, each piece tried only on the points in its
-    # time range and its box (a point outside a piece's box is not in the piece)
-    for lp in ("certificates", "membership-lp"):
+    # the LP-free certificates, then the same on the pieces scaled by GAUGE_TOL about their
+    # centres (gauge <= GAUGE_TOL: the states on the boundary, which the unscaled tests miss by
+    # rounding), then the exact test on the scaled pieces; each piece tried only on the points in
+    # its time range and its box (a point outside a piece's box is not in the piece)
+    scaled_hit = False
+    for lp, scale in (("certificates", 1.0), ("certificates", GAUGE_TOL),
+                      ("membership-lp", GAUGE_TOL)):
         for loc, pcs in by_loc.items():
             idx = np.flatnonzero((L == loc) & ~inside)
             if idx.size == 0:
@@ -191,8 +199,10 @@ def hybrid_truth(problem, result, samples: int = 2000, seed: int = 0, stride: in
                 inb = np.all((P[cand] >= I.lo - tol) & (P[cand] <= I.hi + tol), axis=1)
                 cand = cand[~inside[cand] & inb]
                 if cand.size:
-                    g = np.atleast_1d(gauge(pc.set, P[cand], lp=lp))
-                    inside[cand[g <= 1.0]] = True
+                    Z = pc.set if scale == 1.0 else scaled(pc.set, scale)
+                    hit = cand[np.atleast_1d(gauge(Z, P[cand], lp=lp)) <= 1.0]
+                    inside[hit] = True
+                    scaled_hit |= scale != 1.0 and hit.size > 0
     worst = 0.0
     for i in np.flatnonzero(~inside):  # in no piece: the exact LP gauge over the candidate pieces
         pcs = [pc for pc in by_loc.get(L[i], []) if pc.t_lo - 1e-9 <= T[i] <= pc.t_hi + 1e-9]
@@ -205,7 +215,7 @@ def hybrid_truth(problem, result, samples: int = 2000, seed: int = 0, stride: in
                                         "location": str(L[i]), "gauge": g,
                                         "state": X[i].tolist()}
     truth.points = int(P.shape[0])
-    truth.worst_gauge = max(worst, 1.0 if inside.any() else 0.0)
+    truth.worst_gauge = max(worst, GAUGE_TOL if scaled_hit else float(inside.any()))
     _violations(problem, smp, truth)
     ver = problem.extra.get("verification")
     names = problem.automaton.state_names

@@ -165,8 +165,10 @@ def weighted_sum(w: np.ndarray, Tflat: np.ndarray, n: int) -> np.ndarray:
 
 
 def diag_columns(r: np.ndarray) -> np.ndarray:
-    """The box generators ``diag(r)`` without the zero columns."""
-    return np.diag(r)[:, r > 0]
+    """The box generators ``diag(r)`` without the zero columns.  A NaN radius (a bound that
+    overflowed) keeps its column, so that the set is visibly not finite for the callers'
+    finiteness checks instead of silently losing that direction's width."""
+    return np.diag(r)[:, r != 0]
 
 
 def abs_extent(Z: Zonotope) -> np.ndarray:

@@ -140,23 +140,27 @@ def quadratic_interval(Hlo: np.ndarray, Hhi: np.ndarray, dlo: np.ndarray, dhi: n
     """Interval of ``1/2 d^T H_i d`` for ``H_i in [Hlo_i, Hhi_i]`` (n_x, n_z, n_z) and ``d in [dlo, dhi]``
     (n_z,): interval products termwise, the squares on the diagonal; outward margin 1e-12 of the
     magnitude (floating point of these few products).  The corner products of ``d_a d_b`` and of
-    ``H_iab [d_a d_b]`` are formed as one stacked array each (the same products; min/max exact)."""
-    D = np.stack([dlo, dhi])
-    P = (D[:, None, :, None] * D[None, :, None, :]).reshape(4, dlo.size, dlo.size)
-    Pp = np.stack([P.min(axis=0), P.max(axis=0)])      # [plo, phi]
-    absD = np.abs(D)
-    mag = absD.max(axis=0)
-    mig = np.where((dlo <= 0) & (dhi >= 0), 0.0, absD.min(axis=0))
-    idx = np.arange(dlo.size)
-    Pp[0, idx, idx] = mig**2
-    Pp[1, idx, idx] = mag**2
-    Hs = np.stack([Hlo, Hhi])
-    cands = Hs[:, None] * Pp[None, :, None]          # [Hlo plo, Hlo phi, Hhi plo, Hhi phi]
-    lo = 0.5 * cands.min(axis=(0, 1)).sum(axis=(1, 2))
-    hi = 0.5 * cands.max(axis=(0, 1)).sum(axis=(1, 2))
-    Hmag = np.abs(Hs).max(axis=0)
-    m = 0.5e-12 * (Hmag * np.outer(mag, mag)[None]).sum(axis=(1, 2))
-    return lo - m - 1e-300, hi + m + 1e-300
+    ``H_iab [d_a d_b]`` are formed as one stacked array each (the same products; min/max exact).
+    A set that has blown up gives inf or NaN here, without numpy's overflow warnings: the
+    caller refuses a bound that is not finite (:class:`StepFail`, "the remainder bound is not
+    finite")."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        D = np.stack([dlo, dhi])
+        P = (D[:, None, :, None] * D[None, :, None, :]).reshape(4, dlo.size, dlo.size)
+        Pp = np.stack([P.min(axis=0), P.max(axis=0)])      # [plo, phi]
+        absD = np.abs(D)
+        mag = absD.max(axis=0)
+        mig = np.where((dlo <= 0) & (dhi >= 0), 0.0, absD.min(axis=0))
+        idx = np.arange(dlo.size)
+        Pp[0, idx, idx] = mig**2
+        Pp[1, idx, idx] = mag**2
+        Hs = np.stack([Hlo, Hhi])
+        cands = Hs[:, None] * Pp[None, :, None]          # [Hlo plo, Hlo phi, Hhi plo, Hhi phi]
+        lo = 0.5 * cands.min(axis=(0, 1)).sum(axis=(1, 2))
+        hi = 0.5 * cands.max(axis=(0, 1)).sum(axis=(1, 2))
+        Hmag = np.abs(Hs).max(axis=0)
+        m = 0.5e-12 * (Hmag * np.outer(mag, mag)[None]).sum(axis=(1, 2))
+        return lo - m - 1e-300, hi + m + 1e-300
 
 
 def interval_box(lo: np.ndarray, hi: np.ndarray) -> Zonotope:
@@ -437,6 +441,9 @@ def dt_step(problem: Problem, V: Zonotope, W: Zonotope | None, n_sub: int, Z: Zo
     dlo = np.concatenate([zlo - Z.c, vlo - V.c])
     dhi = np.concatenate([zhi - Z.c, vhi - V.c])
     lo, hi = quadratic_interval(Hlo, Hhi, dlo, dhi)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise SolverError(f"the remainder bound of the RK4 map at t = {t:.6g} is not finite "
+                          "(the set has blown up)")
     gz = up(np.maximum(np.abs(dlo), np.abs(dhi)), 1)
     g = g.ravel()
     e = eval_error(out[:3], (g, J[:, :n], J[:, n:]), gz[:n], gz[n:])
