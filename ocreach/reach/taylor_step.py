@@ -142,8 +142,8 @@ def quadratic_interval(Hlo: np.ndarray, Hhi: np.ndarray, dlo: np.ndarray, dhi: n
     magnitude (floating point of these few products).  The corner products of ``d_a d_b`` and of
     ``H_iab [d_a d_b]`` are formed as one stacked array each (the same products; min/max exact).
     A set that has blown up gives inf or NaN here, without numpy's overflow warnings: the
-    caller refuses a bound that is not finite (:class:`StepFail`, "the remainder bound is not
-    finite")."""
+    callers refuse a bound that is not finite (``ct_step`` with a :class:`StepFail`, ``dt_step``
+    with a :class:`SolverError`)."""
     with np.errstate(over="ignore", invalid="ignore"):
         D = np.stack([dlo, dhi])
         P = (D[:, None, :, None] * D[None, :, None, :]).reshape(4, dlo.size, dlo.size)
